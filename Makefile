@@ -1,0 +1,78 @@
+# FlyTrack: the one entry point. `make demo` and `make test` set everything up themselves.
+# Components add their own targets in mk/<component>.mk (included below).
+
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+ROOT := $(abspath .)
+VENV := $(ROOT)/.venv
+PY := $(VENV)/bin/python
+PYTEST := $(PY) -m pytest
+BUILD := $(ROOT)/build
+JOBS ?= 2
+export PYTHONDONTWRITEBYTECODE := 1
+# So that the C library built here is found by the host's bindings and tests.
+export FLYTRACK_BUILD_DIR := $(BUILD)
+
+# Filled by mk/*.mk
+TEST_C_TARGETS :=
+BENCH_TARGETS :=
+
+.PHONY: help setup build cbuild firmware test test-python test-c lint format bench demo clean
+
+help:
+	@echo "FlyTrack make targets:"
+	@echo "  make demo      run the main job (the largest end-to-end slice that exists)"
+	@echo "  make test      set up, build, run every test (C and Python)"
+	@echo "  make bench     run every benchmark (BENCH_JSON=PATH writes figures as JSON)"
+	@echo "  make build     build the C parts and the firmware"
+	@echo "  make firmware  build the AVR trigger firmware"
+	@echo "  make lint      ruff and clang-format checks"
+	@echo "  per part:      $(sort $(PART_TARGETS))"
+
+setup:
+	@./scripts/setup.sh
+
+cbuild: setup
+	@cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -Wno-dev > $(BUILD).cmake.log 2>&1 \
+	  || { cat $(BUILD).cmake.log; exit 1; }
+	@cmake --build $(BUILD) -j $(JOBS) 2>&1 | grep -vE '^\[ *[0-9]+%\]|^-- ' || true
+	@cmake --build $(BUILD) -j $(JOBS) > /dev/null
+
+build: cbuild firmware
+
+test: build
+	@$(MAKE) --no-print-directory test-c
+	@$(MAKE) --no-print-directory test-python
+
+test-c: cbuild
+	@cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
+
+test-python: setup
+	@$(PYTEST) -q
+
+lint: setup
+	@$(VENV)/bin/ruff check host tests
+	@find protocol edge firmware -name '*.[ch]' | xargs -r clang-format --dry-run --Werror
+
+format: setup
+	@$(VENV)/bin/ruff check --fix host tests || true
+	@find protocol edge firmware -name '*.[ch]' | xargs -r clang-format -i
+
+# Runs every benchmark; with BENCH_JSON=PATH their figures are merged into one JSON file.
+bench: build
+	@mkdir -p $(BUILD)/bench
+	@set -e; for t in $(BENCH_TARGETS); do \
+	  $(MAKE) --no-print-directory $$t BENCH_JSON=$(BUILD)/bench/$$t.json; done
+	@if [ -n "$(BENCH_JSON)" ]; then \
+	  $(PY) scripts/merge_json.py "$(BENCH_JSON)" $(foreach t,$(BENCH_TARGETS),$(BUILD)/bench/$(t).json); fi
+
+demo: build
+	@$(PY) -m flytrack_host.cli demo $(DEMO_ARGS)
+
+clean:
+	rm -rf $(BUILD) $(BUILD).cmake.log
+
+firmware:
+	@true
+
+-include mk/*.mk

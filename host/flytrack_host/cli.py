@@ -1,0 +1,74 @@
+"""`flytrack`: the command line of the FlyTrack host.
+
+Each component adds its own command group (a typer app in its own module) to `_GROUPS` below, so this
+file stays a table of contents.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from flytrack_host import __version__
+from flytrack_host.protocol import PROTOCOL_VERSION
+from flytrack_host.rig import RigError, load_rig
+
+app = typer.Typer(
+    help="FlyTrack: real-time multi-camera 3D tracking of flying animals.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+console = Console()
+err_console = Console(stderr=True)
+
+# (module, attribute, command name, help): command groups that live in their components.
+_GROUPS: list[tuple[str, str, str, str]] = []
+
+
+@app.command()
+def version() -> None:
+    """Print the host version and the wire-protocol version it speaks."""
+    typer.echo(f"flytrack host {__version__}")
+    typer.echo(f"wire protocol version {PROTOCOL_VERSION}")
+
+
+rig_app = typer.Typer(help="Rig files: the TOML that describes cameras, trigger, calibration, tracking.")
+app.add_typer(rig_app, name="rig")
+
+
+@rig_app.command("check")
+def rig_check(
+    path: Path = typer.Argument(..., help="The rig TOML file to validate."),
+) -> None:
+    """Validate a rig file and print every problem with the field and the fix."""
+    try:
+        rig = load_rig(path)
+    except RigError as exc:
+        for line in str(exc).splitlines():
+            err_console.print(f"[red]error[/red] {line}", highlight=False)
+        raise typer.Exit(code=2) from None
+    console.print(f"[green]ok[/green] {path}: rig {rig.name!r}, {len(rig.cameras)} cameras, "
+                  f"trigger {rig.trigger.kind} at {rig.trigger.fps:g} fps", highlight=False)
+    for cam in rig.cameras:
+        console.print(f"  camera {cam.index}: {cam.name} from {cam.edge}", highlight=False)
+
+
+def _register_groups() -> None:
+    for module, attr, name, help_text in _GROUPS:
+        sub = getattr(importlib.import_module(module), attr)
+        app.add_typer(sub, name=name, help=help_text)
+
+
+_register_groups()
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,3 @@
+"""Python codec of the FlyTrack wire protocol (protocol/SPEC.md)."""
+
+PROTOCOL_VERSION = 1

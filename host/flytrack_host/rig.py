@@ -1,0 +1,215 @@
+"""The rig file: one TOML file that describes a whole FlyTrack rig.
+
+It names the cameras and where their feature packets come from, the trigger box, the calibration,
+the tracking parameters, where recordings go, and the actuators. `load_rig` validates it with
+pydantic and turns every problem into a `RigError` whose lines name the file, the field and the fix.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from flytrack_host.tracking.params import TrackingParams
+
+
+class RigError(Exception):
+    """A rig file that cannot be used; `str()` is a message for the user, one problem per line."""
+
+    def __init__(self, path: Path | str, problems: list[str]):
+        self.path = Path(path)
+        self.problems = problems
+        super().__init__("\n".join(f"{self.path}: {p}" for p in problems))
+
+
+def _check_host_port(value: str) -> str:
+    host, sep, port = value.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"{value!r} is not HOST:PORT; write it like '127.0.0.1:7000'")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"port in {value!r} must be a number from 1 to 65535")
+    return value
+
+
+HostPort = Annotated[str, Field(description="HOST:PORT, e.g. 127.0.0.1:7000")]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CameraConfig(_Strict):
+    name: str = Field(min_length=1, description="Camera name, as in the calibration file.")
+    index: int = Field(ge=0, lt=0xFFFF, description="camera_index carried in every feature datagram.")
+    edge: str = Field(
+        "127.0.0.1", description="IP address feature datagrams from this camera come from."
+    )
+    calibration_id: str | None = Field(
+        None, description="Name of the camera in the calibration file, when it differs from `name`."
+    )
+
+    @field_validator("edge")
+    @classmethod
+    def _edge_is_ip(cls, v: str) -> str:
+        try:
+            ipaddress.ip_address(v)
+        except ValueError:
+            raise ValueError(f"{v!r} is not an IP address; write the edge computer's address, e.g. '10.0.0.5'") from None
+        return v
+
+    @property
+    def calib_name(self) -> str:
+        return self.calibration_id or self.name
+
+
+class TriggerConfig(_Strict):
+    kind: Literal["flytrack", "strawlab", "software"] = Field(
+        "flytrack",
+        description="flytrack: FlyTrack firmware; strawlab: a strawlab triggerbox; software: no box (simulation).",
+    )
+    port: str = Field("/dev/ttyUSB0", description="Serial port of the trigger box.")
+    fps: float = Field(100.0, gt=0, le=10000, description="Frame rate to trigger, frames per second.")
+    baud: int = Field(115200, gt=0)
+    clock_query_interval_s: float = Field(0.5, gt=0, description="How often the host samples the device clock.")
+
+
+class HostConfig(_Strict):
+    listen: HostPort = Field("0.0.0.0:7000", description="Where the host receives feature datagrams.")
+    control_port: int = Field(7001, gt=0, lt=65536, description="Edge control port (host -> edge).")
+    live_subscribers: list[HostPort] = Field(
+        default_factory=list, description="UDP HOST:PORT addresses that receive live estimates."
+    )
+    sync_deadline_fraction: float = Field(
+        0.5, gt=0, le=10, description="A frame bundle is tracked at latest this fraction of a frame period after its first packet."
+    )
+
+    @field_validator("listen")
+    @classmethod
+    def _listen(cls, v: str) -> str:
+        return _check_host_port(v)
+
+    @field_validator("live_subscribers")
+    @classmethod
+    def _subs(cls, v: list[str]) -> list[str]:
+        return [_check_host_port(s) for s in v]
+
+
+class RecordingConfig(_Strict):
+    folder: str = Field("recordings", description="Folder for recordings, relative to the rig file.")
+    flush_interval_s: float = Field(1.0, gt=0, le=10, description="Append-only files are flushed this often.")
+
+
+class ActuatorConfig(_Strict):
+    name: str = Field(min_length=1)
+    kind: Literal["trigger_pulse", "modbus", "can", "hid", "udp"] = Field(
+        description="How the actuator is driven."
+    )
+    address: str = Field("", description="Port, HOST:PORT, CAN channel or HID path, by kind.")
+    channel: int = Field(0, ge=0)
+
+
+class RigConfig(_Strict):
+    name: str = Field("rig", description="A name for this rig, written into recordings.")
+    calibration: str | None = Field(
+        None, description="Calibration file (flydra XML or pymvg JSON), relative to the rig file."
+    )
+    cameras: list[CameraConfig] = Field(min_length=1)
+    trigger: TriggerConfig = Field(default_factory=TriggerConfig)
+    host: HostConfig = Field(default_factory=HostConfig)
+    tracking: TrackingParams = Field(default_factory=TrackingParams)
+    recording: RecordingConfig = Field(default_factory=RecordingConfig)
+    actuators: list[ActuatorConfig] = Field(default_factory=list)
+
+    # Filled by load_rig: the folder relative paths are resolved against.
+    base_dir: Path = Field(default=Path("."), exclude=True)
+
+    @model_validator(mode="after")
+    def _unique(self) -> RigConfig:
+        seen_idx: dict[int, str] = {}
+        seen_name: set[str] = set()
+        for cam in self.cameras:
+            if cam.index in seen_idx:
+                raise ValueError(
+                    f"cameras {seen_idx[cam.index]!r} and {cam.name!r} share index {cam.index}; "
+                    "give every camera its own index"
+                )
+            if cam.name in seen_name:
+                raise ValueError(f"two cameras are named {cam.name!r}; camera names must be unique")
+            seen_idx[cam.index] = cam.name
+            seen_name.add(cam.name)
+        return self
+
+    def camera_by_index(self, index: int) -> CameraConfig | None:
+        for cam in self.cameras:
+            if cam.index == index:
+                return cam
+        return None
+
+    def resolve(self, rel: str) -> Path:
+        p = Path(rel)
+        return p if p.is_absolute() else self.base_dir / p
+
+    @property
+    def calibration_path(self) -> Path | None:
+        return None if self.calibration is None else self.resolve(self.calibration)
+
+    @property
+    def recording_dir(self) -> Path:
+        return self.resolve(self.recording.folder)
+
+
+def _loc(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _fix_for(err: dict) -> str:
+    kind = err.get("type", "")
+    if kind == "missing":
+        return "add this field"
+    if kind == "extra_forbidden":
+        return "remove it or check its spelling (see examples/rig.toml)"
+    if kind == "literal_error":
+        return "use one of the listed values"
+    return "see examples/rig.toml for a valid value"
+
+
+def parse_rig(data: dict, path: Path | str = "<rig>") -> RigConfig:
+    """Validate an already parsed TOML table."""
+    path = Path(path)
+    try:
+        rig = RigConfig.model_validate(data)
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            msg = err["msg"].removeprefix("Value error, ")
+            problems.append(f"{_loc(err['loc'])}: {msg} ({_fix_for(err)})")
+        raise RigError(path, problems) from None
+    rig.base_dir = path.parent if path.name != "<rig>" else Path(".")
+    return rig
+
+
+def load_rig(path: Path | str, check_files: bool = True) -> RigConfig:
+    """Read and validate a rig file. Raises RigError with a readable message on any problem."""
+    path = Path(path)
+    if not path.exists():
+        raise RigError(path, ["file not found; pass the path of a rig TOML file (see examples/rig.toml)"])
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise RigError(path, [f"not valid TOML: {exc}"]) from None
+    except UnicodeDecodeError:
+        raise RigError(path, ["not a text file; a rig file is UTF-8 TOML"]) from None
+    rig = parse_rig(data, path)
+    if check_files and rig.calibration_path is not None and not rig.calibration_path.exists():
+        raise RigError(
+            path,
+            [f"calibration: file {rig.calibration_path} does not exist (fix the path or run `flytrack calibrate`)"],
+        )
+    return rig

@@ -1,0 +1,1 @@
+"""Multi-target 3D tracking: EKF per target, nearest-neighbour association, births and deaths."""

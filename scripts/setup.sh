@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Installs what FlyTrack needs on a Debian machine: missing apt packages (sudo when not root),
+# then a .venv with the pinned Python requirements and the host package in editable mode.
+# Idempotent and quiet when nothing is missing; safe to run on every `make`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+want=$(grep -v '^\s*#' scripts/apt-packages.txt | grep -v '^\s*$' | tr '\n' ' ')
+missing=()
+for p in $want; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing Debian packages: ${missing[*]}"
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ]; then
+    command -v sudo >/dev/null || { echo "setup: need root or sudo to install ${missing[*]}" >&2; exit 1; }
+    SUDO="sudo"
+  fi
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+
+PY=${PYTHON:-python3}
+reqs="host/requirements.txt"
+extra="${FLYTRACK_EXTRA_REQS:-}"
+stamp=".venv/.flytrack-reqs"
+sum=$(cat "$reqs" $extra host/pyproject.toml | sha256sum | cut -d' ' -f1)
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv"
+  "$PY" -m venv .venv
+fi
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$sum" ]; then
+  echo "setup: installing pinned Python packages into .venv"
+  .venv/bin/python -m pip install -q --upgrade pip
+  .venv/bin/python -m pip install -q -r "$reqs" ${extra:+-r $extra}
+  .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e host 2>/dev/null \
+    || .venv/bin/python -m pip install -q --no-deps -e host
+  echo "$sum" > "$stamp"
+fi
