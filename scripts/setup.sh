@@ -35,7 +35,6 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$sum" ]; then
   echo "setup: installing pinned Python packages into .venv"
   .venv/bin/python -m pip install -q --upgrade pip
   .venv/bin/python -m pip install -q -r "$reqs" ${extra:+-r $extra}
-  .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e host 2>/dev/null \
-    || .venv/bin/python -m pip install -q --no-deps -e host
+  .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e host 2>&1 | grep -vE "Warning|^ *!!|^ *\*|^ *$|corresp|with strategy|Please|name as your|deprecat|See https|calls to avoid" || true
   echo "$sum" > "$stamp"
 fi

@@ -1,0 +1,232 @@
+"""The one camera model of FlyTrack: pinhole + OpenCV-style lens distortion.
+
+The tracker (observation model), the calibration (bundle adjustment), the simulator (rendering) and the
+edge extractor's undistortion all use this model, so a point means the same thing everywhere.
+
+Conventions: a world point Xw maps to camera coordinates Xc = R @ Xw + t; the camera looks along +z;
+pixel (0, 0) is the centre of the top-left pixel, as in OpenCV.
+Distortion coefficients are in OpenCV order (k1, k2, p1, p2, k3).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+F64 = NDArray[np.float64]
+
+
+def _distort_normalized(x: F64, y: F64, d: F64) -> tuple[F64, F64]:
+    k1, k2, p1, p2, k3 = d
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return xd, yd
+
+
+@dataclass
+class Camera:
+    name: str
+    width: int
+    height: int
+    K: F64
+    R: F64
+    t: F64
+    dist: F64 = field(default_factory=lambda: np.zeros(5))
+
+    def __post_init__(self) -> None:
+        self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
+        self.R = np.asarray(self.R, dtype=np.float64).reshape(3, 3)
+        self.t = np.asarray(self.t, dtype=np.float64).reshape(3)
+        d = np.zeros(5)
+        given = np.asarray(self.dist, dtype=np.float64).ravel()
+        if given.size > 5:
+            raise ValueError(f"camera {self.name}: at most 5 distortion coefficients (k1 k2 p1 p2 k3)")
+        d[: given.size] = given
+        self.dist = d
+        if not (np.all(np.isfinite(self.K)) and np.all(np.isfinite(self.R)) and np.all(np.isfinite(self.t))):
+            raise ValueError(f"camera {self.name}: calibration contains NaN or infinity")
+
+    # --- geometry -------------------------------------------------------------------------------
+    @property
+    def center(self) -> F64:
+        """Camera centre in world coordinates."""
+        return -self.R.T @ self.t
+
+    @property
+    def P(self) -> F64:
+        """3x4 projection matrix for undistorted (ideal pinhole) pixel coordinates."""
+        return self.K @ np.hstack([self.R, self.t[:, None]])
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.dist != 0.0))
+
+    def to_camera(self, Xw: ArrayLike) -> F64:
+        X = np.atleast_2d(np.asarray(Xw, dtype=np.float64))
+        return X @ self.R.T + self.t
+
+    def _pix(self, xn: F64, yn: F64) -> F64:
+        K = self.K
+        u = K[0, 0] * xn + K[0, 1] * yn + K[0, 2]
+        v = K[1, 1] * yn + K[1, 2]
+        return np.stack([u, v], axis=-1)
+
+    def project(self, Xw: ArrayLike) -> F64:
+        """World points (N,3) -> distorted pixel coordinates (N,2). Points behind the camera give NaN."""
+        Xc = self.to_camera(Xw)
+        z = Xc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn = np.where(z > 0, Xc[:, 0] / z, np.nan)
+            yn = np.where(z > 0, Xc[:, 1] / z, np.nan)
+        xd, yd = _distort_normalized(xn, yn, self.dist)
+        return self._pix(xd, yd)
+
+    def project_undistorted(self, Xw: ArrayLike) -> F64:
+        Xc = self.to_camera(Xw)
+        z = Xc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn = np.where(z > 0, Xc[:, 0] / z, np.nan)
+            yn = np.where(z > 0, Xc[:, 1] / z, np.nan)
+        return self._pix(xn, yn)
+
+    def project_jacobian(self, Xw: ArrayLike) -> tuple[F64, F64]:
+        """One world point (3,) -> (distorted pixel (2,), d pixel / d Xw (2,3)), analytically."""
+        X = np.asarray(Xw, dtype=np.float64).reshape(3)
+        Xc = self.R @ X + self.t
+        z = Xc[2]
+        x, y = Xc[0] / z, Xc[1] / z
+        k1, k2, p1, p2, k3 = self.dist
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        # d(xd, yd) / d(x, y)
+        dxd_dx = radial + x * dradial_dr2 * 2.0 * x + 2.0 * p1 * y + p2 * 6.0 * x
+        dxd_dy = x * dradial_dr2 * 2.0 * y + 2.0 * p1 * x + p2 * 2.0 * y
+        dyd_dx = y * dradial_dr2 * 2.0 * x + p1 * 2.0 * x + 2.0 * p2 * y
+        dyd_dy = radial + y * dradial_dr2 * 2.0 * y + p1 * 6.0 * y + 2.0 * p2 * x
+        Dd = np.array([[dxd_dx, dxd_dy], [dyd_dx, dyd_dy]])
+        # d(x, y) / d Xc
+        Dn = np.array([[1.0 / z, 0.0, -x / z], [0.0, 1.0 / z, -y / z]])
+        Kp = self.K[:2, :2]
+        J = Kp @ Dd @ Dn @ self.R
+        uv = np.array([Kp[0, 0] * xd + Kp[0, 1] * yd + self.K[0, 2], Kp[1, 1] * yd + self.K[1, 2]])
+        return uv, J
+
+    def distort(self, uv_ideal: ArrayLike) -> F64:
+        """Ideal (undistorted) pixel coordinates (N,2) -> distorted pixel coordinates (N,2)."""
+        uv = np.atleast_2d(np.asarray(uv_ideal, dtype=np.float64))
+        xn, yn = self._normalize(uv)
+        xd, yd = _distort_normalized(xn, yn, self.dist)
+        return self._pix(xd, yd)
+
+    def undistort(self, uv: ArrayLike, iterations: int = 20) -> F64:
+        """Distorted pixel coordinates (N,2) -> ideal pinhole pixel coordinates (N,2).
+
+        Fixed-point iteration as in OpenCV's undistortPoints, then Newton steps to reach 1e-12 in the
+        normalised plane (so undistort(distort(p)) == p to well under 1e-6 px)."""
+        uv = np.atleast_2d(np.asarray(uv, dtype=np.float64))
+        xd, yd = self._normalize(uv)
+        if not self.has_distortion:
+            return self._pix(xd, yd)
+        k1, k2, p1, p2, k3 = self.dist
+        x, y = xd.copy(), yd.copy()
+        for _ in range(iterations):
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+            dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+            x = (xd - dx) / radial
+            y = (yd - dy) / radial
+        for _ in range(3):  # Newton polish
+            fx, fy = _distort_normalized(x, y, self.dist)
+            ex, ey = fx - xd, fy - yd
+            h = 1e-7
+            fxx, fyx = _distort_normalized(x + h, y, self.dist)
+            fxy, fyy = _distort_normalized(x, y + h, self.dist)
+            a, b = (fxx - fx) / h, (fxy - fx) / h
+            c, d = (fyx - fy) / h, (fyy - fy) / h
+            det = a * d - b * c
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x = x - (d * ex - b * ey) / det
+                y = y - (-c * ex + a * ey) / det
+        return self._pix(x, y)
+
+    def _normalize(self, uv: F64) -> tuple[F64, F64]:
+        K = self.K
+        yn = (uv[:, 1] - K[1, 2]) / K[1, 1]
+        xn = (uv[:, 0] - K[0, 2] - K[0, 1] * yn) / K[0, 0]
+        return xn, yn
+
+    def rays(self, uv: ArrayLike) -> tuple[F64, F64]:
+        """Distorted pixels (N,2) -> (camera centre (3,), unit ray directions in world (N,3))."""
+        uv_ideal = self.undistort(uv)
+        xn, yn = self._normalize(uv_ideal)
+        d_cam = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
+        d_world = d_cam @ self.R  # R.T @ d for each row
+        d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
+        return self.center, d_world
+
+    def in_view(self, Xw: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
+        """Which world points are in front of the camera and project inside the image."""
+        Xc = self.to_camera(Xw)
+        uv = self.project(Xw)
+        with np.errstate(invalid="ignore"):
+            return (
+                (Xc[:, 2] > 0)
+                & (uv[:, 0] >= -0.5 + margin)
+                & (uv[:, 0] <= self.width - 0.5 - margin)
+                & (uv[:, 1] >= -0.5 + margin)
+                & (uv[:, 1] <= self.height - 0.5 - margin)
+            )
+
+    @classmethod
+    def look_at(
+        cls,
+        name: str,
+        position: ArrayLike,
+        target: ArrayLike,
+        width: int,
+        height: int,
+        focal_px: float,
+        up: ArrayLike = (0.0, 0.0, 1.0),
+        dist: ArrayLike = (0.0, 0.0, 0.0, 0.0, 0.0),
+    ) -> Camera:
+        """A camera at `position` looking at `target` (handy for synthetic rigs and tests)."""
+        c = np.asarray(position, dtype=np.float64)
+        z = np.asarray(target, dtype=np.float64) - c
+        z /= np.linalg.norm(z)
+        upv = np.asarray(up, dtype=np.float64)
+        if abs(np.dot(upv, z)) > 0.99:
+            upv = np.array([0.0, 1.0, 0.0])
+        x = np.cross(z, upv)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        R = np.stack([x, y, z])
+        t = -R @ c
+        K = np.array([[focal_px, 0.0, (width - 1) / 2.0], [0.0, focal_px, (height - 1) / 2.0], [0, 0, 1.0]])
+        return cls(name=name, width=width, height=height, K=K, R=R, t=t, dist=np.asarray(dist, dtype=float))
+
+
+def triangulate(cameras: Sequence[Camera], uv_ideal: Sequence[ArrayLike]) -> F64:
+    """Linear (DLT) triangulation of one point from undistorted pixels in two or more cameras."""
+    if len(cameras) < 2 or len(cameras) != len(uv_ideal):
+        raise ValueError("triangulation needs the same number (>= 2) of cameras and points")
+    rows = []
+    for cam, p in zip(cameras, uv_ideal, strict=True):
+        u, v = np.asarray(p, dtype=np.float64).reshape(2)
+        P = cam.P
+        rows.append(u * P[2] - P[0])
+        rows.append(v * P[2] - P[1])
+    A = np.asarray(rows)
+    # Scale rows for conditioning; the solution is the right singular vector of least value.
+    A /= np.linalg.norm(A, axis=1, keepdims=True)
+    _, _, vt = np.linalg.svd(A)
+    X = vt[-1]
+    return X[:3] / X[3]
