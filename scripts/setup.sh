@@ -35,6 +35,8 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$sum" ]; then
   echo "setup: installing pinned Python packages into .venv"
   .venv/bin/python -m pip install -q --upgrade pip
   .venv/bin/python -m pip install -q -r "$reqs" ${extra:+-r $extra}
-  .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e host 2>&1 | grep -vE "Warning|^ *!!|^ *\*|^ *$|corresp|with strategy|Please|name as your|deprecat|See https|calls to avoid" || true
+  if ! .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e host > .venv/install-host.log 2>&1; then
+    cat .venv/install-host.log >&2; echo "setup: installing the host package failed" >&2; exit 1
+  fi
   echo "$sum" > "$stamp"
 fi
