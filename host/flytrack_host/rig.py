@@ -58,7 +58,8 @@ class CameraConfig(_Strict):
         try:
             ipaddress.ip_address(v)
         except ValueError:
-            raise ValueError(f"{v!r} is not an IP address; write the edge computer's address, e.g. '10.0.0.5'") from None
+            msg = f"{v!r} is not an IP address; write the edge computer's address, e.g. '10.0.0.5'"
+            raise ValueError(msg) from None
         return v
 
     @property
@@ -84,7 +85,10 @@ class HostConfig(_Strict):
         default_factory=list, description="UDP HOST:PORT addresses that receive live estimates."
     )
     sync_deadline_fraction: float = Field(
-        0.5, gt=0, le=10, description="A frame bundle is tracked at latest this fraction of a frame period after its first packet."
+        0.5,
+        gt=0,
+        le=10,
+        description="A frame bundle is tracked at latest this fraction of a frame period after its first packet.",
     )
 
     @field_validator("listen")
