@@ -28,6 +28,11 @@ def _distort_normalized(x: F64, y: F64, d: F64) -> tuple[F64, F64]:
     return xd, yd
 
 
+def distort_normalized(x: F64, y: F64, d: F64) -> tuple[F64, F64]:
+    """OpenCV's distortion (k1 k2 p1 p2 k3) of normalised image coordinates (x, y) = (X/Z, Y/Z)."""
+    return _distort_normalized(x, y, np.asarray(d, dtype=np.float64))
+
+
 @dataclass
 class Camera:
     name: str
@@ -185,6 +190,42 @@ class Camera:
                 & (uv[:, 1] >= -0.5 + margin)
                 & (uv[:, 1] <= self.height - 0.5 - margin)
             )
+
+    @classmethod
+    def from_P(
+        cls,
+        name: str,
+        P: ArrayLike,
+        width: int,
+        height: int,
+        dist: ArrayLike = (0.0, 0.0, 0.0, 0.0, 0.0),
+    ) -> Camera:
+        """Decompose a 3x4 projection matrix (any scale and sign) into K, R, t (RQ decomposition).
+
+        The result has K[2,2] == 1, positive focal lengths and a proper rotation (det R = +1), and
+        projects every finite point exactly as P does (up to rounding)."""
+        Pm = np.asarray(P, dtype=np.float64).reshape(3, 4)
+        if not np.all(np.isfinite(Pm)):
+            raise ValueError(f"camera {name}: projection matrix contains NaN or infinity")
+        M = Pm[:, :3]
+        det = np.linalg.det(M)
+        if abs(det) < 1e-12 * max(1.0, float(np.abs(M).max()) ** 3):
+            raise ValueError(f"camera {name}: projection matrix is singular (its left 3x3 block has rank < 3)")
+        if det < 0:  # the overall sign of P is free; pick the one that gives det(R) = +1
+            Pm = -Pm
+            M = Pm[:, :3]
+        # RQ via QR of the row-reversed transpose.
+        flip = np.eye(3)[::-1]
+        q, r = np.linalg.qr((flip @ M).T)
+        K = flip @ r.T @ flip
+        R = flip @ q.T
+        # Make the diagonal of K positive; each sign change is applied to K's column and R's row.
+        S = np.diag(np.sign(np.diag(K)))
+        K = K @ S
+        R = S @ R
+        t = np.linalg.solve(K, Pm[:, 3])  # with the unscaled K, so the overall scale of P cancels
+        K = K / K[2, 2]
+        return cls(name=name, width=width, height=height, K=K, R=R, t=t, dist=np.asarray(dist, dtype=float))
 
     @classmethod
     def look_at(

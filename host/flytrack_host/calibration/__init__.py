@@ -1,0 +1,5 @@
+"""Camera calibration: DLT, LED self-calibration with bundle adjustment, world alignment, file formats.
+
+`flytrack_host.calibration.formats` reads and writes every calibration file format; the other modules
+compute calibrations. All of them use the one camera model, `flytrack_host.camera.Camera`.
+"""

@@ -1,0 +1,73 @@
+"""The one camera model: projection, Jacobian, distortion round trip, decomposition, triangulation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from flytrack_host.camera import Camera, triangulate
+
+
+def _cam(dist: tuple[float, ...] = (-0.2, 0.05, 1e-3, -2e-3, 0.01)) -> Camera:
+    return Camera.look_at("c", (1.2, -0.7, 0.9), (0.0, 0.0, 0.1), 1024, 768, 900.0, dist=dist)
+
+
+def _pts(n: int = 200) -> np.ndarray:
+    return np.random.default_rng(3).uniform(-0.2, 0.2, size=(n, 3)) + np.array([0, 0, 0.1])
+
+
+def test_project_matches_opencv() -> None:
+    import cv2
+
+    cam = _cam()
+    X = _pts()
+    rvec, _ = cv2.Rodrigues(cam.R)
+    ref, _ = cv2.projectPoints(X, rvec, cam.t, cam.K, cam.dist)
+    assert np.allclose(cam.project(X), ref.reshape(-1, 2), atol=1e-8)
+
+
+def test_jacobian_matches_finite_differences() -> None:
+    cam = _cam()
+    X = _pts(5)[2]
+    uv, J = cam.project_jacobian(X)
+    assert np.allclose(uv, cam.project(X)[0])
+    h = 1e-6
+    Jn = np.stack([(cam.project(X + h * e)[0] - cam.project(X - h * e)[0]) / (2 * h) for e in np.eye(3)], axis=1)
+    assert np.allclose(J, Jn, rtol=1e-5, atol=1e-4)
+
+
+def test_undistort_inverts_distort() -> None:
+    cam = _cam()
+    uv = cam.project(_pts())
+    back = cam.distort(cam.undistort(uv))
+    assert np.max(np.abs(back - uv)) < 1e-6
+
+
+def test_behind_camera_is_nan() -> None:
+    cam = _cam()
+    behind = cam.center + (cam.center - np.array([0.0, 0.0, 0.1]))
+    assert np.all(np.isnan(cam.project(behind)))
+
+
+@pytest.mark.parametrize("scale", [1.0, -2.5, 1e-3])
+def test_from_P_recovers_K_R_t(scale: float) -> None:
+    cam = _cam(dist=())
+    cam.K[0, 1] = 0.7
+    got = Camera.from_P("c", scale * cam.P, cam.width, cam.height)
+    assert np.allclose(got.K, cam.K, atol=1e-9)
+    assert np.allclose(got.R, cam.R, atol=1e-12)
+    assert np.allclose(got.t, cam.t, atol=1e-12)
+    assert np.isclose(np.linalg.det(got.R), 1.0)
+
+
+def test_from_P_rejects_singular() -> None:
+    with pytest.raises(ValueError, match="singular"):
+        Camera.from_P("c", np.zeros((3, 4)), 10, 10)
+
+
+def test_triangulate_exact() -> None:
+    cams = [Camera.look_at(f"c{i}", p, (0, 0, 0), 640, 480, 500.0) for i, p in
+            enumerate([(2, 0, 1), (0, 2, 1), (-2, 0, 1)])]
+    X = np.array([0.05, -0.03, 0.1])
+    got = triangulate(cams, [c.project_undistorted(X)[0] for c in cams])
+    assert np.allclose(got, X, atol=1e-9)
