@@ -1,0 +1,7 @@
+"""Recording: crash-safe append-only capture of a run, finalised to HDF5 (see writer.py)."""
+
+from flytrack_host.recording.finalize import FinalizeReport, RecordingError, finalize
+from flytrack_host.recording.reader import Recording, load_recording
+from flytrack_host.recording.writer import Recorder
+
+__all__ = ["FinalizeReport", "Recorder", "Recording", "RecordingError", "finalize", "load_recording"]

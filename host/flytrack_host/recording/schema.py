@@ -1,0 +1,126 @@
+"""The tables of a FlyTrack recording: one NumPy structured dtype per kind of row.
+
+The same dtypes are used for the append-only raw files (rows written as raw bytes, so a file cut at
+any byte loses at most its last partial row) and for the finalised HDF5 file (one dataset each).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Upper triangle of the 6x6 state covariance, row-major: P00 P01 ... P05 P11 ... P55 (21 values).
+COV_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
+COV_NAMES = [f"P{i}{j}" for i, j in COV_UPPER]
+
+# Every 2D point of every camera frame, tracked or not. A frame without points is one row with NaN x.
+DATA2D = np.dtype(
+    [
+        ("trigger_frame", "<i8"),  # -1 when the frame could not be mapped to the trigger count
+        ("camera_index", "<u2"),
+        ("camera_frame", "<u8"),
+        ("timestamp", "<f8"),  # trigger time of the frame (host clock, s); NaN if unknown
+        ("cam_received_timestamp", "<f8"),  # host clock when the (last part of the) frame arrived
+        ("device_timestamp_ns", "<u8"),
+        ("edge_recv_ns", "<u8"),
+        ("edge_done_ns", "<u8"),
+        ("frame_pt_idx", "<u2"),
+        ("n_points", "<u2"),  # points of this frame received
+        ("total_points", "<u2"),  # points the extractor found (> n_points when truncated)
+        ("flags", "u1"),  # bit 0 tracked, bit 1 late, bit 2 truncated, bit 3 incomplete split, bit 4 rejected
+        ("x_dist", "<f4"),
+        ("y_dist", "<f4"),
+        ("x_undist", "<f4"),
+        ("y_undist", "<f4"),
+        ("area", "<f4"),
+        ("peak_diff", "<f4"),
+        ("orientation", "<f4"),
+        ("eccentricity", "<f4"),
+        ("cur_val", "<u2"),
+        ("mean_val", "<f4"),
+        ("sumsq_val", "<f4"),
+    ]
+)
+FLAG_TRACKED = 1
+FLAG_LATE = 2
+FLAG_TRUNCATED = 4
+FLAG_INCOMPLETE = 8
+FLAG_REJECTED = 16  # recorded but never given to the tracker (future-dated, duplicate, unmapped)
+
+KALMAN = np.dtype(
+    [("obj_id", "<u4"), ("trigger_frame", "<i8"), ("timestamp", "<f8")]
+    + [(n, "<f8") for n in ("x", "y", "z", "xvel", "yvel", "zvel")]
+    + [(n, "<f8") for n in COV_NAMES]
+    + [("n_cameras", "<u2")]
+)
+
+ASSOCIATION = np.dtype(
+    [("obj_id", "<u4"), ("trigger_frame", "<i8"), ("camera_index", "<u2"), ("pt_idx", "<u2")]
+)
+
+CAM_INFO = np.dtype([("camera_index", "<u2"), ("name", "S64"), ("edge", "S64"), ("calibration_id", "S64")])
+
+# Samples of the trigger clock: host time before/after the query, frame count and fraction of frame.
+TRIGGER_CLOCK = np.dtype(
+    [("start_timestamp", "<f8"), ("framecount", "<i8"), ("fraction", "<f8"), ("stop_timestamp", "<f8")]
+)
+
+# One row per tracked frame: where the time from trigger to estimate went.
+LATENCY = np.dtype(
+    [
+        ("trigger_frame", "<i8"),
+        ("trigger_time", "<f8"),
+        ("first_arrival", "<f8"),
+        ("last_arrival", "<f8"),
+        ("estimate_time", "<f8"),
+        ("n_cameras", "<u2"),
+        ("n_missing", "<u2"),
+    ]
+)
+
+# STATUS heartbeats of the edges.
+CAMERA_STATUS = np.dtype(
+    [
+        ("host_time", "<f8"),
+        ("camera_index", "<u2"),
+        ("state", "u1"),
+        ("frames_seen", "<u8"),
+        ("frames_dropped", "<u8"),
+        ("fps", "<f4"),
+        ("proc_us_mean", "<f4"),
+        ("proc_us_max", "<f4"),
+    ]
+)
+
+TABLES: dict[str, np.dtype] = {
+    "data2d_distorted": DATA2D,
+    "kalman_estimates": KALMAN,
+    "data_association": ASSOCIATION,
+    "cam_info": CAM_INFO,
+    "trigger_clock_info": TRIGGER_CLOCK,
+    "latency": LATENCY,
+    "camera_status": CAMERA_STATUS,
+}
+
+
+def dtype_to_json(dt: np.dtype) -> list[list[str]]:
+    return [[name, dt.fields[name][0].str] for name in dt.names]
+
+
+def dtype_from_json(desc: list[list[str]]) -> np.dtype:
+    return np.dtype([(name, code) for name, code in desc])
+
+
+def cov_upper(cov: np.ndarray) -> np.ndarray:
+    """(6,6) covariance -> the 21 upper-triangle values in COV_NAMES order."""
+    iu = np.triu_indices(6)
+    return np.asarray(cov, dtype=np.float64)[iu]
+
+
+def cov_full(row: np.void | np.ndarray) -> np.ndarray:
+    """A KALMAN row (or rows) -> (…, 6, 6) symmetric covariance."""
+    vals = np.stack([np.asarray(row[n], dtype=np.float64) for n in COV_NAMES], axis=-1)
+    out = np.zeros(vals.shape[:-1] + (6, 6))
+    iu = np.triu_indices(6)
+    out[..., iu[0], iu[1]] = vals
+    out[..., iu[1], iu[0]] = vals
+    return out

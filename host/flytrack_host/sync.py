@@ -1,0 +1,438 @@
+"""Frame synchronisation: per-camera frames -> one bundle per trigger frame.
+
+Pure logic: every call takes the host time `now`, so tests drive it without sleeping.
+
+Mapping camera frames to trigger frames, as flydra and Braid do: the trigger is stopped, cameras go
+quiet, the trigger starts, and each camera's first frame is tied to trigger frame 0 (`offset =
+camera_frame`). When the edge already fills `trigger_frame` (>= 0) that number is used. A camera that
+appears later, or whose counter restarts, is mapped by its arrival time through the trigger clock
+model and the arrival lag of the other cameras. Afterwards the mapping is checked on every frame:
+
+- a camera whose arrival lag departs from the others' by most of a frame period for several frames
+  in a row has drifted: reported, counted and re-mapped;
+- frame numbers that jump back or far ahead are suspect: such frames are not tracked (the pipeline
+  still records them); when several consecutive frames agree on the new numbering it is a clock jump:
+  logged and the mapping re-established;
+- a frame whose trigger time lies in the future (or far ahead of the other cameras) is future-dated
+  and rejected unless it is confirmed as a jump.
+
+A bundle is closed (handed to the tracker) as soon as every live camera reported, or when a deadline
+(`deadline_fraction` of the frame period after its first packet) passes. Bundles close in frame
+order; data for a closed frame is late (recorded, not tracked). A camera silent for `dead_timeout_s`
+is dead (bundles stop waiting for it) until its packets return.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from flytrack_host.tracking.types import FrameBundle
+
+
+class FrameClock(Protocol):
+    def frame_to_host_time(self, frame: int) -> float: ...
+
+
+class FixedRateClock:
+    """Fallback trigger clock: `start_time + frame / fps`. Anchored on the first frame when
+    `start_time` is None (trigger times then equal the first arrival: no trigger-box latency)."""
+
+    def __init__(self, fps: float, start_time: float | None = None):
+        if not (fps > 0 and math.isfinite(fps)):
+            raise ValueError(f"fps must be a positive number, not {fps!r}")
+        self.fps = float(fps)
+        self.start_time = start_time
+
+    @property
+    def anchored(self) -> bool:
+        return self.start_time is not None
+
+    def anchor(self, frame: int, host_time: float) -> None:
+        self.start_time = host_time - frame / self.fps
+
+    def frame_to_host_time(self, frame: int) -> float:
+        if self.start_time is None:
+            return math.nan
+        return self.start_time + frame / self.fps
+
+
+@dataclass(slots=True)
+class CameraFrame:
+    """One camera frame as received (split parts already joined). `points` is the protocol's
+    structured point array, straight from the datagram bytes."""
+
+    camera_index: int
+    camera_frame: int
+    trigger_frame: int  # from the edge; -1 when it does not know
+    points: np.ndarray
+    recv_time: float  # host clock when the frame (its last part) arrived
+    device_timestamp_ns: int = 0
+    edge_recv_ns: int = 0
+    edge_done_ns: int = 0
+    total_points: int = 0
+    truncated: bool = False
+    incomplete: bool = False  # a split frame with parts missing
+
+
+@dataclass(slots=True)
+class SyncedBundle:
+    bundle: FrameBundle
+    frames: dict[int, CameraFrame]
+    first_arrival: float
+    last_arrival: float
+    closed_by: str  # "complete", "deadline" or "flush"
+
+
+@dataclass(slots=True)
+class UntrackedFrame:
+    """A frame that is recorded but not tracked: late, duplicate, future-dated, suspect, unmapped."""
+
+    frame: CameraFrame
+    trigger_frame: int  # best mapping, -1 if none
+    reason: str
+
+
+@dataclass(slots=True)
+class SyncEvent:
+    kind: str  # "dead", "alive", "clock_jump", "drift", "synchronized"
+    camera_index: int
+    message: str
+    global_jump: bool = False
+
+
+SyncOutput = SyncedBundle | UntrackedFrame | SyncEvent
+
+
+@dataclass
+class CameraSyncStats:
+    frames: int = 0
+    tracked: int = 0
+    late: int = 0
+    duplicate: int = 0
+    future: int = 0
+    suspect: int = 0
+    clock_jumps: int = 0
+    drift: int = 0
+    deaths: int = 0
+    revivals: int = 0
+
+
+@dataclass
+class _Cam:
+    index: int
+    alive: bool
+    last_recv: float
+    offset: int | None = None  # trigger_frame = camera_frame - offset (when the edge gives none)
+    last_cf: int | None = None
+    last_tf: int | None = None
+    lag_ewma: float | None = None
+    drift_run: int = 0
+    suspects: list[tuple[CameraFrame, int]] = field(default_factory=list)
+    stats: CameraSyncStats = field(default_factory=CameraSyncStats)
+
+
+@dataclass
+class _Pending:
+    frames: dict[int, CameraFrame]
+    first_arrival: float
+    deadline: float
+
+
+class FrameSynchronizer:
+    def __init__(
+        self,
+        camera_indices: Iterable[int],
+        fps: float,
+        clock: FrameClock | None = None,
+        deadline_fraction: float = 0.5,
+        dead_timeout_s: float = 0.5,
+        start_time: float = 0.0,
+        jump_confirm_frames: int = 3,
+        max_gap_s: float = 10.0,
+        future_tolerance_s: float = 0.5,
+        drift_frames: int = 10,
+        late_tolerance_s: float = 0.25,
+        on_event: Callable[[SyncEvent], None] | None = None,
+    ):
+        self.period = 1.0 / fps
+        self.fps = fps
+        self.clock: FrameClock = clock if clock is not None else FixedRateClock(fps)
+        self.deadline_s = deadline_fraction * self.period
+        self.dead_timeout_s = dead_timeout_s
+        self.jump_confirm = jump_confirm_frames
+        self.max_gap = max(2, int(max_gap_s * fps))
+        self.future_tolerance_s = future_tolerance_s
+        self.future_frames = max(2, int(future_tolerance_s * fps))
+        self.drift_frames = drift_frames
+        self.late_tolerance_s = late_tolerance_s
+        self.cams: dict[int, _Cam] = {i: _Cam(i, True, start_time) for i in camera_indices}
+        self.pending: dict[int, _Pending] = {}
+        self.last_closed = -1
+        self.max_accepted = -1
+        self._sync_started: float | None = None
+        self.bundles_complete = 0
+        self.bundles_deadline = 0
+
+    # --- public -------------------------------------------------------------------------------
+    def synchronize(self) -> None:
+        """Start (again) the frame-0 tie: the next first frame of each camera is trigger frame 0.
+        Call after restarting the trigger, once the cameras went quiet."""
+        for cam in self.cams.values():
+            cam.offset = cam.last_cf = cam.last_tf = None
+            cam.suspects.clear()
+        self._sync_started = None
+        self.pending.clear()
+        self.last_closed = -1
+        self.max_accepted = -1
+
+    def stats(self) -> dict[int, CameraSyncStats]:
+        return {i: c.stats for i, c in self.cams.items()}
+
+    def live_cameras(self) -> list[int]:
+        return [i for i, c in self.cams.items() if c.alive]
+
+    def add(self, frame: CameraFrame, now: float) -> list[SyncOutput]:
+        out: list[SyncOutput] = []
+        cam = self.cams.get(frame.camera_index)
+        if cam is None:
+            return [UntrackedFrame(frame, -1, "unknown_camera")]
+        cam.stats.frames += 1
+        cam.last_recv = now
+        if not cam.alive:
+            cam.alive = True
+            cam.stats.revivals += 1
+            out.append(SyncEvent("alive", cam.index, f"camera {cam.index} is sending again"))
+        if cam.last_cf is not None and frame.camera_frame == cam.last_cf:
+            cam.stats.duplicate += 1
+            out.append(UntrackedFrame(frame, cam.last_tf if cam.last_tf is not None else -1, "duplicate"))
+            return out
+        tf = self._map(cam, frame, now)
+        reason = self._suspect_reason(cam, frame, tf, now)
+        if reason is not None:
+            cam.suspects.append((frame, tf))
+            if self._confirmed(cam):
+                out.extend(self._accept_jump(cam, frame, now))
+                # Earlier confirming frames were reported as suspect; tracking resumes next frame.
+                out.append(UntrackedFrame(frame, cam.last_tf if cam.last_tf is not None else tf, "clock_jump"))
+                return out
+            if reason == "future":
+                cam.stats.future += 1
+            else:
+                cam.stats.suspect += 1
+            out.append(UntrackedFrame(frame, tf, reason))
+            return out
+        cam.suspects.clear()
+        if cam.last_cf is None or frame.camera_frame > cam.last_cf:
+            cam.last_cf, cam.last_tf = frame.camera_frame, tf
+        self.max_accepted = max(self.max_accepted, tf)
+        out.extend(self._check_drift(cam, frame, tf))
+        if tf <= self.last_closed:
+            cam.stats.late += 1
+            out.append(UntrackedFrame(frame, tf, "late"))
+            return out
+        p = self.pending.get(tf)
+        if p is None:
+            p = self.pending[tf] = _Pending({}, now, now + self.deadline_s)
+        if frame.camera_index in p.frames:
+            cam.stats.duplicate += 1
+            out.append(UntrackedFrame(frame, tf, "duplicate"))
+            return out
+        p.frames[frame.camera_index] = frame
+        if all(i in p.frames for i, c in self.cams.items() if c.alive):
+            out.extend(self._close_through(tf, "complete"))
+        return out
+
+    def poll(self, now: float) -> list[SyncOutput]:
+        """Close bundles whose deadline passed; mark silent cameras dead."""
+        out: list[SyncOutput] = []
+        for cam in self.cams.values():
+            if cam.alive and now - cam.last_recv > self.dead_timeout_s:
+                cam.alive = False
+                cam.stats.deaths += 1
+                msg = f"camera {cam.index} silent for {now - cam.last_recv:.2f} s: marked dead"
+                out.append(SyncEvent("dead", cam.index, msg))
+        live = [i for i, c in self.cams.items() if c.alive]
+        close_to = None
+        for tf in sorted(self.pending):
+            p = self.pending[tf]
+            if p.deadline <= now or (live and all(i in p.frames for i in live)):
+                close_to = tf
+        if close_to is not None:
+            out.extend(self._close_through(close_to, "deadline"))
+        return out
+
+    def next_deadline(self) -> float | None:
+        if not self.pending:
+            return None
+        return min(p.deadline for p in self.pending.values())
+
+    def flush(self) -> list[SyncOutput]:
+        """Close every pending bundle (at stop)."""
+        if not self.pending:
+            return []
+        return self._close_through(max(self.pending), "flush")
+
+    # --- mapping ------------------------------------------------------------------------------
+    def frame_time(self, tf: int) -> float:
+        try:
+            t = float(self.clock.frame_to_host_time(tf))
+        except Exception:  # a clock model not ready yet
+            return math.nan
+        return t
+
+    def _lag(self, exclude: int | None = None) -> float:
+        lags = [c.lag_ewma for c in self.cams.values() if c.lag_ewma is not None and c.index != exclude]
+        return statistics.median(lags) if lags else 0.0
+
+    def _frame_at(self, t: float) -> int:
+        clock = self.clock
+        if isinstance(clock, FixedRateClock) and not clock.anchored:
+            clock.anchor(0, t)
+            return 0
+        ref = max(self.max_accepted, 0)
+        t_ref = self.frame_time(ref)
+        if not math.isfinite(t_ref):
+            return ref
+        return ref + round((t - t_ref) / self.period)
+
+    def _map(self, cam: _Cam, frame: CameraFrame, now: float) -> int:
+        if frame.trigger_frame >= 0:
+            if isinstance(self.clock, FixedRateClock) and not self.clock.anchored:
+                self.clock.anchor(frame.trigger_frame, frame.recv_time)
+            return frame.trigger_frame
+        if cam.offset is None:
+            if self._sync_started is None:
+                self._sync_started = frame.recv_time
+            if frame.recv_time - self._sync_started <= self.period * 0.5 and self.max_accepted < 1:
+                tf = 0  # the frame-0 tie: all cameras' first frames come from the same first pulse
+                if isinstance(self.clock, FixedRateClock) and not self.clock.anchored:
+                    self.clock.anchor(0, frame.recv_time)
+            else:
+                tf = self._frame_at(frame.recv_time - self._lag(cam.index))
+            cam.offset = frame.camera_frame - tf
+        return frame.camera_frame - cam.offset
+
+    def _suspect_reason(self, cam: _Cam, frame: CameraFrame, tf: int, now: float) -> str | None:
+        t = self.frame_time(tf)
+        if math.isfinite(t) and t > now + self.future_tolerance_s:
+            return "future"
+        if not math.isfinite(t) and self.max_accepted >= 0 and tf > self.max_accepted + self.future_frames:
+            return "future"
+        if cam.last_cf is None or cam.last_tf is None:
+            return None
+        d_cf = frame.camera_frame - cam.last_cf
+        d_tf = tf - cam.last_tf
+        if d_cf < 0 and d_tf == d_cf and math.isfinite(t) and now - t < self.late_tolerance_s:
+            return None  # reordered or delayed in the network, numbering intact: just late
+        if d_cf < 0 or d_cf > self.max_gap or d_tf <= 0 or d_tf - d_cf > self.max_gap:
+            return "discontinuity"
+        return None
+
+    def _confirmed(self, cam: _Cam) -> bool:
+        s = cam.suspects
+        if len(s) < self.jump_confirm:
+            return False
+        s = s[-self.jump_confirm :]
+        for (a, ta), (b, tb) in zip(s, s[1:], strict=False):
+            d_cf = b.camera_frame - a.camera_frame
+            if not (0 < d_cf <= self.max_gap and 0 < tb - ta <= self.max_gap):
+                return False
+        return True
+
+    def _accept_jump(self, cam: _Cam, frame: CameraFrame, now: float) -> list[SyncOutput]:
+        out: list[SyncOutput] = []
+        old_tf = cam.last_tf
+        cam.stats.clock_jumps += 1
+        if frame.trigger_frame >= 0:
+            new_tf = frame.trigger_frame
+            global_jump = True  # the trigger's own count moved: every camera sees it
+        else:
+            # The camera's counter restarted or jumped: map it again by arrival time.
+            cam.offset = None
+            cam.last_cf = None
+            new_tf = self._frame_at(frame.recv_time - self._lag(cam.index))
+            cam.offset = frame.camera_frame - new_tf
+            global_jump = False
+        if global_jump:
+            out.extend(self._close_through(max(self.pending), "flush") if self.pending else [])
+            if new_tf <= self.last_closed:
+                self.last_closed = new_tf
+            self.max_accepted = new_tf
+            if isinstance(self.clock, FixedRateClock):
+                self.clock.anchor(new_tf, frame.recv_time - self._lag(cam.index))
+            for other in self.cams.values():
+                if other is cam or not other.suspects:
+                    continue
+                # Cameras already seeing the new numbering follow at once instead of waiting.
+                o_frame, o_tf = other.suspects[-1]
+                if o_frame.trigger_frame >= 0 and abs(o_tf - new_tf) <= self.jump_confirm + 2:
+                    other.last_cf, other.last_tf = o_frame.camera_frame, o_tf
+                    other.suspects.clear()
+        else:
+            self.max_accepted = max(self.max_accepted, new_tf)
+        cam.last_cf, cam.last_tf = frame.camera_frame, new_tf
+        cam.suspects.clear()
+        out.append(SyncEvent(
+            "clock_jump", cam.index,
+            f"camera {cam.index}: frame numbers jumped from trigger frame {old_tf} to {new_tf}; mapping re-established",
+            global_jump=global_jump,
+        ))
+        return out
+
+    def _check_drift(self, cam: _Cam, frame: CameraFrame, tf: int) -> list[SyncOutput]:
+        t = self.frame_time(tf)
+        if not math.isfinite(t):
+            return []
+        lag = frame.recv_time - t
+        others = self._lag(cam.index) if len(self.cams) > 1 else None
+        if others is not None and cam.lag_ewma is not None and any(
+            c.lag_ewma is not None for c in self.cams.values() if c.index != cam.index
+        ):
+            dev = lag - others
+            if abs(dev) > 0.75 * self.period:
+                cam.drift_run += 1
+            else:
+                cam.drift_run = 0
+            if cam.drift_run >= self.drift_frames:
+                shift = round(dev / self.period)
+                cam.drift_run = 0
+                cam.stats.drift += 1
+                if frame.trigger_frame < 0 and cam.offset is not None and shift:
+                    # Arriving `shift` periods later than the others: its frames belong `shift` later.
+                    cam.offset -= shift
+                    cam.last_tf = tf + shift
+                msg = f"camera {cam.index} drifted by {shift} frames ({dev * 1e3:.1f} ms off the other cameras)"
+                return [SyncEvent("drift", cam.index, msg + ("; re-mapped" if frame.trigger_frame < 0 else ""))]
+        if cam.drift_run == 0:  # a deviating run must not pull the camera's own baseline
+            cam.lag_ewma = lag if cam.lag_ewma is None else cam.lag_ewma + 0.1 * (lag - cam.lag_ewma)
+        return []
+
+    # --- closing ------------------------------------------------------------------------------
+    def _close_through(self, tf: int, why: str) -> list[SyncOutput]:
+        out: list[SyncOutput] = []
+        for f in sorted(k for k in self.pending if k <= tf):
+            p = self.pending.pop(f)
+            closed_by = why if f == tf else ("deadline" if why != "flush" else "flush")
+            missing = tuple(i for i, c in self.cams.items() if c.alive and i not in p.frames)
+            if closed_by == "complete" and not missing:
+                self.bundles_complete += 1
+            else:
+                self.bundles_deadline += 1
+            for i in p.frames:
+                self.cams[i].stats.tracked += 1
+            bundle = FrameBundle(
+                trigger_frame=f,
+                timestamp=self.frame_time(f),
+                detections={i: fr.points for i, fr in p.frames.items()},
+                missing_cameras=missing,
+            )
+            out.append(SyncedBundle(bundle, p.frames, p.first_arrival,
+                                    max(fr.recv_time for fr in p.frames.values()), closed_by))
+        self.last_closed = max(self.last_closed, tf)
+        return out
