@@ -1,0 +1,38 @@
+/* Per-pixel candidate thresholds, in a file of its own because it is compiled with
+ * -ffinite-math-only -fno-signed-zeros: without them GCC will not turn the float clamps into vector
+ * max/min, and this loop runs over every pixel at each background update. Every input here is finite
+ * (pixel values and checked parameters) and the sign of a zero never changes a threshold, so the flags
+ * change no result; they are kept out of features.c, whose isfinite() checks must stay. */
+#include "thresholds.h"
+
+#include <math.h>
+
+/* Branch-free on purpose: a conditional here lets the compiler skip the float loads for masked
+ * pixels, and then it no longer vectorises the loop. */
+#define DEFINE_THRESH(NAME, T)                                                                     \
+    void NAME(size_t n, const float *restrict mean, const float *restrict sumsq,            \
+                     const uint8_t *restrict mask, T *restrict hi, T *restrict lo, thr_cfg c) {    \
+        const uint32_t bright = c.bright ? 1u : 0u, dark = c.dark ? 1u : 0u;                       \
+        const uint32_t maxv = (uint32_t)c.maxv;                                                    \
+        for (size_t i = 0; i < n; i++) {                                                           \
+            float m = mean[i];                                                                     \
+            float var = sumsq[i] - m * m;                                                          \
+            var = var > 0.0f ? var : 0.0f;                                                         \
+            float t = c.ns * sqrtf(var);                                                           \
+            t = t > c.dt ? t : c.dt;                                                               \
+            float up = m + t;                                                                      \
+            float dn = m - t;                                                                      \
+            up = up < c.maxv ? up : c.maxv;                                                        \
+            dn = dn > 0.0f ? dn : 0.0f;                                                            \
+            uint32_t h = (uint32_t)(int32_t)up;                                                    \
+            int32_t di = (int32_t)dn;                                                              \
+            uint32_t l = (uint32_t)(di + ((float)di < dn));                                        \
+            uint32_t use = mask[i] != 0;                                                           \
+            uint32_t mb = 0u - (use & bright), md = 0u - (use & dark);                             \
+            hi[i] = (T)((h & mb) | (maxv & ~mb));                                                  \
+            lo[i] = (T)(l & md);                                                                   \
+        }                                                                                          \
+    }
+
+DEFINE_THRESH(ft_fx_thresh8, uint8_t)
+DEFINE_THRESH(ft_fx_thresh16, uint16_t)
