@@ -1,0 +1,2 @@
+"""The simulated rig: flying insects, rendered cameras, and the orchestration that feeds them through
+the real trigger firmware, edge extractors and host (`flytrack demo`)."""

@@ -1,0 +1,231 @@
+"""Fast 8-bit frames of a simulated near-IR camera looking at the arena.
+
+Each frame is: a fixed background (smooth illumination structure x cos^4 vignetting, precomputed once
+per illumination level), scaled by a slow illumination drift, plus sensor noise, plus every animal the
+camera sees as a small Gaussian blob elongated along the projection of its body axis, plus now and
+then a false blob (dust, a reflection).
+
+What makes it fast enough for several cameras at 100 fps on one core:
+- the backgrounds for the few illumination levels the drift visits are computed once and cached;
+- noise is not generated per frame: a bank of pre-generated noise, a few frames long, is sampled at a
+  random offset, and added with one saturating uint8 add (OpenCV), which also does the clipping;
+- blobs are drawn only inside small windows around each animal.
+
+A simplification, on purpose: a blob's peak contrast does not shrink when the animal is smaller than a
+pixel (the optics' blur sets a floor on its size). A real 2.5 mm fly 2 m from a 640 px camera would be
+nearly invisible; labs put cameras closer or use more pixels, which we stand in for this way.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from flytrack_host.camera import Camera
+
+U8 = NDArray[np.uint8]
+
+
+@dataclass(frozen=True)
+class RenderParams:
+    background_level: float = 170.0  # grey level at the image centre
+    texture: float = 0.05  # relative amplitude of the smooth background structure
+    vignetting: bool = True  # cos^4 fall-off with the camera's own focal length
+    drift_amplitude: float = 0.03  # relative, slow illumination drift
+    drift_period_s: float = 20.0
+    noise_sigma: float = 2.0  # sensor noise, grey levels
+    psf_sigma_px: float = 0.9  # optical blur: the smallest blob
+    contrast: float = 0.55  # dark animal: the fraction of light it blocks at its centre
+    bright_fraction: float = 0.0  # fraction of animals drawn bright instead of dark
+    false_blob_rate: float = 0.01  # false blobs per frame per camera
+    false_blob_frames: tuple[int, int] = (1, 4)  # how long one lasts
+    noise_bank_frames: int = 3
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.noise_sigma <= 40.0):
+            raise ValueError(f"noise sigma must be 0..40 grey levels, got {self.noise_sigma}")
+        if not (0.0 < self.contrast <= 1.0):
+            raise ValueError(f"contrast must be in (0, 1], got {self.contrast}")
+        if not (0.0 <= self.bright_fraction <= 1.0):
+            raise ValueError(f"bright fraction must be in [0, 1], got {self.bright_fraction}")
+        if not (1.0 <= self.background_level <= 250.0):
+            raise ValueError(f"background level must be 1..250, got {self.background_level}")
+
+
+@dataclass
+class _FalseBlob:
+    u: float
+    v: float
+    sigma: float
+    amplitude: float  # signed grey levels
+    frames_left: int
+
+
+@dataclass
+class DrawnBlob:
+    """What was drawn, for tests and for checking the edge's detections."""
+
+    animal: int  # -1 for a false blob
+    u: float
+    v: float
+
+
+@dataclass
+class CameraRenderer:
+    camera: Camera
+    params: RenderParams = field(default_factory=RenderParams)
+    seed: int = 0
+    bright: NDArray[np.bool_] | None = None  # per animal, set by the caller or drawn from bright_fraction
+
+    def __post_init__(self) -> None:
+        cam, p = self.camera, self.params
+        self.rng = np.random.default_rng(self.seed)
+        h, w = cam.height, cam.width
+        # Background: smooth structure (upsampled coarse noise) x vignetting.
+        coarse = self.rng.normal(0.0, 1.0, (max(2, h // 48), max(2, w // 48))).astype(np.float32)
+        smooth = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
+        smooth /= max(1e-6, float(np.abs(smooth).max()))
+        bg = p.background_level * (1.0 + p.texture * smooth)
+        if p.vignetting:
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+            r2 = ((xx - cam.K[0, 2]) ** 2 + (yy - cam.K[1, 2]) ** 2) / float(cam.K[0, 0]) ** 2
+            bg *= 1.0 / (1.0 + r2) ** 2  # cos^4 of the field angle
+        self._bg = bg.astype(np.float32)
+        self._levels: dict[int, U8] = {}
+        self._level_step = 1.0 / p.background_level  # about one grey level per cached background
+        # Noise bank: values offset by `off` so one saturating uint8 add applies signed noise.
+        self._off = int(math.ceil(4 * p.noise_sigma)) if p.noise_sigma > 0 else 0
+        n = h * w * max(2, p.noise_bank_frames)
+        bank = self.rng.normal(self._off, p.noise_sigma, n) if p.noise_sigma > 0 else np.zeros(n)
+        self._bank = np.clip(np.rint(bank), 0, 255).astype(np.uint8)
+        self._n_pix = h * w
+        self._phase = self.rng.uniform(0, 2 * math.pi, 2)
+        self._false: list[_FalseBlob] = []
+        self._out = np.empty((h, w), np.uint8)
+
+    # --- background -----------------------------------------------------------------------------
+    def gain(self, t: float) -> float:
+        p = self.params
+        a = p.drift_amplitude
+        return 1.0 + a * (
+            0.8 * math.sin(2 * math.pi * t / p.drift_period_s + self._phase[0])
+            + 0.2 * math.sin(2 * math.pi * t / (p.drift_period_s * 0.31) + self._phase[1])
+        )
+
+    def _background(self, g: float) -> U8:
+        q = int(round((g - 1.0) / self._level_step))
+        base = self._levels.get(q)
+        if base is None:
+            level = self._bg * (1.0 + q * self._level_step) - self._off
+            base = np.clip(np.rint(level), 0, 255).astype(np.uint8)
+            self._levels[q] = base
+        return base
+
+    # --- frames ---------------------------------------------------------------------------------
+    def render(
+        self, t: float, pos: NDArray[np.float64], axis: NDArray[np.float64], body_length_m: float,
+        body_width_m: float, drawn: list[DrawnBlob] | None = None,
+    ) -> U8:
+        """The frame at time t for animals at `pos` (n,3) with unit body axes `axis` (n,3).
+
+        Returns a uint8 (height, width) array that is reused by the next call (copy it to keep it)."""
+        p = self.params
+        out = self._out
+        base = self._background(self.gain(t))
+        start = int(self.rng.integers(0, self._bank.size - self._n_pix))
+        noise = self._bank[start : start + self._n_pix].reshape(out.shape)
+        cv2.add(base, noise, dst=out)
+        n = pos.shape[0]
+        if self.bright is None or self.bright.shape[0] != n:
+            self.bright = self.rng.random(n) < p.bright_fraction
+        if n:
+            self._draw_animals(out, pos, axis, body_length_m, body_width_m, drawn)
+        self._draw_false(out, drawn)
+        return out
+
+    def _draw_animals(
+        self, out: U8, pos: NDArray[np.float64], axis: NDArray[np.float64], length: float, width: float,
+        drawn: list[DrawnBlob] | None,
+    ) -> None:
+        cam, p = self.camera, self.params
+        n = pos.shape[0]
+        half = 0.5 * length * axis
+        pts = np.concatenate([pos, pos + half, pos - half])
+        uv = cam.project(pts)
+        depth = cam.to_camera(pos)[:, 2]
+        visible = cam.in_view(pos, margin=2.0)
+        if not np.any(visible):
+            return
+        c, head, tail = uv[:n], uv[n : 2 * n], uv[2 * n :]
+        major = head - tail
+        f = float(cam.K[0, 0])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            l_px = np.linalg.norm(major, axis=1)
+            w_px = f * width / depth
+        s_maj = np.sqrt((l_px / 3.0) ** 2 + p.psf_sigma_px**2)
+        s_min = np.sqrt((w_px / 3.0) ** 2 + p.psf_sigma_px**2)
+        # Occlusion: a nearer animal whose blob covers this one's centre hides it.
+        order = np.argsort(depth)
+        shown: list[int] = []
+        for i in order:
+            if not visible[i]:
+                continue
+            if any(np.hypot(*(c[i] - c[j])) < s_maj[j] for j in shown):
+                continue
+            shown.append(int(i))
+        for i in shown:
+            ang = math.atan2(major[i, 1], major[i, 0]) if l_px[i] > 1e-9 else 0.0
+            self._blob(out, c[i, 0], c[i, 1], s_maj[i], s_min[i], ang, bool(self.bright[i]))
+            if drawn is not None:
+                drawn.append(DrawnBlob(int(i), float(c[i, 0]), float(c[i, 1])))
+
+    def _blob(self, out: U8, u: float, v: float, s_maj: float, s_min: float, ang: float, bright: bool) -> None:
+        h, w = out.shape
+        r = int(math.ceil(3.5 * s_maj)) + 1
+        x0, x1 = max(0, int(u) - r), min(w, int(u) + r + 2)
+        y0, y1 = max(0, int(v) - r), min(h, int(v) + r + 2)
+        if x0 >= x1 or y0 >= y1:
+            return
+        ys, xs = np.ogrid[y0:y1, x0:x1]
+        dx, dy = xs - u, ys - v
+        ca, sa = math.cos(ang), math.sin(ang)
+        a = dx * ca + dy * sa
+        b = -dx * sa + dy * ca
+        g = np.exp(-0.5 * (a * a / (s_maj * s_maj) + b * b / (s_min * s_min)))
+        win = out[y0:y1, x0:x1].astype(np.float32)
+        k = self.params.contrast * g
+        win = win * (1.0 + k) if bright else win * (1.0 - k)
+        out[y0:y1, x0:x1] = np.clip(np.rint(win), 0, 255).astype(np.uint8)
+
+    def _draw_false(self, out: U8, drawn: list[DrawnBlob] | None) -> None:
+        p = self.params
+        h, w = out.shape
+        for _ in range(int(self.rng.poisson(p.false_blob_rate))):
+            self._false.append(
+                _FalseBlob(
+                    u=float(self.rng.uniform(0, w - 1)),
+                    v=float(self.rng.uniform(0, h - 1)),
+                    sigma=float(self.rng.uniform(0.8, 2.0)),
+                    amplitude=float(self.rng.uniform(40, 90) * self.rng.choice((-1.0, 1.0))),
+                    frames_left=int(self.rng.integers(p.false_blob_frames[0], p.false_blob_frames[1] + 1)),
+                )
+            )
+        keep: list[_FalseBlob] = []
+        for fb in self._false:
+            r = int(math.ceil(3.5 * fb.sigma)) + 1
+            x0, x1 = max(0, int(fb.u) - r), min(w, int(fb.u) + r + 2)
+            y0, y1 = max(0, int(fb.v) - r), min(h, int(fb.v) + r + 2)
+            ys, xs = np.ogrid[y0:y1, x0:x1]
+            g = np.exp(-0.5 * ((xs - fb.u) ** 2 + (ys - fb.v) ** 2) / fb.sigma**2)
+            win = out[y0:y1, x0:x1].astype(np.float32) + fb.amplitude * g
+            out[y0:y1, x0:x1] = np.clip(np.rint(win), 0, 255).astype(np.uint8)
+            if drawn is not None:
+                drawn.append(DrawnBlob(-1, fb.u, fb.v))
+            fb.frames_left -= 1
+            if fb.frames_left > 0:
+                keep.append(fb)
+        self._false = keep
