@@ -210,6 +210,10 @@ class SerialMessage:
     def values(self) -> tuple:
         return astuple(self)
 
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
 
 _PRESCALER = (1, 5)
 
