@@ -117,6 +117,15 @@ static inline void ft_text_load(char *dst, const uint8_t *p, size_t n) {
     dst[n] = 0;
 }
 
+/* Whether src (char[n + 1]) holds a NUL within its n + 1 bytes, i.e. fits a field of n bytes. */
+static inline int ft_text_fits(const char *src, size_t n) {
+    size_t i;
+    for (i = 0; i <= n; i++)
+        if (src[i] == 0)
+            return 1;
+    return 0;
+}
+
 /* Writes src (char[n + 1]) into a field of n bytes, NUL-padded. FT_E_BAD_FIELD if src has no NUL
  * within its n + 1 bytes (the text does not fit). */
 static inline ft_err ft_text_store(uint8_t *p, size_t n, const char *src) {
