@@ -47,3 +47,43 @@ class TrackingParams(BaseModel):
     min_eccentricity_for_orientation: float = Field(
         1.4, ge=1, description="Only points at least this elongated contribute to body orientation."
     )
+    min_area_px: float = Field(
+        0.0, ge=0, description="A point must have an area above this to be used (seed 000 eq. 3.11), px."
+    )
+    area_smoothing: float = Field(
+        0.1, gt=0, le=1, description="Weight of this frame's mean point area in a target's running area estimate."
+    )
+    exclusive_points: bool = Field(
+        True,
+        description=(
+            "Within one camera a point feeds at most one target: when several targets' nearest neighbours "
+            "are the same point, scipy's linear_sum_assignment chooses globally. False gives flydra's "
+            "independent per-target choice, where only the merge-prevention rule (seed 000 3.2.1) acts."
+        ),
+    )
+    confirm_min_frames: int = Field(
+        3,
+        ge=1,
+        description=(
+            "A newborn target is reported (estimates, born, associations) once it has been updated with "
+            "observations in this many frames, its birth frame included. Chance 2-camera matches of false "
+            "positives are born and die unseen. 1 reports every birth at once, as Braid does."
+        ),
+    )
+    birth_min_separation_m: float = Field(
+        0.0,
+        ge=0,
+        description=(
+            "A birth hypothesis closer than this to an existing target's predicted position is refused, "
+            "metres (0 = off, as in flydra)."
+        ),
+    )
+    orientation_min_plane_angle_deg: float = Field(
+        10.0,
+        gt=0,
+        lt=90,
+        description=(
+            "Body orientation is reported only when at least two of the cameras' planes meet at this "
+            "angle or more (nearly parallel planes leave the line of intersection undefined), degrees."
+        ),
+    )

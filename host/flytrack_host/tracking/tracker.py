@@ -1,0 +1,355 @@
+"""The multi-target tracker: one EKF per target, NNSF association, births, deaths, orientation.
+
+One call of `Tracker.process` per trigger frame (seed 000 section 3, Braid's defaults):
+  1. predict every target by dt = (trigger_frame - previous trigger_frame) * frame period;
+  2. gather the frame's finite points from all cameras (NaN/inf points are skipped and counted);
+  3. associate points to targets (association.py) and update each target that got points with the
+     EKF through every camera's distorted projection (Joseph form, ekf.py); a target without points
+     keeps its prior as posterior;
+  4. body orientation from the associated points' image angles (orientation.py);
+  5. deaths: a target whose position std passes death_position_std_m is removed;
+  6. births from the points no target claimed (birth.py); a newborn is updated at once with them.
+Targets live in stacked arrays (state (T, 6), covariance (T, 6, 6), ...) so each step is a handful of
+NumPy calls whatever the number of targets and cameras; no per-point Python objects are made.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flytrack_host.camera import Camera
+from flytrack_host.tracking.association import PointSet, associate
+from flytrack_host.tracking.birth import find_births
+from flytrack_host.tracking.ekf import cv_process_noise, cv_transition, joseph_update, predict
+from flytrack_host.tracking.observation import CameraArray
+from flytrack_host.tracking.orientation import axes_from_normals, plane_normals
+from flytrack_host.tracking.params import TrackingParams
+from flytrack_host.tracking.types import Association, Estimate, FrameBundle, FrameResult
+
+F64 = NDArray[np.float64]
+_REQUIRED_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "orientation", "eccentricity")
+
+STAT_KEYS = (
+    "frames",  # bundles processed
+    "stale_bundles",  # bundles whose trigger_frame did not advance: ignored
+    "skipped_frames",  # trigger frames that never arrived (gaps between bundles)
+    "points",  # finite points used
+    "nonfinite_points",  # points with NaN/inf position or area: skipped
+    "nonfinite_orientation",  # points with an infinite angle or eccentricity: used, without orientation
+    "unknown_camera_points",  # points from a camera index the tracker has no calibration for: skipped
+    "births",  # targets started (tentative)
+    "confirmed",  # targets confirmed and reported
+    "deaths",  # reported targets that died
+    "tentative_dropped",  # targets that died before confirmation
+    "rejected_updates",  # EKF updates refused because the posterior was not finite / positive definite
+    "conflicts_resolved",  # cameras where targets clashed over a point (global assignment)
+    "merges_prevented",  # targets stripped of shared points by the merge-prevention rule
+)
+
+
+class Tracker:
+    """Multi-target 3D tracker. `cameras`: camera_index -> Camera (as in the rig file);
+    `frame_period_s`: the trigger period (1 / fps)."""
+
+    def __init__(self, cameras: Mapping[int, Camera], params: TrackingParams, frame_period_s: float) -> None:
+        if not (math.isfinite(frame_period_s) and frame_period_s > 0):
+            raise ValueError(f"frame_period_s must be a positive number of seconds, got {frame_period_s!r}")
+        self.cams = CameraArray(cameras)
+        self.params = params
+        self.frame_period_s = float(frame_period_s)
+        self.stats: dict[str, int] = dict.fromkeys(STAT_KEYS, 0)
+        self._last_frame: int | None = None
+        self._next_obj_id = 0
+        p = params
+        self._P0 = np.diag([p.initial_position_std_m**2] * 3 + [p.initial_velocity_std_m_s**2] * 3)
+        self._r2 = p.measurement_noise_px**2
+        self._R_cache: dict[int, F64] = {}
+        self._death_var = p.death_position_std_m**2
+        self._ok_dtypes: set[np.dtype] = set()
+        # Targets, stacked. obj_id is -1 while tentative.
+        self._x = np.empty((0, 6))
+        self._P = np.empty((0, 6, 6))
+        self._area = np.empty(0)
+        self._obj_id = np.empty(0, dtype=np.int64)
+        self._n_obs = np.empty(0, dtype=np.int64)
+        self._axis = np.empty((0, 3))
+
+    # --- public ---------------------------------------------------------------------------------
+    @property
+    def n_targets(self) -> int:
+        """Targets alive, tentative ones included."""
+        return int(self._x.shape[0])
+
+    def process(self, bundle: FrameBundle) -> FrameResult:
+        frame = int(bundle.trigger_frame)
+        result = FrameResult(trigger_frame=frame, timestamp=bundle.timestamp)
+        if self._last_frame is not None:
+            steps = frame - self._last_frame
+            if steps <= 0:
+                # Time cannot run backwards in a filter: the bundle is ignored (the recorder keeps it).
+                self.stats["stale_bundles"] += 1
+                self._report(result, None, np.zeros(self.n_targets, dtype=np.intp))
+                return result
+            self.stats["skipped_frames"] += steps - 1
+        else:
+            steps = 1
+        self._last_frame = frame
+        self.stats["frames"] += 1
+        p = self.params
+
+        # 1. Predict.
+        if self.n_targets:
+            dt = steps * self.frame_period_s
+            self._x, self._P = predict(
+                self._x, self._P, cv_transition(dt), cv_process_noise(dt, p.motion_noise_scale)
+            )
+
+        # 2. Points.
+        pts = self._gather(bundle)
+        C = self.cams.n
+        claimed = np.zeros(pts.n, dtype=bool)
+        assign = np.full((C, self.n_targets), -1, dtype=np.intp)
+
+        # 3. Associate and update.
+        if self.n_targets and pts.n:
+            uv, J, front = self.cams.project_jacobian(self._x[:, :3])
+            res = associate(
+                pts, C, uv, front, self._x[:, :3], self._P[:, :3, :3], self._area, self.cams.centers, p
+            )
+            assign = res.assign
+            self.stats["conflicts_resolved"] += res.conflicts_resolved
+            self.stats["merges_prevented"] += res.merges_prevented
+            has = assign >= 0
+            upd = np.flatnonzero(has.any(axis=0))
+            if upd.size:
+                claimed[assign[has]] = True
+                accepted = self._update(upd, assign[:, upd], uv[:, upd], J[:, upd], pts)
+                if not accepted.all():
+                    assign[:, upd[~accepted]] = -1
+                    upd = upd[accepted]
+                if upd.size:
+                    self._orient(upd, assign[:, upd], J[:, upd], pts)
+        n_cams = (assign >= 0).sum(axis=0)
+
+        # 5. Deaths.
+        pos_var = np.max(np.diagonal(self._P[:, :3, :3], axis1=1, axis2=2), axis=1) if self.n_targets else None
+        if pos_var is not None:
+            dead = ~(pos_var <= self._death_var)  # NaN dies too
+            if dead.any():
+                ids = self._obj_id[dead]
+                result.died.extend(int(i) for i in ids[ids >= 0])
+                self.stats["deaths"] += int((ids >= 0).sum())
+                self.stats["tentative_dropped"] += int((ids < 0).sum())
+                keep = ~dead
+                self._keep(keep)
+                assign = assign[:, keep]
+                n_cams = n_cams[keep]
+
+        # 6. Births.
+        if pts.n - int(claimed.sum()) >= p.birth_min_cameras:
+            births = find_births(self.cams, pts, ~claimed, p, self._x[:, :3] if self.n_targets else None)
+            if births:
+                assign, n_cams = self._add_births(births, pts, assign, n_cams)
+
+        # Confirmation of targets seen in enough frames.
+        new = (self._obj_id < 0) & (self._n_obs >= p.confirm_min_frames)
+        for k in np.flatnonzero(new):
+            self._obj_id[k] = self._next_obj_id
+            result.born.append(self._next_obj_id)
+            self._next_obj_id += 1
+            self.stats["confirmed"] += 1
+
+        self._report(result, (assign, pts), n_cams)
+        return result
+
+    # --- steps ----------------------------------------------------------------------------------
+    def _gather(self, bundle: FrameBundle) -> PointSet:
+        slot_of = self.cams.slot_of
+        parts: list[tuple[int, np.ndarray]] = []
+        for ci, arr in bundle.detections.items():
+            s = slot_of.get(ci)
+            if s is None:
+                self.stats["unknown_camera_points"] += len(arr)
+                continue
+            if len(arr):
+                self._check_dtype(ci, arr)
+                parts.append((s, arr))
+        C = self.cams.n
+        if not parts:
+            e = np.empty(0)
+            ei = np.empty(0, dtype=np.intp)
+            return PointSet(ei, ei, e, e, e, e, e, e, e, np.zeros(C + 1, dtype=np.intp), np.empty((0, 3)))
+        parts.sort(key=lambda sa: sa[0])
+        counts = np.array([len(a) for _, a in parts])
+        slots = np.array([s for s, _ in parts], dtype=np.intp)
+        cat = parts[0][1] if len(parts) == 1 else np.concatenate([a for _, a in parts])
+        slot = np.repeat(slots, counts)
+        offsets = np.repeat(np.cumsum(counts) - counts, counts)
+        index = np.arange(slot.size) - offsets
+        u = cat["x_dist"].astype(np.float64)
+        v = cat["y_dist"].astype(np.float64)
+        ui = cat["x_undist"].astype(np.float64)
+        vi = cat["y_undist"].astype(np.float64)
+        area = cat["area"].astype(np.float64)
+        ori = cat["orientation"].astype(np.float64)
+        ecc = cat["eccentricity"].astype(np.float64)
+        finite = np.isfinite(u) & np.isfinite(v) & np.isfinite(ui) & np.isfinite(vi) & np.isfinite(area)
+        n_bad = slot.size - int(finite.sum())
+        if n_bad:
+            self.stats["nonfinite_points"] += n_bad
+            slot, index, u, v, ui, vi = slot[finite], index[finite], u[finite], v[finite], ui[finite], vi[finite]
+            area, ori, ecc = area[finite], ori[finite], ecc[finite]
+        inf_ori = np.isinf(ori) | np.isinf(ecc)
+        if inf_ori.any():
+            self.stats["nonfinite_orientation"] += int(inf_ori.sum())
+            ori = np.where(inf_ori, np.nan, ori)
+        self.stats["points"] += int(slot.size)
+        starts = np.searchsorted(slot, np.arange(C + 1)).astype(np.intp)
+        rays = self.cams.ray_directions(slot, ui, vi)
+        return PointSet(slot, index, u, v, ui, vi, area, ori, ecc, starts, rays)
+
+    def _check_dtype(self, ci: int, arr: np.ndarray) -> None:
+        dt = getattr(arr, "dtype", None)
+        if dt in self._ok_dtypes:
+            return
+        names = dt.names if dt is not None else None
+        if not names or any(f not in names for f in _REQUIRED_FIELDS):
+            raise TypeError(
+                f"camera {ci}: detections must be a NumPy structured array of the protocol point dtype "
+                f"(fields {', '.join(_REQUIRED_FIELDS)}), got {dt!r}"
+            )
+        self._ok_dtypes.add(dt)
+
+    def _R(self, m: int) -> F64:
+        R = self._R_cache.get(m)
+        if R is None:
+            R = self._R_cache[m] = self._r2 * np.eye(m)
+        return R
+
+    def _update(
+        self, upd: NDArray[np.intp], sel: NDArray[np.intp], uv: F64, J: F64, pts: PointSet
+    ) -> NDArray[np.bool_]:
+        """EKF update of targets `upd` with points sel (C, Tu) (-1: none); uv (C, Tu, 2) and J
+        (C, Tu, 2, 3) are the observation model at the prior. Returns the accepted mask (Tu,)."""
+        x, P, accepted = self._ekf(self._x[upd], self._P[upd], sel, uv, J, pts)
+        self._x[upd] = x
+        self._P[upd] = P
+        if not accepted.all():
+            self.stats["rejected_updates"] += int((~accepted).sum())
+        has = sel >= 0
+        # Running area of each target, from this frame's mean point area.
+        n = has.sum(axis=0)
+        area_sum = np.where(has, pts.area[sel], 0.0).sum(axis=0)
+        a = self.params.area_smoothing
+        good = accepted & (n > 0)
+        self._area[upd[good]] = (1 - a) * self._area[upd[good]] + a * area_sum[good] / n[good]
+        self._n_obs[upd[accepted]] += 1
+        return accepted
+
+    def _ekf(
+        self, x: F64, P: F64, sel: NDArray[np.intp], uv: F64, J: F64, pts: PointSet
+    ) -> tuple[F64, F64, NDArray[np.bool_]]:
+        """Stack each target's observations over the cameras that have any, zero-padding the rest
+        (a zero row of H with zero innovation carries no information), and run the Joseph update."""
+        has = sel >= 0
+        cams_used = np.flatnonzero(has.any(axis=1))
+        sel, has, uv, J = sel[cams_used], has[cams_used], uv[cams_used], J[cams_used]
+        Cu, Tu = sel.shape
+        rows = np.where(has, sel, 0)
+        z = np.where(has[..., None], np.stack([pts.u[rows], pts.v[rows]], axis=-1), uv)  # (Cu, Tu, 2)
+        H = np.zeros((Tu, Cu, 2, 6))
+        H[..., :3] = np.where(has[..., None, None], J, 0.0).transpose(1, 0, 2, 3)
+        m = 2 * Cu
+        return joseph_update(
+            x, P, z.transpose(1, 0, 2).reshape(Tu, m), uv.transpose(1, 0, 2).reshape(Tu, m),
+            H.reshape(Tu, m, 6), self._R(m),
+        )
+
+    def _orient(self, upd: NDArray[np.intp], sel: NDArray[np.intp], J: F64, pts: PointSet) -> None:
+        rows = np.where(sel >= 0, sel, 0)
+        theta = pts.orientation[rows]
+        ecc = pts.eccentricity[rows]
+        with np.errstate(invalid="ignore"):
+            use = (sel >= 0) & np.isfinite(theta) & (ecc >= self.params.min_eccentricity_for_orientation)
+        enough = use.sum(axis=0) >= 2
+        if not enough.any():
+            self._axis[upd] = np.nan
+            return
+        normals = plane_normals(J, np.where(use, theta, 0.0))  # (C, Tu, 3)
+        normals = np.where(use[..., None], normals, 0.0).transpose(1, 0, 2)
+        axes, ok = axes_from_normals(normals[enough], self.params.orientation_min_plane_angle_deg)
+        idx = upd[enough]
+        prev = self._axis[idx]
+        # The sign is unobservable: keep it continuous, or along the velocity for a first estimate.
+        ref = np.where(np.isfinite(prev), prev, self._x[idx, 3:])
+        flip = np.einsum("ij,ij->i", axes, ref) < 0
+        axes[flip] *= -1.0
+        axes[~ok] = np.nan
+        self._axis[upd] = np.nan
+        self._axis[idx] = axes
+
+    def _keep(self, keep: NDArray[np.bool_]) -> None:
+        self._x = self._x[keep]
+        self._P = self._P[keep]
+        self._area = self._area[keep]
+        self._obj_id = self._obj_id[keep]
+        self._n_obs = self._n_obs[keep]
+        self._axis = self._axis[keep]
+
+    def _add_births(
+        self, births: list, pts: PointSet, assign: NDArray[np.intp], n_cams: NDArray[np.intp]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        B = len(births)
+        C = self.cams.n
+        X = np.stack([b.position for b in births])
+        x0 = np.zeros((B, 6))
+        x0[:, :3] = X
+        P0 = np.broadcast_to(self._P0, (B, 6, 6)).copy()
+        sel = np.full((C, B), -1, dtype=np.intp)
+        for k, b in enumerate(births):
+            sel[pts.slot[b.rows], k] = b.rows
+        # The newborn's first update uses its birth points, linearised at the triangulated point.
+        uv, J, _ = self.cams.project_jacobian(X)
+        x, P, accepted = self._ekf(x0, P0, sel, uv, J, pts)
+        self.stats["births"] += B
+        self.stats["rejected_updates"] += int((~accepted).sum())
+        area = np.array([pts.area[b.rows].mean() for b in births])
+        self._x = np.concatenate([self._x, x])
+        self._P = np.concatenate([self._P, P])
+        self._area = np.concatenate([self._area, area])
+        self._obj_id = np.concatenate([self._obj_id, np.full(B, -1, dtype=np.int64)])
+        self._n_obs = np.concatenate([self._n_obs, accepted.astype(np.int64)])
+        self._axis = np.concatenate([self._axis, np.full((B, 3), np.nan)])
+        sel[:, ~accepted] = -1
+        if B:
+            start = self.n_targets - B
+            upd = np.arange(start, self.n_targets)[accepted]
+            if upd.size:
+                self._orient(upd, sel[:, accepted], J[:, accepted], pts)
+        return np.concatenate([assign, sel], axis=1), np.concatenate([n_cams, (sel >= 0).sum(axis=0)])
+
+    def _report(
+        self, result: FrameResult, assoc: tuple[NDArray[np.intp], PointSet] | None, n_cams: NDArray[np.intp]
+    ) -> None:
+        cam_index = self.cams.indices
+        for k in np.flatnonzero(self._obj_id >= 0):
+            obj = int(self._obj_id[k])
+            axis = self._axis[k]
+            result.estimates.append(
+                Estimate(
+                    obj_id=obj,
+                    state=self._x[k].copy(),
+                    covariance=self._P[k].copy(),
+                    n_cameras=int(n_cams[k]),
+                    orientation=axis.copy() if np.isfinite(axis[0]) else None,
+                )
+            )
+            if assoc is not None:
+                assign, pts = assoc
+                for c in np.flatnonzero(assign[:, k] >= 0):
+                    row = assign[c, k]
+                    result.associations.append(Association(obj, cam_index[c], int(pts.index[row])))
