@@ -456,8 +456,12 @@ static uint32_t measure(ft_fx *fx, uint32_t n, uint32_t *total) {
     for (uint32_t k = 0; k < n; k++) {
         region *g = &fx->regions[fx->cand_region[k]];
         double cut = fx->p.clear_fraction * (double)g->beta;
+        /* The cut never lies below the detection threshold either: with weights d - cut they then
+         * fall continuously to zero at the region's edge, which keeps the centre unbiased. */
         if (cut < fx->p.despeckle_threshold)
             cut = fx->p.despeckle_threshold;
+        if (cut < fx->p.diff_threshold)
+            cut = fx->p.diff_threshold;
         double d = fx->cand_d[k];
         if (d < cut)
             continue;

@@ -4,7 +4,7 @@
  * `bg_update_interval` frames with weight `alpha`). A pixel is a candidate when its difference to the
  * background mean exceeds both `diff_threshold` and `n_sigma` x the background std. Candidates are grouped
  * into 8-connected regions; each region gives one point: peak difference beta, pixels below
- * `clear_fraction` x beta cleared, area (pixel count), centre (1st moments), orientation and eccentricity
+ * max(`clear_fraction` x beta, `diff_threshold`, `despeckle_threshold`) cleared, area (pixel count), centre (1st moments), orientation and eccentricity
  * (2nd central moments), then the centre is corrected for lens distortion (OpenCV model, as the host's
  * camera.py). Points are ordered strongest first.
  *
