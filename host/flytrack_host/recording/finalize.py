@@ -70,35 +70,6 @@ def read_raw_textlog(folder: Path) -> tuple[list[dict], int]:
     return rows, dropped
 
 
-def latency_summary(lat: np.ndarray) -> dict[str, float]:
-    """P50/P99/max (ms) of trigger -> estimate and its parts, from LATENCY rows."""
-    out: dict[str, float] = {"n": float(len(lat))}
-    if len(lat) == 0:
-        return out
-    parts = {
-        "total": lat["estimate_time"] - lat["trigger_time"],
-        "arrival": lat["last_arrival"] - lat["trigger_time"],
-        "tracking": lat["estimate_time"] - lat["last_arrival"],
-    }
-    for key, v in parts.items():
-        v = v[np.isfinite(v)] * 1e3
-        if len(v) == 0:
-            continue
-        out[f"{key}_p50_ms"] = float(np.percentile(v, 50))
-        out[f"{key}_p99_ms"] = float(np.percentile(v, 99))
-        out[f"{key}_max_ms"] = float(v.max())
-    return out
-
-
-def latency_histogram(lat: np.ndarray, bin_ms: float = 0.1, max_ms: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
-    """Histogram (counts, bin edges in ms) of trigger -> estimate latency; the last bin holds overflow."""
-    v = (lat["estimate_time"] - lat["trigger_time"]) * 1e3
-    v = v[np.isfinite(v)]
-    edges = np.arange(0.0, max_ms + bin_ms, bin_ms)
-    counts, _ = np.histogram(np.clip(v, 0.0, max_ms - bin_ms / 2), bins=edges)
-    return counts.astype(np.int64), edges
-
-
 def finalize(folder: Path | str) -> FinalizeReport:
     folder = Path(folder)
     meta = read_meta(folder)
@@ -126,6 +97,8 @@ def finalize(folder: Path | str) -> FinalizeReport:
             tl[i] = (row.get("host_time", np.nan), str(row.get("source", "")), str(row.get("message", "")))
         h5.create_dataset("textlog", data=tl)
         if "latency" in meta["tables"]:
+            from flytrack_host.latency import latency_histogram, latency_summary  # (import cycle)
+
             lat = h5["latency"][...].astype(LATENCY)
             counts, edges = latency_histogram(lat)
             g = h5.create_group("latency_histogram")

@@ -1,0 +1,106 @@
+"""Latency instrumentation: for every tracked frame, trigger time -> estimate time and its parts.
+
+Parts: arrival (trigger -> the last camera's packet of the frame reached the host) and tracking
+(that moment -> the estimate was ready). Times are host clock seconds; the trigger time comes from
+the trigger clock model. Each frame gives one LATENCY row (kept in the recording); a fixed-bin
+histogram (0.1 ms bins up to 1 s, overflow in the last bin) gives P50, P99 and max without keeping
+every value in memory.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from flytrack_host.recording.schema import LATENCY
+
+BIN_MS = 0.1
+MAX_MS = 1000.0
+PARTS = ("total", "arrival", "tracking")
+
+
+def latency_summary(lat: np.ndarray) -> dict[str, float]:
+    """P50/P99/max (ms) of each part, from LATENCY rows (exact percentiles)."""
+    out: dict[str, float] = {"n": float(len(lat))}
+    if len(lat) == 0:
+        return out
+    parts = {
+        "total": lat["estimate_time"] - lat["trigger_time"],
+        "arrival": lat["last_arrival"] - lat["trigger_time"],
+        "tracking": lat["estimate_time"] - lat["last_arrival"],
+    }
+    for key, v in parts.items():
+        v = v[np.isfinite(v)] * 1e3
+        if len(v) == 0:
+            continue
+        out[f"{key}_p50_ms"] = float(np.percentile(v, 50))
+        out[f"{key}_p99_ms"] = float(np.percentile(v, 99))
+        out[f"{key}_max_ms"] = float(v.max())
+    return out
+
+
+def latency_histogram(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Histogram (counts, bin edges in ms) of trigger -> estimate; the last bin holds overflow."""
+    v = (lat["estimate_time"] - lat["trigger_time"]) * 1e3
+    v = v[np.isfinite(v)]
+    edges = np.arange(0.0, MAX_MS + BIN_MS / 2, BIN_MS)
+    counts, _ = np.histogram(np.clip(v, 0.0, MAX_MS - BIN_MS / 2), bins=edges)
+    return counts.astype(np.int64), edges
+
+
+class LatencyStats:
+    """Running histograms of the three parts, fed one frame at a time from the tracking thread."""
+
+    def __init__(self) -> None:
+        n = int(round(MAX_MS / BIN_MS))
+        self.counts = {p: np.zeros(n, dtype=np.int64) for p in PARTS}
+        self.max_ms = dict.fromkeys(PARTS, 0.0)
+        self.n = 0
+
+    def row(self, trigger_frame: int, trigger_time: float, first_arrival: float, last_arrival: float,
+            estimate_time: float, n_cameras: int, n_missing: int) -> np.ndarray:
+        """Account one frame; returns its LATENCY row for the recording."""
+        self.n += 1
+        vals = {
+            "total": estimate_time - trigger_time,
+            "arrival": last_arrival - trigger_time,
+            "tracking": estimate_time - last_arrival,
+        }
+        n_bins = len(self.counts["total"])
+        for p, v in vals.items():
+            if math.isfinite(v):
+                ms = v * 1e3
+                self.max_ms[p] = max(self.max_ms[p], ms)
+                self.counts[p][min(max(int(ms / BIN_MS), 0), n_bins - 1)] += 1
+        r = np.zeros(1, dtype=LATENCY)
+        r[0] = (trigger_frame, trigger_time, first_arrival, last_arrival, estimate_time, n_cameras, n_missing)
+        return r
+
+    def percentile(self, part: str, q: float) -> float:
+        c = self.counts[part]
+        total = int(c.sum())
+        if total == 0:
+            return math.nan
+        k = int(np.searchsorted(np.cumsum(c), math.ceil(q / 100.0 * total)))
+        return min((k + 0.5) * BIN_MS, self.max_ms[part])
+
+    def summary(self) -> dict[str, float]:
+        out: dict[str, float] = {"n": float(self.n)}
+        for p in PARTS:
+            if self.counts[p].sum():
+                out[f"{p}_p50_ms"] = self.percentile(p, 50)
+                out[f"{p}_p99_ms"] = self.percentile(p, 99)
+                out[f"{p}_max_ms"] = self.max_ms[p]
+        return out
+
+    def format(self) -> str:
+        s = self.summary()
+        if self.n == 0 or "total_p50_ms" not in s:
+            return "latency: no tracked frames"
+        lines = [f"latency over {self.n} frames (trigger -> estimate and its parts), ms:"]
+        for p in PARTS:
+            if f"{p}_p50_ms" in s:
+                lines.append(f"  {p:9s} P50 {s[f'{p}_p50_ms']:8.2f}  P99 {s[f'{p}_p99_ms']:8.2f}  "
+                             f"max {s[f'{p}_max_ms']:8.2f}")
+        return "\n".join(lines)

@@ -1,0 +1,419 @@
+"""The host's main loop: receive -> synchronise -> track -> live output, everything recorded.
+
+    pipe = HostPipeline(rig, cameras, on_result=print)
+    pipe.start(); ...; summary = pipe.stop()
+
+One tracking thread owns the socket: it waits for datagrams until the next bundle deadline, hands
+frames to the synchroniser, runs the tracker on each closed bundle and sends the live datagram at
+once. Recording rows are queued to the recorder's own thread, so disk writes never hold it up.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from flytrack_host.camera import Camera
+from flytrack_host.latency import LatencyStats
+from flytrack_host.live import LiveSender
+from flytrack_host.receiver import Receiver, StatusReport
+from flytrack_host.recording.schema import (
+    ASSOCIATION,
+    CAM_INFO,
+    CAMERA_STATUS,
+    COV_NAMES,
+    DATA2D,
+    FLAG_INCOMPLETE,
+    FLAG_LATE,
+    FLAG_REJECTED,
+    FLAG_TRACKED,
+    FLAG_TRUNCATED,
+    KALMAN,
+    TRIGGER_CLOCK,
+    cov_upper,
+)
+from flytrack_host.recording.writer import Recorder
+from flytrack_host.rig import RigConfig
+from flytrack_host.sync import (
+    CameraFrame,
+    FixedRateClock,
+    FrameClock,
+    FrameSynchronizer,
+    SyncedBundle,
+    SyncEvent,
+    UntrackedFrame,
+)
+from flytrack_host.tracking.params import TrackingParams
+from flytrack_host.tracking.types import FrameBundle, FrameResult
+
+log = logging.getLogger("flytrack.pipeline")
+
+TrackerFactory = Callable[[Mapping[int, Camera], TrackingParams, float], Any]
+_POINT_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff", "orientation",
+                 "eccentricity", "cur_val", "mean_val", "sumsq_val")
+_FLOAT_FIELDS = tuple(f for f in _POINT_FIELDS if f != "cur_val")
+
+
+def default_tracker_factory(cameras: Mapping[int, Camera], params: TrackingParams, period: float) -> Any:
+    mod = importlib.import_module("flytrack_host.tracking.tracker")
+    return mod.Tracker(cameras, params, period)
+
+
+def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int) -> np.ndarray:
+    """One DATA2D row per point of a camera frame (one NaN row for a frame without points)."""
+    pts = fr.points
+    n = len(pts)
+    rows = np.zeros(max(n, 1), dtype=DATA2D)
+    rows["trigger_frame"] = tf
+    rows["camera_index"] = fr.camera_index
+    rows["camera_frame"] = fr.camera_frame
+    rows["timestamp"] = timestamp
+    rows["cam_received_timestamp"] = fr.recv_time
+    rows["device_timestamp_ns"] = fr.device_timestamp_ns
+    rows["edge_recv_ns"] = fr.edge_recv_ns
+    rows["edge_done_ns"] = fr.edge_done_ns
+    rows["n_points"] = n
+    rows["total_points"] = fr.total_points
+    rows["flags"] = flags | (FLAG_TRUNCATED if fr.truncated else 0) | (FLAG_INCOMPLETE if fr.incomplete else 0)
+    if n:
+        rows["frame_pt_idx"] = np.arange(n)
+        names = pts.dtype.names or ()
+        for f in _POINT_FIELDS:
+            if f in names:
+                rows[f] = pts[f]
+    else:
+        for f in _FLOAT_FIELDS:
+            rows[f] = np.nan
+    return rows
+
+
+def result_rows(result: FrameResult, timestamp: float) -> tuple[np.ndarray, np.ndarray]:
+    k = np.zeros(len(result.estimates), dtype=KALMAN)
+    for i, e in enumerate(result.estimates):
+        s = np.asarray(e.state, dtype=np.float64)
+        row = k[i]
+        row["obj_id"] = e.obj_id
+        row["trigger_frame"] = result.trigger_frame
+        row["timestamp"] = timestamp
+        for j, name in enumerate(("x", "y", "z", "xvel", "yvel", "zvel")):
+            row[name] = s[j]
+        for name, v in zip(COV_NAMES, cov_upper(e.covariance), strict=True):
+            row[name] = v
+        row["n_cameras"] = e.n_cameras
+    a = np.zeros(len(result.associations), dtype=ASSOCIATION)
+    for i, asc in enumerate(result.associations):
+        a[i] = (asc.obj_id, result.trigger_frame, asc.camera_index, asc.point_index)
+    return k, a
+
+
+def default_recording_path(rig: RigConfig) -> Path:
+    stamp = time.strftime("%Y%m%d_%H%M%S")
+    return rig.recording_dir / f"{stamp}_{rig.name}.flytrack"
+
+
+class HostPipeline:
+    def __init__(
+        self,
+        rig: RigConfig,
+        cameras: Mapping[int, Camera] | None = None,
+        clock: FrameClock | None = None,
+        tracker_factory: TrackerFactory | None = default_tracker_factory,
+        record: bool = True,
+        recording_path: Path | str | None = None,
+        on_result: Callable[[FrameResult], object] | None = None,
+        bind: str | None = None,
+        keep_results: bool = False,
+        dead_timeout_s: float = 0.5,
+        rig_text: str | None = None,
+        calibration_path: Path | None = None,
+        params: TrackingParams | None = None,
+    ):
+        self.rig = rig
+        self.cameras = dict(cameras) if cameras else {}
+        self.params = params or rig.tracking
+        self.fps = rig.trigger.fps
+        self.period = 1.0 / self.fps
+        self.clock: FrameClock = clock if clock is not None else FixedRateClock(self.fps)
+        self.tracker_factory = tracker_factory
+        self.record = record
+        self.recording_path = Path(recording_path) if recording_path else default_recording_path(rig)
+        self.on_result = on_result
+        self.bind = bind
+        self.keep_results = keep_results
+        self.dead_timeout_s = dead_timeout_s
+        self.rig_text = rig_text
+        self.calibration_path = calibration_path if calibration_path is not None else rig.calibration_path
+        self.results: list[FrameResult] = []
+        self.latency = LatencyStats()
+        self.untracked: dict[str, int] = {}
+        self.events: deque[str] = deque(maxlen=200)
+        self.frames_tracked = 0
+        self.tracker_errors = 0
+        self.tracker_resets = 0
+        self.n_objects = 0
+        self.callback_errors = 0
+        self.recorder: Recorder | None = None
+        self.receiver: Receiver | None = None
+        self.live: LiveSender | None = None
+        self.sync: FrameSynchronizer | None = None
+        self.tracker: Any = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._started_at = 0.0
+        self._stopped_at = 0.0
+        self._error: BaseException | None = None
+        self._summary: dict[str, Any] | None = None
+        self._lock = threading.Lock()
+
+    # --- control ------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.receiver = Receiver(self.rig, bind=self.bind, log=lambda m: self.log(m, "receiver"))
+        self.live = LiveSender(self.rig.host.live_subscribers)
+        self.sync = FrameSynchronizer(
+            [c.index for c in self.rig.cameras], self.fps, clock=self.clock,
+            deadline_fraction=self.rig.host.sync_deadline_fraction,
+            dead_timeout_s=self.dead_timeout_s, start_time=time.time(),
+        )
+        self._make_tracker()
+        if self.record:
+            self._start_recorder()
+        self._started_at = time.time()
+        self.log(f"pipeline started: {len(self.rig.cameras)} cameras, {self.fps:g} fps, "
+                 f"listening on {self.receiver.address[0]}:{self.receiver.address[1]}")
+        self._thread = threading.Thread(target=self._loop, name="flytrack-tracking", daemon=True)
+        self._thread.start()
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """Where the pipeline receives feature datagrams (useful with port 0)."""
+        assert self.receiver is not None, "start() first"
+        return self.receiver.address
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def stop(self) -> dict[str, Any]:
+        """Stop receiving, track what is pending, finalise the recording; returns the summary."""
+        if self._summary is not None:
+            return self._summary
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self.sync is not None:
+            self._handle(self.sync.flush())
+        self._stopped_at = time.time()
+        self.log("pipeline stopped")
+        self.log(self.latency.format(), "latency")
+        h5 = None
+        if self.recorder is not None:
+            h5 = self.recorder.stop(finalize=True)
+        if self.receiver is not None:
+            self.receiver.close()
+        if self.live is not None:
+            self.live.close()
+        self._summary = self.summary(recording_h5=h5)
+        if self._error is not None:
+            raise RuntimeError(f"tracking thread failed: {self._error}") from self._error
+        return self._summary
+
+    def run_for(self, seconds: float) -> dict[str, Any]:
+        self.start()
+        try:
+            time.sleep(seconds)
+        finally:
+            summary = self.stop()
+        return summary
+
+    def log(self, message: str, source: str = "host") -> None:
+        t = time.time()
+        self.events.append(f"{time.strftime('%H:%M:%S', time.localtime(t))} {source}: {message}")
+        log.info("%s: %s", source, message)
+        if self.recorder is not None:
+            self.recorder.log(message, source, t)
+
+    def record_clock_sample(self, start_time: float, framecount: int, fraction: float, stop_time: float) -> None:
+        """Record one trigger clock sample (host time before/after the query, frame count, fraction)."""
+        if self.recorder is not None:
+            r = np.zeros(1, dtype=TRIGGER_CLOCK)
+            r[0] = (start_time, framecount, fraction, stop_time)
+            self.recorder.append("trigger_clock_info", r)
+
+    # --- setup --------------------------------------------------------------------------------
+    def _make_tracker(self) -> None:
+        self.tracker = None
+        if self.tracker_factory is None:
+            return
+        if not self.cameras:
+            self.log("no calibration: recording 2D data only, no 3D tracking")
+            return
+        missing = [c.index for c in self.rig.cameras if c.index not in self.cameras]
+        if missing:
+            self.log(f"cameras {missing} have no calibration: their points cannot be used for 3D")
+        self.tracker = self.tracker_factory(self.cameras, self.params, self.period)
+
+    def _start_recorder(self) -> None:
+        meta = {
+            "rig_name": self.rig.name,
+            "fps": self.fps,
+            "trigger_kind": self.rig.trigger.kind,
+            "cameras": [c.model_dump() for c in self.rig.cameras],
+            "tracking_params": self.params.model_dump(),
+            "saving_program": "flytrack",
+        }
+        self.recorder = Recorder(self.recording_path, self.rig.recording.flush_interval_s, meta=meta)
+        self.recorder.start()
+        if self.rig_text is not None:
+            self.recorder.attach("rig.toml", self.rig_text.encode())
+        else:
+            self.recorder.attach("rig.json", json.dumps(self.rig.model_dump(mode="json"), indent=1).encode())
+        if self.calibration_path is not None and Path(self.calibration_path).exists():
+            p = Path(self.calibration_path)
+            self.recorder.attach("calibration" + p.suffix, p.read_bytes())
+        ci = np.zeros(len(self.rig.cameras), dtype=CAM_INFO)
+        for i, c in enumerate(self.rig.cameras):
+            ci[i] = (c.index, c.name.encode()[:64], c.edge.encode()[:64], c.calib_name.encode()[:64])
+        self.recorder.append("cam_info", ci)
+        self.recorder.log(f"MainBrain running at {self.fps:g} fps", "host")
+
+    # --- tracking thread ----------------------------------------------------------------------
+    def _loop(self) -> None:
+        assert self.receiver is not None and self.sync is not None
+        try:
+            while not self._stop.is_set():
+                d = self.sync.next_deadline()
+                now = time.time()
+                timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
+                for item in self.receiver.receive(timeout):
+                    if isinstance(item, CameraFrame):
+                        self._handle(self.sync.add(item, item.recv_time))
+                    elif isinstance(item, StatusReport):
+                        self._status(item)
+                self._handle(self.sync.poll(time.time()))
+        except BaseException as exc:  # report in stop(); the recording stays recoverable
+            self._error = exc
+            log.exception("tracking thread failed")
+
+    def _status(self, rep: StatusReport) -> None:
+        if self.recorder is None:
+            return
+        s = rep.status
+        r = np.zeros(1, dtype=CAMERA_STATUS)
+        r[0] = (rep.recv_time, rep.camera_index, int(s.state), s.frames_seen, s.frames_dropped, s.fps,
+                s.proc_us_mean, s.proc_us_max)
+        self.recorder.append("camera_status", r)
+        if s.last_error_code:
+            self.log(f"camera {rep.camera_index} reports error {s.last_error_code}: {s.last_error}", "edge")
+
+    def _handle(self, outputs: list) -> None:
+        for o in outputs:
+            if isinstance(o, SyncedBundle):
+                self._track(o)
+            elif isinstance(o, UntrackedFrame):
+                self.untracked[o.reason] = self.untracked.get(o.reason, 0) + 1
+                if self.recorder is not None:
+                    flag = FLAG_LATE if o.reason == "late" else FLAG_REJECTED
+                    t = self.sync.frame_time(o.trigger_frame) if self.sync and o.trigger_frame >= 0 else np.nan
+                    self.recorder.append("data2d_distorted", data2d_rows(o.frame, o.trigger_frame, t, flag))
+            elif isinstance(o, SyncEvent):
+                self.log(o.message, "sync")
+                if o.kind == "clock_jump" and o.global_jump and self.tracker is not None:
+                    self.tracker_resets += 1
+                    self._make_tracker()
+                    self.log("tracker restarted after the trigger clock jump", "sync")
+
+    def _track(self, sb: SyncedBundle) -> None:
+        bundle: FrameBundle = sb.bundle
+        result: FrameResult | None = None
+        if self.tracker is not None:
+            try:
+                result = self.tracker.process(bundle)
+            except Exception as exc:  # a tracker bug must not stop receiving and recording
+                self.tracker_errors += 1
+                if self.tracker_errors <= 10:
+                    self.log(f"tracker failed on frame {bundle.trigger_frame}: {exc!r}", "tracker")
+        t_est = time.time()
+        if result is not None:
+            self.frames_tracked += 1
+            self.n_objects = len(result.estimates)
+            if self.live is not None:
+                self.live.send(result, bundle.timestamp)
+        lat_row = self.latency.row(bundle.trigger_frame, bundle.timestamp, sb.first_arrival, sb.last_arrival,
+                                   t_est, len(sb.frames), len(bundle.missing_cameras))
+        if self.recorder is not None:
+            for fr in sb.frames.values():
+                self.recorder.append("data2d_distorted",
+                                     data2d_rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_TRACKED))
+            if result is not None:
+                k, a = result_rows(result, bundle.timestamp)
+                self.recorder.append("kalman_estimates", k)
+                self.recorder.append("data_association", a)
+            self.recorder.append("latency", lat_row)
+        if result is not None:
+            if self.keep_results:
+                self.results.append(result)
+            if self.on_result is not None:
+                try:
+                    self.on_result(result)
+                except Exception as exc:
+                    self.callback_errors += 1
+                    if self.callback_errors <= 10:
+                        self.log(f"on_result callback failed: {exc!r}")
+
+    # --- reporting ----------------------------------------------------------------------------
+    def status_line(self) -> str:
+        parts = [f"tracked {self.frames_tracked}", f"objects {self.n_objects}"]
+        if self.receiver is not None and self.sync is not None:
+            rs = self.receiver.stats
+            ss = self.sync.stats()
+            for c in self.rig.cameras:
+                r, s = rs.cameras[c.index], ss[c.index]
+                alive = "" if self.sync.cams[c.index].alive else " DEAD"
+                parts.append(f"{c.name}: rx {r.frames} lost {r.lost} late {s.late} bad {r.malformed} "
+                             f"dup {r.duplicated + s.duplicate} reo {r.reordered}{alive}")
+            rej = rs.rejected_address + rs.rejected_camera
+            if rej:
+                parts.append(f"rejected {rej}")
+        s = self.latency.summary()
+        if "total_p50_ms" in s:
+            parts.append(f"latency P50 {s['total_p50_ms']:.1f} P99 {s['total_p99_ms']:.1f} ms")
+        return " | ".join(parts)
+
+    def summary(self, recording_h5: Path | None = None) -> dict[str, Any]:
+        rs = self.receiver.stats if self.receiver else None
+        out: dict[str, Any] = {
+            "duration_s": (self._stopped_at or time.time()) - self._started_at,
+            "frames_tracked": self.frames_tracked,
+            "bundles_complete": self.sync.bundles_complete if self.sync else 0,
+            "bundles_deadline": self.sync.bundles_deadline if self.sync else 0,
+            "untracked": dict(self.untracked),
+            "tracker_errors": self.tracker_errors,
+            "tracker_resets": self.tracker_resets,
+            "latency": self.latency.summary(),
+            "latency_text": self.latency.format(),
+            "recording": str(recording_h5) if recording_h5 else (str(self.recording_path) if self.record else None),
+        }
+        if rs is not None:
+            out["receiver"] = {
+                "datagrams": rs.datagrams, "rejected_address": rs.rejected_address,
+                "rejected_camera": rs.rejected_camera, "malformed_unattributed": rs.malformed_unattributed,
+                "errors_by_name": dict(rs.errors_by_name),
+                "cameras": {i: asdict(c) for i, c in rs.cameras.items()},
+            }
+        if self.sync is not None:
+            out["sync"] = {i: asdict(s) for i, s in self.sync.stats().items()}
+        if self.live is not None:
+            out["live"] = asdict(self.live.stats)
+        if self.recorder is not None:
+            out["recorder"] = asdict(self.recorder.stats)
+        return out

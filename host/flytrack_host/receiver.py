@@ -1,0 +1,291 @@
+"""Receive FEATURES and STATUS datagrams from the edges over UDP.
+
+One non-blocking socket; `receive(timeout)` waits (select) for the first datagram, then drains what
+is queued, decodes with the NumPy codec (points stay a view on the datagram bytes) and returns
+`CameraFrame`s and `StatusReport`s. The caller (the pipeline's tracking thread) owns the loop, so a
+frame goes from the socket to the synchroniser without a thread hand-off.
+
+Checks: the sender's address and camera index must be in the rig file (else rejected and counted);
+per camera, sequence numbers give lost (gaps), duplicated and reordered datagrams; undecodable
+datagrams are counted by SPEC error name; SPLIT frames are joined, and a frame whose parts do not all
+arrive within `split_timeout_s` is passed on incomplete (flagged, counted).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import select
+import socket
+import time
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from flytrack_host.rig import RigConfig
+from flytrack_host.sync import CameraFrame
+
+try:
+    from flytrack_host.protocol import EdgeStatus, FeatureFrame, ProtocolError, decode_datagram
+except ImportError:  # codec package not re-exporting the UDP messages yet
+    from flytrack_host.protocol.errors import ProtocolError
+    from flytrack_host.protocol.udp import EdgeStatus, FeatureFrame, decode_datagram
+
+SEQ_MOD = 1 << 32
+_HALF = 1 << 31
+SEQ_WINDOW = 512  # recent sequence numbers remembered per camera (duplicates, reordering)
+RESTART_GAP = 10_000  # a sequence number this far behind means the edge restarted
+
+
+@dataclass
+class CameraRecvStats:
+    packets: int = 0
+    features: int = 0
+    status: int = 0
+    frames: int = 0
+    lost: int = 0
+    duplicated: int = 0
+    reordered: int = 0
+    malformed: int = 0
+    split_incomplete: int = 0
+    restarts: int = 0
+    other: int = 0
+
+
+@dataclass
+class ReceiverStats:
+    datagrams: int = 0
+    bytes: int = 0
+    rejected_address: int = 0
+    rejected_camera: int = 0
+    malformed_unattributed: int = 0
+    errors_by_name: dict[str, int] = field(default_factory=dict)
+    cameras: dict[int, CameraRecvStats] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class StatusReport:
+    camera_index: int
+    status: EdgeStatus
+    recv_time: float
+
+
+@dataclass
+class _SeqState:
+    expected: int | None = None
+    recent: deque = field(default_factory=lambda: deque(maxlen=SEQ_WINDOW))
+    recent_set: set = field(default_factory=set)
+    missing: OrderedDict = field(default_factory=OrderedDict)
+
+
+def parse_host_port(value: str) -> tuple[str, int]:
+    host, _, port = value.rpartition(":")
+    return host, int(port)
+
+
+class Receiver:
+    def __init__(self, rig: RigConfig, bind: str | None = None, split_timeout_s: float = 0.05,
+                 rcvbuf_bytes: int = 4 << 20, log=None):
+        self.rig = rig
+        self.split_timeout_s = split_timeout_s
+        self.log = log or (lambda msg: None)
+        self.allowed: dict[int, str] = {c.index: str(ipaddress.ip_address(c.edge)) for c in rig.cameras}
+        self.allowed_ips = set(self.allowed.values())
+        self.stats = ReceiverStats(cameras={i: CameraRecvStats() for i in self.allowed})
+        self._seq = {i: _SeqState() for i in self.allowed}
+        self._parts: dict[tuple[int, int], tuple[float, dict[int, FeatureFrame]]] = {}
+        host, port = parse_host_port(bind or rig.host.listen)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
+        except OSError:
+            pass
+        self.sock.bind((host, port))
+        self.sock.setblocking(False)
+        self._warned: set[str] = set()
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self.sock.getsockname()
+
+    def close(self) -> None:
+        self.sock.close()
+
+    # --- receiving ----------------------------------------------------------------------------
+    def receive(self, timeout: float, max_batch: int = 256) -> list[CameraFrame | StatusReport]:
+        """Wait up to `timeout` s for datagrams; return what they carried (possibly nothing)."""
+        out: list[CameraFrame | StatusReport] = []
+        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
+        if r:
+            for _ in range(max_batch):
+                try:
+                    data, addr = self.sock.recvfrom(2048)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError as exc:  # e.g. ICMP errors surfacing on Linux; keep going
+                    self._warn_once(f"socket error: {exc}")
+                    break
+                self.handle(data, addr, time.time(), out)
+        self.expire(time.monotonic(), out)
+        return out
+
+    def handle(self, data: bytes, addr: tuple[str, int], now: float,
+               out: list[CameraFrame | StatusReport]) -> None:
+        """Check and decode one datagram (public so tests and replays can feed bytes directly)."""
+        st = self.stats
+        st.datagrams += 1
+        st.bytes += len(data)
+        ip = addr[0]
+        if ip not in self.allowed_ips:
+            st.rejected_address += 1
+            self._warn_once(f"datagram from {ip}, which is no camera's edge in the rig file: rejected")
+            return
+        try:
+            msg = decode_datagram(data)
+        except ProtocolError as exc:
+            st.errors_by_name[exc.name] = st.errors_by_name.get(exc.name, 0) + 1
+            cam = self._cam_for_datagram(data, ip)
+            if cam is not None:
+                st.cameras[cam].malformed += 1
+            else:
+                st.malformed_unattributed += 1
+            self._warn_once(f"malformed datagram from {ip}: {exc}", key=f"bad:{ip}:{exc.name}")
+            return
+        cam = getattr(msg, "camera_index", None)
+        if cam is None or cam not in self.allowed:
+            st.rejected_camera += 1
+            self._warn_once(f"datagram for camera index {cam} from {ip}: not in the rig file, rejected")
+            return
+        if self.allowed[cam] != ip:
+            st.rejected_address += 1
+            self._warn_once(f"camera {cam} datagram from {ip}, but the rig file says {self.allowed[cam]}: rejected")
+            return
+        cs = st.cameras[cam]
+        cs.packets += 1
+        if not self._check_seq(cam, msg.seq if hasattr(msg, "seq") else None):
+            return
+        if isinstance(msg, FeatureFrame):
+            cs.features += 1
+            if msg.part_count > 1:
+                self._add_part(msg, now, out)
+            else:
+                cs.frames += 1
+                out.append(self._to_frame(msg, msg.points, now, incomplete=False))
+        elif isinstance(msg, EdgeStatus):
+            cs.status += 1
+            out.append(StatusReport(cam, msg, now))
+        else:
+            cs.other += 1
+
+    def _cam_for_datagram(self, data: bytes, ip: str) -> int | None:
+        """Which camera a bad datagram is counted against: the camera_index field (the first
+        payload field of FEATURES and STATUS) when it names a camera of this address, else the
+        address's only camera."""
+        if len(data) >= 10:
+            idx = int.from_bytes(data[8:10], "little")
+            if self.allowed.get(idx) == ip:
+                return idx
+        cams = [i for i, a in self.allowed.items() if a == ip]
+        return cams[0] if len(cams) == 1 else None
+
+    def _check_seq(self, cam: int, seq: int | None) -> bool:
+        """Update loss/duplicate/reorder counters; False for a duplicate (dropped)."""
+        if seq is None:
+            return True
+        s = self._seq[cam]
+        cs = self.stats.cameras[cam]
+        if s.expected is None:
+            s.expected = (seq + 1) % SEQ_MOD
+            self._remember(s, seq)
+            return True
+        d = (seq - s.expected) % SEQ_MOD
+        if d < _HALF:
+            if d > RESTART_GAP * 100:
+                cs.restarts += 1
+            else:
+                cs.lost += d
+                for k in range(min(d, SEQ_WINDOW)):
+                    s.missing[(s.expected + k) % SEQ_MOD] = None
+                while len(s.missing) > SEQ_WINDOW:
+                    s.missing.popitem(last=False)
+            s.expected = (seq + 1) % SEQ_MOD
+            self._remember(s, seq)
+            return True
+        behind = SEQ_MOD - d
+        if seq in s.recent_set:
+            cs.duplicated += 1
+            return False
+        if seq in s.missing:
+            del s.missing[seq]
+            cs.lost -= 1
+            cs.reordered += 1
+            self._remember(s, seq)
+            return True
+        if behind > RESTART_GAP:
+            cs.restarts += 1
+            self.log(f"camera {cam}: sequence numbers restarted ({seq}); edge restarted?")
+            s.expected = (seq + 1) % SEQ_MOD
+            s.missing.clear()
+            self._remember(s, seq)
+            return True
+        cs.reordered += 1
+        self._remember(s, seq)
+        return True
+
+    @staticmethod
+    def _remember(s: _SeqState, seq: int) -> None:
+        if len(s.recent) == s.recent.maxlen:
+            s.recent_set.discard(s.recent[0])
+        s.recent.append(seq)
+        s.recent_set.add(seq)
+
+    # --- split frames -------------------------------------------------------------------------
+    def _add_part(self, msg: FeatureFrame, now: float, out: list) -> None:
+        key = (msg.camera_index, msg.camera_frame)
+        entry = self._parts.get(key)
+        if entry is None:
+            entry = self._parts[key] = (time.monotonic(), {})
+        parts = entry[1]
+        parts[msg.part_index] = msg
+        if len(parts) == msg.part_count:
+            del self._parts[key]
+            ordered = [parts[i] for i in range(msg.part_count)]
+            pts = np.concatenate([p.points for p in ordered])
+            self.stats.cameras[msg.camera_index].frames += 1
+            out.append(self._to_frame(ordered[0], pts, now, incomplete=False,
+                                      truncated=any(p.truncated for p in ordered)))
+
+    def expire(self, mono_now: float, out: list, force: bool = False) -> None:
+        """Pass on split frames whose missing parts did not come in time."""
+        for key in [k for k, (t0, _) in self._parts.items() if force or mono_now - t0 > self.split_timeout_s]:
+            _, parts = self._parts.pop(key)
+            ordered = [parts[i] for i in sorted(parts)]
+            cs = self.stats.cameras[key[0]]
+            cs.split_incomplete += 1
+            cs.frames += 1
+            pts = np.concatenate([p.points for p in ordered])
+            out.append(self._to_frame(ordered[0], pts, time.time(), incomplete=True,
+                                      truncated=any(p.truncated for p in ordered)))
+
+    @staticmethod
+    def _to_frame(msg: FeatureFrame, points: np.ndarray, now: float, incomplete: bool,
+                  truncated: bool | None = None) -> CameraFrame:
+        return CameraFrame(
+            camera_index=msg.camera_index,
+            camera_frame=msg.camera_frame,
+            trigger_frame=msg.trigger_frame,
+            points=points,
+            recv_time=now,
+            device_timestamp_ns=msg.device_timestamp_ns,
+            edge_recv_ns=msg.edge_recv_ns,
+            edge_done_ns=msg.edge_done_ns,
+            total_points=msg.total_points,
+            truncated=msg.truncated if truncated is None else truncated,
+            incomplete=incomplete,
+        )
+
+    def _warn_once(self, msg: str, key: str | None = None) -> None:
+        k = key or msg
+        if k not in self._warned and len(self._warned) < 1000:
+            self._warned.add(k)
+            self.log(msg)
