@@ -226,7 +226,7 @@ static void test_header_errors(void) {
         CHECK_ERR(ft_peek_type(b, s->len, &type), FT_E_LENGTH_MISMATCH);
         ft_st_u16(b + 4, (uint16_t)(s->len - 8));
         /* undefined flag bits are ignored */
-        ft_st_u16(b + 6, (uint16_t)(ft_ld_u16(b + 6) | 0x8000u));
+        ft_st_u16(b + 6, (uint16_t)(ft_ld_u16(b + 6) | 0xFFF0u));
         CHECK_ERR(s->dec(b, s->len), FT_OK);
         /* a longer datagram whose header agrees: extra bytes after the message */
         memcpy(b, s->bytes, s->len);
@@ -293,7 +293,11 @@ static void test_field_errors(void) {
         b[8 + 51] = 1;
         CHECK_ERR(s->dec(b, s->len), FT_OK);
         ft_st_u16(b + 8 + 48, 2);
-        CHECK_ERR(s->dec(b, s->len), FT_E_BAD_FIELD);
+        CHECK_ERR(s->dec(b, s->len), FT_E_COUNT_OVERFLOW);
+        /* ... reported before bytes after the points */
+        memset(b + s->len, 0, 4);
+        ft_st_u16(b + 4, (uint16_t)(s->len - 8 + 4));
+        CHECK_ERR(s->dec(b, s->len + 4), FT_E_COUNT_OVERFLOW);
     }
     CHECK_ERR(mutate32("features", 56, 0x7F800000u), FT_E_NOT_FINITE);      /* x_dist inf */
     CHECK_ERR(mutate32("features", 56, 0x7FC00000u), FT_E_NOT_FINITE);      /* x_dist NaN */

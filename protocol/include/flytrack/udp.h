@@ -1,20 +1,23 @@
 /* FlyTrack UDP messages (protocol/SPEC.md section 1): edge <-> host, host -> stimulus programs.
  *
- * Header-only C99, Linux side. For each message X: a struct (the header's `flags` included, so a
- * decoded message re-encodes byte for byte; reserved fields are not kept: written 0, ignored on
- * reading), `ft_X_encode(buf, cap, ..., &out_len)` and `ft_X_decode(buf, len, ...)`.
- * Text fields of n bytes are char[n + 1], NUL-terminated (see wire.h).
+ * Header-only C99, Linux side. For each message X: a struct, `ft_X_encode(buf, cap, ...,
+ * &out_len)` and `ft_X_decode(buf, len, ...)`. Structs hold the header's `flags` masked to the bits
+ * the type defines (others are written 0 and ignored on reading); reserved fields are not kept
+ * (written 0, ignored on reading). Text fields of n bytes are char[n + 1], NUL-terminated (wire.h).
  *
  * Decoders check in SPEC order and return the first error:
- *   datagram < 8 bytes: TRUNCATED; magic: BAD_MAGIC; version: BAD_VERSION; type unknown or not the
- *   decoder's: UNKNOWN_TYPE; datagram < 8 + the type's fixed part: TRUNCATED; header length !=
- *   datagram - 8: LENGTH_MISMATCH; element count above the type's maximum, or more elements than
- * the payload holds: COUNT_OVERFLOW; payload longer than fixed part + elements (or, for a
- * fixed-size type, than its size): LENGTH_MISMATCH; then every NaN/infinity check (NOT_FINITE),
- * then every other field check (BAD_FIELD), each in field order. Encoders run the same field checks
- * (COUNT_OVERFLOW, NOT_FINITE, BAD_FIELD) so that they never produce a message a reader rejects,
- * then FT_E_NO_SPACE if cap is too small. Floats travel as their IEEE-754 bits (memcpy), so NaN
- * payloads survive a round trip.
+ * 1. datagram < 8 bytes: TRUNCATED; magic: BAD_MAGIC; version: BAD_VERSION;
+ * 2. type unknown, or not the decoder's: UNKNOWN_TYPE;
+ * 3. datagram < 8 + the type's fixed part: TRUNCATED;
+ * 4. header length != datagram - 8: LENGTH_MISMATCH;
+ * 5. element count above the type's maximum, more elements than the payload holds, or (FEATURES
+ *    without SPLIT) n_points > total_points: COUNT_OVERFLOW;
+ * 6. bytes after the elements (or past a fixed-size type's size): LENGTH_MISMATCH;
+ * 7. NaN/infinity checks, in field order: NOT_FINITE;
+ * 8. every other field check (enums, text padding, parts, image geometry): BAD_FIELD.
+ * Encoders run the same field checks (COUNT_OVERFLOW, NOT_FINITE, BAD_FIELD), so they never
+ * produce a message a reader rejects, then give FT_E_NO_SPACE if cap is too small.
+ * Floats travel as their IEEE-754 bits (memcpy), so NaN payloads survive a round trip.
  */
 #ifndef FLYTRACK_UDP_H
 #define FLYTRACK_UDP_H
@@ -155,6 +158,18 @@ static inline int ft_udp_fixed_size(uint8_t type) {
     }
 }
 
+/* The flag bits a type defines */
+static inline uint16_t ft_udp_flag_mask(uint8_t type) {
+    switch (type) {
+    case FT_MSG_FEATURES:
+        return FT_FEATURES_SPLIT | FT_FEATURES_TRUNCATED;
+    case FT_MSG_LIVE_ESTIMATES:
+        return FT_LIVE_SPLIT;
+    default:
+        return 0;
+    }
+}
+
 /* Checks the common header of a datagram up to its length field: TRUNCATED, BAD_MAGIC,
  * BAD_VERSION, UNKNOWN_TYPE, TRUNCATED (shorter than the type's fixed part), LENGTH_MISMATCH
  * (length field != len - 8). On FT_OK *type is the message type (set also for later errors when
@@ -180,9 +195,10 @@ static inline ft_err ft_peek_type(const uint8_t *buf, size_t len, uint8_t *type)
 }
 
 /* Header + element-count checks shared by the decoders. n_max = 0 and rec = 0 for fixed-size
- * types. On FT_OK *flags holds the header flags. */
+ * types; count_ok = 0 adds a type-specific COUNT_OVERFLOW (checked after the generic ones). On
+ * FT_OK *flags holds the header flags, masked to the type's bits. */
 static inline ft_err ft_udp_check(const uint8_t *buf, size_t len, uint8_t want, uint32_t n,
-                                  uint32_t n_max, uint32_t rec, uint16_t *flags) {
+                                  uint32_t n_max, uint32_t rec, int count_ok, uint16_t *flags) {
     uint8_t type;
     uint32_t payload, need;
     ft_err e = ft_peek_type(buf, len, &type);
@@ -194,11 +210,11 @@ static inline ft_err ft_udp_check(const uint8_t *buf, size_t len, uint8_t want, 
         return e;
     payload = (uint32_t)(len - FT_UDP_HEADER);
     need = (uint32_t)ft_udp_fixed_size(want) + n * rec;
-    if (n > n_max || need > payload)
+    if (n > n_max || need > payload || !count_ok)
         return FT_E_COUNT_OVERFLOW;
     if (need != payload)
         return FT_E_LENGTH_MISMATCH;
-    *flags = ft_ld_u16(buf + 6);
+    *flags = (uint16_t)(ft_ld_u16(buf + 6) & ft_udp_flag_mask(want));
     return FT_OK;
 }
 
@@ -209,7 +225,7 @@ static inline void ft_udp_put_header(uint8_t *buf, uint8_t type, size_t payload,
     buf[2] = FT_PROTOCOL_VERSION;
     buf[3] = type;
     ft_st_u16(buf + 4, (uint16_t)payload);
-    ft_st_u16(buf + 6, flags);
+    ft_st_u16(buf + 6, (uint16_t)(flags & ft_udp_flag_mask(type)));
 }
 
 /* ---- FEATURES (0x01) ---- */
@@ -252,13 +268,12 @@ static inline ft_err ft_point_check(const ft_point *q) {
 
 static inline ft_err ft_features_check(const ft_features_hdr *h, const ft_point *pts) {
     uint32_t i;
-    if (h->n_points > FT_FEATURES_MAX_POINTS)
+    if (h->n_points > FT_FEATURES_MAX_POINTS ||
+        (!(h->flags & FT_FEATURES_SPLIT) && h->n_points > h->total_points))
         return FT_E_COUNT_OVERFLOW;
     for (i = 0; i < h->n_points; i++)
         if (ft_point_check(&pts[i]) != FT_OK)
             return FT_E_NOT_FINITE;
-    if (!(h->flags & FT_FEATURES_SPLIT) && h->n_points > h->total_points)
-        return FT_E_BAD_FIELD;
     if (h->part_count < 1 || h->part_index >= h->part_count)
         return FT_E_BAD_FIELD;
     return FT_OK;
@@ -312,15 +327,20 @@ static inline ft_err ft_features_encode(uint8_t *buf, size_t cap, const ft_featu
 /* pts: room for FT_FEATURES_MAX_POINTS points; h->n_points of them are written. */
 static inline ft_err ft_features_decode(const uint8_t *buf, size_t len, ft_features_hdr *h,
                                         ft_point *pts) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
+    const uint8_t *p = buf; /* + header once the length is checked */
     uint32_t n = 0, i;
+    int count_ok = 1;
     ft_err e;
-    if (len >= FT_UDP_HEADER + 4)
-        n = ft_ld_u16(buf + FT_UDP_HEADER + 2);
-    e = ft_udp_check(buf, len, FT_MSG_FEATURES, n, FT_FEATURES_MAX_POINTS, FT_POINT_SIZE,
+    if (len >= FT_UDP_HEADER + FT_FEATURES_FIXED) { /* else the header check fails first */
+        n = ft_ld_u16(p + FT_UDP_HEADER + 2);
+        count_ok =
+            (ft_ld_u16(buf + 6) & FT_FEATURES_SPLIT) || n <= ft_ld_u16(p + FT_UDP_HEADER + 48);
+    }
+    e = ft_udp_check(buf, len, FT_MSG_FEATURES, n, FT_FEATURES_MAX_POINTS, FT_POINT_SIZE, count_ok,
                      &h->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     h->camera_index = ft_ld_u16(p + 0);
     h->n_points = (uint16_t)n;
     h->seq = ft_ld_u32(p + 4);
@@ -369,7 +389,7 @@ typedef struct {
 
 static inline ft_err ft_status_encode(uint8_t *buf, size_t cap, const ft_status *m,
                                       size_t *out_len) {
-    uint8_t *p = buf + FT_UDP_HEADER;
+    uint8_t *p = buf; /* + header once cap is checked */
     if (!ft_f32_finite(m->fps) || !ft_f32_finite(m->proc_us_mean) || !ft_f32_finite(m->proc_us_max))
         return FT_E_NOT_FINITE;
     if (m->pixel_format > FT_PIXFMT_YUYV || m->state > FT_STATE_STOPPED ||
@@ -378,6 +398,7 @@ static inline ft_err ft_status_encode(uint8_t *buf, size_t cap, const ft_status 
         return FT_E_BAD_FIELD;
     if (cap < FT_UDP_HEADER + FT_STATUS_SIZE)
         return FT_E_NO_SPACE;
+    p += FT_UDP_HEADER;
     ft_text_store(p + 48, FT_STATUS_NAME_LEN, m->camera_name);
     ft_text_store(p + 80, FT_STATUS_ERROR_LEN, m->last_error);
     ft_udp_put_header(buf, FT_MSG_STATUS, FT_STATUS_SIZE, m->flags);
@@ -399,10 +420,11 @@ static inline ft_err ft_status_encode(uint8_t *buf, size_t cap, const ft_status 
 }
 
 static inline ft_err ft_status_decode(const uint8_t *buf, size_t len, ft_status *m) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
-    ft_err e = ft_udp_check(buf, len, FT_MSG_STATUS, 0, 0, 0, &m->flags);
+    const uint8_t *p = buf; /* + header once the length is checked */
+    ft_err e = ft_udp_check(buf, len, FT_MSG_STATUS, 0, 0, 0, 1, &m->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     m->camera_index = ft_ld_u16(p + 0);
     m->width = ft_ld_u16(p + 2);
     m->height = ft_ld_u16(p + 4);
@@ -439,7 +461,7 @@ typedef struct {
 
 static inline ft_err ft_control_encode(uint8_t *buf, size_t cap, const ft_control *m,
                                        size_t *out_len) {
-    uint8_t *p = buf + FT_UDP_HEADER;
+    uint8_t *p = buf; /* + header once cap is checked */
     if (!ft_f64_finite(m->value))
         return FT_E_NOT_FINITE;
     if (m->command < FT_CMD_SET_PARAM || m->command > FT_CMD_STOP ||
@@ -447,6 +469,7 @@ static inline ft_err ft_control_encode(uint8_t *buf, size_t cap, const ft_contro
         return FT_E_BAD_FIELD;
     if (cap < FT_UDP_HEADER + FT_CONTROL_SIZE)
         return FT_E_NO_SPACE;
+    p += FT_UDP_HEADER;
     ft_text_store(p + 8, FT_CONTROL_PARAM_LEN, m->param);
     ft_udp_put_header(buf, FT_MSG_CONTROL, FT_CONTROL_SIZE, m->flags);
     ft_st_u32(p + 0, m->request_id);
@@ -459,10 +482,11 @@ static inline ft_err ft_control_encode(uint8_t *buf, size_t cap, const ft_contro
 }
 
 static inline ft_err ft_control_decode(const uint8_t *buf, size_t len, ft_control *m) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
-    ft_err e = ft_udp_check(buf, len, FT_MSG_CONTROL, 0, 0, 0, &m->flags);
+    const uint8_t *p = buf; /* + header once the length is checked */
+    ft_err e = ft_udp_check(buf, len, FT_MSG_CONTROL, 0, 0, 0, 1, &m->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     m->request_id = ft_ld_u32(p + 0);
     m->camera_index = ft_ld_u16(p + 4);
     m->command = p[6];
@@ -489,11 +513,12 @@ typedef struct {
 
 static inline ft_err ft_control_ack_encode(uint8_t *buf, size_t cap, const ft_control_ack *m,
                                            size_t *out_len) {
-    uint8_t *p = buf + FT_UDP_HEADER;
+    uint8_t *p = buf; /* + header once cap is checked */
     if (m->status > FT_ACK_FAILED || !ft_text_fits(m->message, FT_CONTROL_ACK_MESSAGE_LEN))
         return FT_E_BAD_FIELD;
     if (cap < FT_UDP_HEADER + FT_CONTROL_ACK_SIZE)
         return FT_E_NO_SPACE;
+    p += FT_UDP_HEADER;
     ft_text_store(p + 8, FT_CONTROL_ACK_MESSAGE_LEN, m->message);
     ft_udp_put_header(buf, FT_MSG_CONTROL_ACK, FT_CONTROL_ACK_SIZE, m->flags);
     ft_st_u32(p + 0, m->request_id);
@@ -505,10 +530,11 @@ static inline ft_err ft_control_ack_encode(uint8_t *buf, size_t cap, const ft_co
 }
 
 static inline ft_err ft_control_ack_decode(const uint8_t *buf, size_t len, ft_control_ack *m) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
-    ft_err e = ft_udp_check(buf, len, FT_MSG_CONTROL_ACK, 0, 0, 0, &m->flags);
+    const uint8_t *p = buf; /* + header once the length is checked */
+    ft_err e = ft_udp_check(buf, len, FT_MSG_CONTROL_ACK, 0, 0, 0, 1, &m->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     m->request_id = ft_ld_u32(p + 0);
     m->camera_index = ft_ld_u16(p + 4);
     m->command = p[6];
@@ -546,7 +572,7 @@ static inline ft_err ft_image_check(const ft_image *m) {
 }
 
 static inline ft_err ft_image_encode(uint8_t *buf, size_t cap, const ft_image *m, size_t *out_len) {
-    uint8_t *p = buf + FT_UDP_HEADER;
+    uint8_t *p = buf; /* + header once cap is checked */
     size_t payload;
     ft_err e = ft_image_check(m);
     if (e != FT_OK)
@@ -554,6 +580,7 @@ static inline ft_err ft_image_encode(uint8_t *buf, size_t cap, const ft_image *m
     payload = FT_IMAGE_FIXED + (size_t)m->chunk_len;
     if (cap < FT_UDP_HEADER + payload)
         return FT_E_NO_SPACE;
+    p += FT_UDP_HEADER;
     ft_udp_put_header(buf, FT_MSG_IMAGE, payload, m->flags);
     ft_st_u16(p + 0, m->camera_index);
     p[2] = m->kind;
@@ -575,14 +602,15 @@ static inline ft_err ft_image_encode(uint8_t *buf, size_t cap, const ft_image *m
 }
 
 static inline ft_err ft_image_decode(const uint8_t *buf, size_t len, ft_image *m) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
+    const uint8_t *p = buf; /* + header once the length is checked */
     uint32_t n = 0;
     ft_err e;
     if (len >= FT_UDP_HEADER + FT_IMAGE_FIXED)
-        n = ft_ld_u16(p + 32);
-    e = ft_udp_check(buf, len, FT_MSG_IMAGE, n, FT_IMAGE_MAX_CHUNK, 1, &m->flags);
+        n = ft_ld_u16(p + FT_UDP_HEADER + 32);
+    e = ft_udp_check(buf, len, FT_MSG_IMAGE, n, FT_IMAGE_MAX_CHUNK, 1, 1, &m->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     m->camera_index = ft_ld_u16(p + 0);
     m->kind = p[2];
     m->bytes_per_pixel = p[3];
@@ -632,7 +660,7 @@ static inline ft_err ft_dvs_clusters_check(const ft_dvs_clusters_hdr *h, const f
 
 static inline ft_err ft_dvs_clusters_encode(uint8_t *buf, size_t cap, const ft_dvs_clusters_hdr *h,
                                             const ft_dvs_cluster *c, size_t *out_len) {
-    uint8_t *p = buf + FT_UDP_HEADER;
+    uint8_t *p = buf; /* + header once cap is checked */
     size_t payload, i;
     ft_err e = ft_dvs_clusters_check(h, c);
     if (e != FT_OK)
@@ -640,6 +668,7 @@ static inline ft_err ft_dvs_clusters_encode(uint8_t *buf, size_t cap, const ft_d
     payload = FT_DVS_CLUSTERS_FIXED + (size_t)h->n_clusters * FT_DVS_CLUSTER_SIZE;
     if (cap < FT_UDP_HEADER + payload)
         return FT_E_NO_SPACE;
+    p += FT_UDP_HEADER;
     ft_udp_put_header(buf, FT_MSG_DVS_CLUSTERS, payload, h->flags);
     ft_st_u16(p + 0, h->camera_index);
     ft_st_u16(p + 2, h->n_clusters);
@@ -664,15 +693,16 @@ static inline ft_err ft_dvs_clusters_encode(uint8_t *buf, size_t cap, const ft_d
 /* c: room for FT_DVS_MAX_CLUSTERS records. */
 static inline ft_err ft_dvs_clusters_decode(const uint8_t *buf, size_t len, ft_dvs_clusters_hdr *h,
                                             ft_dvs_cluster *c) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
+    const uint8_t *p = buf; /* + header once the length is checked */
     uint32_t n = 0, i;
     ft_err e;
     if (len >= FT_UDP_HEADER + 4)
-        n = ft_ld_u16(p + 2);
-    e = ft_udp_check(buf, len, FT_MSG_DVS_CLUSTERS, n, FT_DVS_MAX_CLUSTERS, FT_DVS_CLUSTER_SIZE,
+        n = ft_ld_u16(p + FT_UDP_HEADER + 2);
+    e = ft_udp_check(buf, len, FT_MSG_DVS_CLUSTERS, n, FT_DVS_MAX_CLUSTERS, FT_DVS_CLUSTER_SIZE, 1,
                      &h->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     h->camera_index = ft_ld_u16(p + 0);
     h->n_clusters = (uint16_t)n;
     h->seq = ft_ld_u32(p + 4);
@@ -724,7 +754,7 @@ static inline ft_err ft_dvs_wingbeat_check(const ft_dvs_wingbeat_hdr *h, const f
 
 static inline ft_err ft_dvs_wingbeat_encode(uint8_t *buf, size_t cap, const ft_dvs_wingbeat_hdr *h,
                                             const ft_wing_edge *w, size_t *out_len) {
-    uint8_t *p = buf + FT_UDP_HEADER;
+    uint8_t *p = buf; /* + header once cap is checked */
     size_t payload, i;
     ft_err e = ft_dvs_wingbeat_check(h, w);
     if (e != FT_OK)
@@ -732,6 +762,7 @@ static inline ft_err ft_dvs_wingbeat_encode(uint8_t *buf, size_t cap, const ft_d
     payload = FT_DVS_WINGBEAT_FIXED + (size_t)h->n_edges * FT_WING_EDGE_SIZE;
     if (cap < FT_UDP_HEADER + payload)
         return FT_E_NO_SPACE;
+    p += FT_UDP_HEADER;
     ft_udp_put_header(buf, FT_MSG_DVS_WINGBEAT, payload, h->flags);
     ft_st_u16(p + 0, h->camera_index);
     ft_st_u16(p + 2, h->n_edges);
@@ -754,15 +785,16 @@ static inline ft_err ft_dvs_wingbeat_encode(uint8_t *buf, size_t cap, const ft_d
 /* w: room for FT_DVS_MAX_EDGES records. */
 static inline ft_err ft_dvs_wingbeat_decode(const uint8_t *buf, size_t len, ft_dvs_wingbeat_hdr *h,
                                             ft_wing_edge *w) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
+    const uint8_t *p = buf; /* + header once the length is checked */
     uint32_t n = 0, i;
     ft_err e;
     if (len >= FT_UDP_HEADER + 4)
-        n = ft_ld_u16(p + 2);
-    e = ft_udp_check(buf, len, FT_MSG_DVS_WINGBEAT, n, FT_DVS_MAX_EDGES, FT_WING_EDGE_SIZE,
+        n = ft_ld_u16(p + FT_UDP_HEADER + 2);
+    e = ft_udp_check(buf, len, FT_MSG_DVS_WINGBEAT, n, FT_DVS_MAX_EDGES, FT_WING_EDGE_SIZE, 1,
                      &h->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     h->camera_index = ft_ld_u16(p + 0);
     h->n_edges = (uint16_t)n;
     h->seq = ft_ld_u32(p + 4);
@@ -820,7 +852,7 @@ static inline ft_err ft_live_check(const ft_live_hdr *h, const ft_live_object *o
 
 static inline ft_err ft_live_estimates_encode(uint8_t *buf, size_t cap, const ft_live_hdr *h,
                                               const ft_live_object *o, size_t *out_len) {
-    uint8_t *p = buf + FT_UDP_HEADER;
+    uint8_t *p = buf; /* + header once cap is checked */
     size_t payload, i, k;
     ft_err e = ft_live_check(h, o);
     if (e != FT_OK)
@@ -828,6 +860,7 @@ static inline ft_err ft_live_estimates_encode(uint8_t *buf, size_t cap, const ft
     payload = FT_LIVE_FIXED + (size_t)h->n_objects * FT_LIVE_OBJECT_SIZE;
     if (cap < FT_UDP_HEADER + payload)
         return FT_E_NO_SPACE;
+    p += FT_UDP_HEADER;
     ft_udp_put_header(buf, FT_MSG_LIVE_ESTIMATES, payload, h->flags);
     ft_st_u64(p + 0, h->trigger_frame);
     ft_st_f64(p + 8, h->trigger_time);
@@ -856,15 +889,16 @@ static inline ft_err ft_live_estimates_encode(uint8_t *buf, size_t cap, const ft
 /* o: room for FT_LIVE_MAX_OBJECTS records. */
 static inline ft_err ft_live_estimates_decode(const uint8_t *buf, size_t len, ft_live_hdr *h,
                                               ft_live_object *o) {
-    const uint8_t *p = buf + FT_UDP_HEADER;
+    const uint8_t *p = buf; /* + header once the length is checked */
     uint32_t n = 0, i, k;
     ft_err e;
     if (len >= FT_UDP_HEADER + 22)
-        n = ft_ld_u16(p + 20);
+        n = ft_ld_u16(p + FT_UDP_HEADER + 20);
     e = ft_udp_check(buf, len, FT_MSG_LIVE_ESTIMATES, n, FT_LIVE_MAX_OBJECTS, FT_LIVE_OBJECT_SIZE,
-                     &h->flags);
+                     1, &h->flags);
     if (e != FT_OK)
         return e;
+    p += FT_UDP_HEADER;
     h->trigger_frame = ft_ld_u64(p + 0);
     h->trigger_time = ft_ld_f64(p + 8);
     h->seq = ft_ld_u32(p + 16);
