@@ -202,13 +202,17 @@ class UdpMessage:
     def header_flags(self) -> int:
         return int(getattr(self, "flags", 0)) & self._FLAG_MASK
 
-    # -- equality: arrays compare bit for bit (NaN payloads included)
+    # -- equality: arrays compare bit for bit (NaN payloads included), f32 fields as the float32 sent
     def __eq__(self, other: object) -> bool:
         if type(other) is not type(self):
             return NotImplemented
+        f32 = {name for name, _, kind in self._FIELDS if kind == "f"}
         for f in fields(self):  # type: ignore[arg-type]
             a, b = getattr(self, f.name), getattr(other, f.name)
-            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+            if f.name in f32:
+                if np.float32(a).tobytes() != np.float32(b).tobytes():
+                    return False
+            elif isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
                 a, b = np.asarray(a), np.asarray(b)
                 if a.dtype != b.dtype or a.shape != b.shape or a.tobytes() != b.tobytes():
                     return False
