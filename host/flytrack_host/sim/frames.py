@@ -1,0 +1,258 @@
+"""The simulated cameras' exposure loop: one child process that turns trigger edges into frames.
+
+For every trigger edge (frame number n, read as text lines from the trigger's edge stream) it renders
+frame n of every camera and writes it to that camera's edge extractor (its stdin pipe), then notes
+the moment the last camera's frame was handed over. That hand-over time is where the demo's latency
+starts: exposure and image transfer are simulated, so they are left out of the figure.
+
+It runs in its own process (forked before the host starts any thread) so rendering never competes
+with the host's tracking thread for the GIL.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import math
+import multiprocessing as mp
+import os
+import stat
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from flytrack_host.camera import Camera
+from flytrack_host.sim.flight import GroundTruth
+from flytrack_host.sim.render import CameraRenderer, RenderParams
+
+F_SETPIPE_SZ = 1031  # Linux fcntl: grow a pipe so one whole frame fits without blocking
+
+
+def grow_pipe(fd: int, size: int = 1 << 20) -> int:
+    """Ask for a pipe buffer of `size` bytes (the kernel caps it at /proc/sys/fs/pipe-max-size)."""
+    try:
+        return fcntl.fcntl(fd, F_SETPIPE_SZ, size)
+    except OSError:
+        return -1
+
+
+class EdgeLineParser:
+    """Turns trigger edge lines into frame numbers (None for lines that start no frame).
+
+    Two forms are read:
+    - the simavr harness's edge log: `<cycle> <signal> <level>` per edge, `#` comments; every rising
+      edge of `trigger` starts the next frame, the first being frame 0;
+    - a plain frame number per line (what the frame feeder's own software-trigger bridge writes).
+    """
+
+    def __init__(self) -> None:
+        self.next_frame = 0
+        self.bad_lines = 0
+        self.f_cpu: float | None = None
+
+    def feed(self, line: str) -> int | None:
+        s = line.strip()
+        if not s:
+            return None
+        if s.startswith("#"):
+            for tok in s.split():
+                if tok.startswith("f_cpu="):
+                    with contextlib.suppress(ValueError):
+                        self.f_cpu = float(tok[6:])
+            return None
+        parts = s.split()
+        if len(parts) == 1:
+            if parts[0].isdigit():
+                return int(parts[0])
+            self.bad_lines += 1
+            return None
+        if len(parts) == 3 and parts[0].isdigit() and parts[2] in ("0", "1"):
+            if parts[1] == "trigger" and parts[2] == "1":
+                n = self.next_frame
+                self.next_frame += 1
+                return n
+            return None
+        self.bad_lines += 1
+        return None
+
+
+@dataclass
+class FrameFeedStats:
+    edges: int
+    frames_rendered: int
+    handoff_time: np.ndarray  # (n_frames,) host time (s) the last camera's frame was handed over, NaN if not
+    edge_time: np.ndarray  # (n_frames,) host time the trigger edge was read
+    render_s: float  # CPU seconds spent rendering
+    write_s: float  # seconds spent writing frames to the edges
+    bad_lines: int = 0  # edge-stream lines that could not be read
+
+
+class FrameFeeder:
+    """Owns the child process. Create it BEFORE starting threads in this process (it forks)."""
+
+    def __init__(
+        self,
+        gt: GroundTruth,
+        cameras: Sequence[Camera],
+        edge_fds: Sequence[int],
+        params: RenderParams,
+        seed: int,
+        frame_format: str = "raw",
+    ):
+        if len(cameras) != len(edge_fds):
+            raise ValueError("one edge pipe per camera is needed")
+        self.n_frames = gt.n_frames
+        ctx = mp.get_context("fork")
+        self._handoff = ctx.RawArray("d", [math.nan] * gt.n_frames)
+        self._edge_t = ctx.RawArray("d", [math.nan] * gt.n_frames)
+        self._counters = ctx.RawArray("d", 6)  # edges, rendered, render_s, write_s, done, bad lines
+        self._conn, child_conn = ctx.Pipe()
+        self._proc = ctx.Process(
+            target=_feed,
+            args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format,
+                  self._handoff, self._edge_t, self._counters),
+            name="flytrack-sim-frames",
+            daemon=True,
+        )
+        self._proc.start()
+
+    def set_source(self, source: str | int) -> None:
+        """Where trigger edges come from: a path (file or FIFO, followed as it grows), or a file
+        descriptor number inherited by the child (create it before the feeder)."""
+        self._conn.send(source)
+
+    @property
+    def frames_rendered(self) -> int:
+        return int(self._counters[1])
+
+    @property
+    def edges_seen(self) -> int:
+        return int(self._counters[0])
+
+    def alive(self) -> bool:
+        return self._proc.is_alive()
+
+    def join(self, timeout: float | None = None) -> None:
+        self._proc.join(timeout)
+
+    def finish(self) -> None:
+        """Tell a child following a regular file that no more edges will come."""
+        with contextlib.suppress(OSError, BrokenPipeError):
+            self._conn.send(None)
+
+    def stop(self) -> None:
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(2.0)
+
+    def stats(self) -> FrameFeedStats:
+        return FrameFeedStats(
+            edges=int(self._counters[0]),
+            frames_rendered=int(self._counters[1]),
+            handoff_time=np.frombuffer(self._handoff, dtype=np.float64).copy(),
+            edge_time=np.frombuffer(self._edge_t, dtype=np.float64).copy(),
+            render_s=float(self._counters[2]),
+            write_s=float(self._counters[3]),
+            bad_lines=int(self._counters[5]),
+        )
+
+
+def _write_all(fd: int, buf: memoryview) -> None:
+    while buf:
+        n = os.write(fd, buf)
+        buf = buf[n:]
+
+
+def _y4m_header(w: int, h: int, fps: float) -> bytes:
+    num, den = (int(round(fps * 1000)), 1000)
+    return f"YUV4MPEG2 W{w} H{h} F{num}:{den} Ip A1:1 Cmono\n".encode()
+
+
+def _feed(
+    gt: GroundTruth,
+    cameras: list[Camera],
+    edge_fds: list[int],
+    conn,
+    params: RenderParams,
+    seed: int,
+    frame_format: str,
+    handoff,
+    edge_t,
+    counters,
+) -> None:
+    renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
+    for fd in edge_fds:
+        grow_pipe(fd)
+    if frame_format == "y4m":
+        for fd, c in zip(edge_fds, cameras, strict=True):
+            _write_all(fd, memoryview(_y4m_header(c.width, c.height, gt.fps)))
+    y4m_frame = b"FRAME\n"
+    closed = [False] * len(edge_fds)
+    render_s = write_s = 0.0
+    buf = b""
+    parser = EdgeLineParser()
+    try:
+        if not conn.poll(60.0):
+            return
+        source = conn.recv()
+        if source is None:
+            return
+        stream = os.fdopen(source, "rb", buffering=0) if isinstance(source, int) else open(source, "rb", buffering=0)
+        with stream:
+            done = False
+            while not done:
+                chunk = stream.read(65536)
+                if not chunk:
+                    if isinstance(source, int) or stat.S_ISFIFO(os.fstat(stream.fileno()).st_mode):
+                        break  # writer closed
+                    time.sleep(0.0005)  # a regular file: follow it as it grows
+                    if conn.poll() and conn.recv() is None:
+                        break
+                    continue
+                buf += chunk
+                *lines, buf = buf.split(b"\n")
+                for raw in lines:
+                    n = parser.feed(raw.decode("ascii", "replace"))
+                    counters[5] = parser.bad_lines
+                    if n is None:
+                        continue
+                    t_edge = time.time()
+                    counters[0] += 1
+                    if n >= gt.n_frames:
+                        done = True
+                        break
+                    edge_t[n] = t_edge
+                    for i, (r, fd) in enumerate(zip(renderers, edge_fds, strict=True)):
+                        if closed[i]:
+                            continue
+                        t0 = time.perf_counter()
+                        img = r.render(gt.t[n], gt.pos[n], gt.axis[n], gt.body_length_m, gt.body_width_m)
+                        t1 = time.perf_counter()
+                        try:
+                            if frame_format == "y4m":
+                                _write_all(fd, memoryview(y4m_frame))
+                            _write_all(fd, memoryview(img).cast("B"))
+                        except (BrokenPipeError, OSError):
+                            closed[i] = True  # that edge died; the host will see a dead camera
+                        render_s += t1 - t0
+                        write_s += time.perf_counter() - t1
+                    handoff[n] = time.time()
+                    counters[1] += 1
+                    counters[2] = render_s
+                    counters[3] = write_s
+    finally:
+        for fd in edge_fds:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        counters[4] = 1
+
+
+def edge_lines_writer(fd: int) -> Callable[[int], None]:
+    """For trigger sources that call back in Python: a function writing `frame` lines to `fd`."""
+
+    def write(frame: int) -> None:
+        os.write(fd, f"{frame}\n".encode())
+
+    return write

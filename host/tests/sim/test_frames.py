@@ -1,0 +1,57 @@
+import os
+import threading
+
+import numpy as np
+
+from flytrack_host.sim.flight import Arena, simulate_flight
+from flytrack_host.sim.frames import EdgeLineParser, FrameFeeder
+from flytrack_host.sim.render import RenderParams
+from flytrack_host.sim.rig import make_cameras
+
+
+def test_parser_reads_the_simavr_edge_log_and_plain_numbers():
+    p = EdgeLineParser()
+    lines = ["# flytrack-trigger-sim 1 mcu=atmega328p f_cpu=16000000", "# cycle signal level",
+             "100 trigger 1", "140 trigger 0", "150 pulse0 1", "20100 trigger 1", "garbage here", "7"]
+    assert [p.feed(s) for s in lines] == [None, None, 0, None, None, 1, None, 7]
+    assert p.f_cpu == 16e6 and p.bad_lines == 1
+
+
+def _reader(fd, nbytes, out):
+    data = bytearray()
+    with os.fdopen(fd, "rb", buffering=0) as f:
+        while True:
+            b = f.read(1 << 20)
+            if not b:
+                break
+            data += b
+    out.append(bytes(data))
+
+
+def test_feeder_renders_one_frame_per_edge_for_every_camera():
+    gt = simulate_flight(2, 0.1, 100.0, seed=0)  # 10 frames
+    cams = make_cameras(2, Arena(), seed=0, width=160, height=120)
+    pipes = [os.pipe() for _ in cams]
+    src_r, src_w = os.pipe()
+    feeder = FrameFeeder(gt, cams, [w for _, w in pipes], RenderParams(), seed=1)
+    for _, w in pipes:
+        os.close(w)
+    outs: list[list[bytes]] = [[] for _ in cams]
+    threads = [threading.Thread(target=_reader, args=(r, 0, o)) for (r, _), o in zip(pipes, outs, strict=True)]
+    for t in threads:
+        t.start()
+    feeder.set_source(src_r)
+    os.close(src_r)
+    os.write(src_w, b"# header\n" + b"".join(f"{i * 10} trigger 1\n{i * 10 + 5} trigger 0\n".encode()
+                                             for i in range(12)))
+    os.close(src_w)
+    feeder.join(20)
+    for t in threads:
+        t.join(5)
+    st = feeder.stats()
+    assert st.frames_rendered == 10 and st.edges == 11  # the 11th edge is past the ground truth: stop
+    assert np.all(np.isfinite(st.handoff_time)) and np.all(np.diff(st.handoff_time) >= 0)
+    for o in outs:
+        assert len(o[0]) == 10 * 160 * 120
+        frames = np.frombuffer(o[0], np.uint8).reshape(10, 120, 160)
+        assert 100 < frames.mean() < 200
