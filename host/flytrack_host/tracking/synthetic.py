@@ -251,3 +251,20 @@ def _merge_blobs(pts: F64, uv_true: F64, merge_px: float) -> tuple[F64, int]:
             keep[group[1:]] = False
             merged += 1
     return pts[keep], merged
+
+
+def point_array(
+    cam: Camera, uv: F64, area: float = 30.0, theta: float = np.nan, ecc: float = np.nan
+) -> np.ndarray:
+    """A protocol point array for distorted pixels uv (N, 2) seen by `cam` (x_undist from the model)."""
+    uv = np.atleast_2d(np.asarray(uv, dtype=np.float64)).reshape(-1, 2)
+    arr = np.zeros(uv.shape[0], POINT_DTYPE)
+    if uv.shape[0] == 0:
+        return arr
+    ideal = cam.undistort(uv)
+    arr["x_dist"], arr["y_dist"] = uv[:, 0], uv[:, 1]
+    arr["x_undist"], arr["y_undist"] = ideal[:, 0], ideal[:, 1]
+    arr["area"] = area
+    arr["orientation"] = theta
+    arr["eccentricity"] = ecc
+    return arr
