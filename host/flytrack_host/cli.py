@@ -26,7 +26,15 @@ console = Console()
 err_console = Console(stderr=True)
 
 # (module, attribute, command name, help): command groups that live in their components.
-_GROUPS: list[tuple[str, str, str, str]] = []
+_GROUPS: list[tuple[str, str, str, str]] = [
+    ("flytrack_host.recording.cli", "app", "recording", "Recordings: recover after a crash, summarise."),
+]
+# (module, function, command name): top-level commands that live in their components.
+_COMMANDS: list[tuple[str, str, str]] = [
+    ("flytrack_host.pipeline", "run_command", "run"),
+    ("flytrack_host.io.cli", "export_command", "export"),
+    ("flytrack_host.io.cli", "retrack_command", "retrack"),
+]
 
 
 @app.command()
@@ -61,6 +69,8 @@ def _register_groups() -> None:
     for module, attr, name, help_text in _GROUPS:
         sub = getattr(importlib.import_module(module), attr)
         app.add_typer(sub, name=name, help=help_text)
+    for module, func, name in _COMMANDS:
+        app.command(name)(getattr(importlib.import_module(module), func))
 
 
 _register_groups()

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
 
 from flytrack_host.camera import Camera
 from flytrack_host.latency import LatencyStats
@@ -417,3 +418,85 @@ class HostPipeline:
         if self.recorder is not None:
             out["recorder"] = asdict(self.recorder.stats)
         return out
+
+
+# --- `flytrack run` -------------------------------------------------------------------------------
+
+
+def load_cameras(rig: RigConfig) -> dict[int, Camera]:
+    """Calibration file of the rig -> camera_index -> Camera (empty without a calibration)."""
+    path = rig.calibration_path
+    if path is None:
+        return {}
+    from flytrack_host.calibration.formats import load_calibration
+
+    by_name = load_calibration(path)
+    cams = {}
+    for c in rig.cameras:
+        if c.calib_name in by_name:
+            cams[c.index] = by_name[c.calib_name]
+    return cams
+
+
+
+def run_command(
+    rig_path: Path = typer.Argument(..., help="The rig TOML file."),
+    seconds: float | None = typer.Option(None, "--seconds", help="Stop after this many seconds (default: Ctrl-C)."),
+    bind: str | None = typer.Option(None, help="Listen on HOST:PORT instead of the rig's host.listen."),
+    recording: Path | None = typer.Option(None, help="Recording folder (default: in the rig's recording folder)."),
+    no_record: bool = typer.Option(False, "--no-record", help="Do not record."),
+    dead_timeout_s: float = typer.Option(0.5, help="A camera silent this long is marked dead."),
+) -> None:
+    """Run the host live: receive, synchronise, track, serve live estimates and record until Ctrl-C."""
+    import signal
+
+    from rich.console import Console
+    from rich.live import Live
+
+    from flytrack_host.rig import RigError, load_rig
+
+    console = Console()
+    try:
+        rig = load_rig(rig_path)
+    except RigError as exc:
+        console.print(f"[red]error[/red] {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
+    try:
+        cameras = load_cameras(rig)
+    except Exception as exc:
+        console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
+    pipe = HostPipeline(rig, cameras, bind=bind, record=not no_record, recording_path=recording,
+                        rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s)
+    try:
+        pipe.start()
+    except OSError as exc:
+        console.print(f"[red]error[/red] cannot listen on {bind or rig.host.listen}: {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
+    host, port = pipe.address
+    # Plain first line, so scripts (and tests) can find the port and the recording.
+    print(f"listening on {host}:{port}; recording to {pipe.recording_path if pipe.record else '-'}", flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    end = None if seconds is None else time.monotonic() + seconds
+    try:
+        if console.is_terminal:
+            with Live(pipe.status_line(), console=console, refresh_per_second=4, transient=False) as live:
+                while not stop.is_set() and (end is None or time.monotonic() < end) and pipe.running:
+                    stop.wait(0.25)
+                    live.update(pipe.status_line())
+        else:
+            last = 0.0
+            while not stop.is_set() and (end is None or time.monotonic() < end) and pipe.running:
+                stop.wait(0.25)
+                if time.monotonic() - last > 5:
+                    print(pipe.status_line(), flush=True)
+                    last = time.monotonic()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        summary = pipe.stop()
+    console.print(pipe.status_line(), highlight=False)
+    console.print(summary["latency_text"], highlight=False)
+    if summary["recording"]:
+        console.print(f"recording: {summary['recording']}", highlight=False)

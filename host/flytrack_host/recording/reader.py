@@ -70,8 +70,11 @@ def _load_raw(folder: Path) -> Recording:
 
 def _load_h5(path: Path) -> Recording:
     with h5py.File(path, "r") as h5:
-        if "data2d_distorted" not in h5:
-            raise RecordingError(f"{path}: no data2d_distorted table; not a FlyTrack recording")
+        fmt = h5.attrs.get("format")
+        if isinstance(fmt, bytes):
+            fmt = fmt.decode(errors="replace")
+        if "data2d_distorted" not in h5 or fmt != '"flytrack-recording"':
+            raise RecordingError(f"{path}: not a FlyTrack recording (no format attribute 'flytrack-recording')")
         meta = {k: json.loads(v) for k, v in h5.attrs.items()}
         tables = {name: h5[name][...] for name in TABLES if name in h5}
         log = []

@@ -1,0 +1,1 @@
+"""Import and export of tracking data: Braid's .braidz, flydra's .h5, CSV; offline re-tracking."""

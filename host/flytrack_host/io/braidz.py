@@ -1,0 +1,303 @@
+"""Braid's `.braidz` archive: export a FlyTrack recording, import 2D data for re-tracking.
+
+A .braidz is a zip of gzipped CSV tables plus `calibration.xml` (flydra XML), `braid_metadata.yml`
+and a README, with Braid's file and column names (braid_types / flydra_types, schema 3):
+
+- kalman_estimates: obj_id, frame, timestamp, x, y, z, xvel, yvel, zvel, P00 P01 P02 P11 P12 P22 P33 P44 P55
+- data2d_distorted: camn, frame, timestamp, cam_received_timestamp, device_timestamp, block_id, x, y,
+  area, slope, eccentricity, frame_pt_idx, cur_val, mean_val, sumsqf_val (no detection: empty x)
+- data_association: obj_id, frame, cam_num, pt_idx
+- cam_info: camn, cam_id
+- trigger_clock_info: start_timestamp, framecount, tcnt, stop_timestamp
+- textlog: mainbrain_timestamp, cam_id, host_timestamp, message. Braid's reader takes the frame rate
+  from a "MainBrain running at F fps" line and the tracking parameters from a JSON line
+  {"tracking_params": {...}}, which it requires when kalman_estimates is present.
+
+Missing values (an unknown trigger timestamp, a NaN coordinate) are written as empty fields, which
+Braid reads as None / NaN. Rows FlyTrack could not map to a trigger frame (-1) are left out: Braid's
+frame numbers are unsigned. FlyTrack's orientation (radians) is Braid's slope = tan(orientation).
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import re
+import tempfile
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from flytrack_host import __version__
+from flytrack_host.io.data2d import Data2D, empty_rows
+from flytrack_host.recording.reader import Recording
+from flytrack_host.recording.schema import FLAG_REJECTED
+
+BRAID_SCHEMA = 3
+KALMAN_COLUMNS = ["obj_id", "frame", "timestamp", "x", "y", "z", "xvel", "yvel", "zvel",
+                  "P00", "P01", "P02", "P11", "P12", "P22", "P33", "P44", "P55"]
+DATA2D_COLUMNS = ["camn", "frame", "timestamp", "cam_received_timestamp", "device_timestamp", "block_id",
+                  "x", "y", "area", "slope", "eccentricity", "frame_pt_idx", "cur_val", "mean_val", "sumsqf_val"]
+ASSOC_COLUMNS = ["obj_id", "frame", "cam_num", "pt_idx"]
+CAM_INFO_COLUMNS = ["camn", "cam_id"]
+CLOCK_COLUMNS = ["start_timestamp", "framecount", "tcnt", "stop_timestamp"]
+TEXTLOG_COLUMNS = ["mainbrain_timestamp", "cam_id", "host_timestamp", "message"]
+
+
+class BraidzError(Exception):
+    pass
+
+
+def _csv_gz(df: pd.DataFrame) -> bytes:
+    text = df.to_csv(index=False, na_rep="")
+    return gzip.compress(text.encode("utf-8"), compresslevel=6, mtime=0)
+
+
+def braid_tracking_params(params: dict | None) -> dict:
+    """FlyTrack TrackingParams -> Braid's TrackingParams (the JSON in textlog)."""
+    p = params or {}
+    return {
+        "motion_noise_scale": p.get("motion_noise_scale", 0.1),
+        "initial_position_std_meters": p.get("initial_position_std_m", 0.1),
+        "initial_vel_std_meters_per_sec": p.get("initial_velocity_std_m_s", 1.0),
+        "accept_observation_min_likelihood": 1e-8,
+        "ekf_observation_covariance_pixels": p.get("measurement_noise_px", 1.0),
+        "max_position_std_meters": p.get("death_position_std_m", 0.01212),
+        "hypothesis_test_params": {
+            "minimum_number_of_cameras": p.get("birth_min_cameras", 2),
+            "hypothesis_test_max_acceptable_error": p.get("birth_max_reproj_px", 5.0),
+            "minimum_pixel_abs_zscore": 0.0,
+        },
+        "num_observations_to_visibility": 3,
+        "mini_arena_config": "NoMiniArena",
+    }
+
+
+def _cam_names(rec: Recording) -> dict[int, str]:
+    ci = rec.table("cam_info")
+    out = {}
+    for r in ci:
+        cid = r["calibration_id"].decode() or r["name"].decode()
+        out[int(r["camera_index"])] = cid
+    return out
+
+
+def _calibration_xml(rec: Recording) -> bytes | None:
+    cal = rec.calibration
+    if cal is None:
+        return None
+    name, data = cal
+    if name.endswith(".xml"):
+        return data
+    # Another format: convert with the calibration package (flydra XML is what Braid reads).
+    from flytrack_host.calibration.formats import load_calibration, save_flydra_xml
+
+    with tempfile.TemporaryDirectory() as d:
+        src = Path(d) / name
+        src.write_bytes(data)
+        dst = Path(d) / "calibration.xml"
+        save_flydra_xml(load_calibration(src), dst)
+        return dst.read_bytes()
+
+
+def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
+    """Write `rec` as a .braidz; returns rows written per table."""
+    out = Path(out)
+    counts: dict[str, int] = {}
+    fps = rec.fps
+    names = _cam_names(rec)
+
+    d2 = rec.table("data2d_distorted")
+    d2 = d2[(d2["trigger_frame"] >= 0) & ((d2["flags"] & FLAG_REJECTED) == 0)]
+    d2 = d2[np.argsort(d2["trigger_frame"], kind="stable")]
+    orient = d2["orientation"].astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        slope = np.tan(orient)
+    dev = d2["device_timestamp_ns"].astype("float64")
+    data2d = pd.DataFrame({
+        "camn": d2["camera_index"].astype(np.int64),
+        "frame": d2["trigger_frame"],
+        "timestamp": d2["timestamp"],
+        "cam_received_timestamp": d2["cam_received_timestamp"],
+        "device_timestamp": pd.array(np.where(dev > 0, d2["device_timestamp_ns"], 0), dtype="UInt64"),
+        "block_id": pd.array(d2["camera_frame"], dtype="UInt64"),
+        "x": d2["x_dist"].astype(np.float64),
+        "y": d2["y_dist"].astype(np.float64),
+        "area": d2["area"].astype(np.float64),
+        "slope": slope,
+        "eccentricity": d2["eccentricity"].astype(np.float64),
+        "frame_pt_idx": np.minimum(d2["frame_pt_idx"], 255),
+        "cur_val": np.minimum(d2["cur_val"], 255),
+        "mean_val": d2["mean_val"].astype(np.float64),
+        "sumsqf_val": d2["sumsq_val"].astype(np.float64),
+    }, columns=DATA2D_COLUMNS)
+    data2d.loc[dev <= 0, "device_timestamp"] = pd.NA
+    counts["data2d_distorted"] = len(data2d)
+
+    k = rec.table("kalman_estimates")
+    k = k[np.argsort(k["trigger_frame"], kind="stable")]
+    kal = pd.DataFrame({
+        "obj_id": k["obj_id"], "frame": k["trigger_frame"], "timestamp": k["timestamp"],
+        "x": k["x"], "y": k["y"], "z": k["z"], "xvel": k["xvel"], "yvel": k["yvel"], "zvel": k["zvel"],
+        "P00": k["P00"], "P01": k["P01"], "P02": k["P02"], "P11": k["P11"], "P12": k["P12"], "P22": k["P22"],
+        "P33": k["P33"], "P44": k["P44"], "P55": k["P55"],
+    }, columns=KALMAN_COLUMNS)
+    counts["kalman_estimates"] = len(kal)
+
+    a = rec.table("data_association")
+    assoc = pd.DataFrame({"obj_id": a["obj_id"], "frame": a["trigger_frame"], "cam_num": a["camera_index"],
+                          "pt_idx": np.minimum(a["pt_idx"], 255)}, columns=ASSOC_COLUMNS)
+    counts["data_association"] = len(assoc)
+
+    cam_info = pd.DataFrame({"camn": list(names), "cam_id": list(names.values())}, columns=CAM_INFO_COLUMNS)
+
+    c = rec.table("trigger_clock_info")
+    clock = pd.DataFrame({"start_timestamp": c["start_timestamp"], "framecount": c["framecount"],
+                          "tcnt": np.clip(np.round(c["fraction"] * 255), 0, 255).astype(np.int64),
+                          "stop_timestamp": c["stop_timestamp"]}, columns=CLOCK_COLUMNS)
+
+    t0 = float(rec.meta.get("start_time", time.time()))
+    log_rows = [(t0, "", t0, f"MainBrain running at {fps:g} fps" if fps else "MainBrain running at unknown fps"),
+                (t0, "", t0, json.dumps({"tracking_params": braid_tracking_params(rec.meta.get("tracking_params"))}))]
+    for r in rec.textlog:
+        if str(r.get("message", "")).startswith("MainBrain running at"):
+            continue
+        t = float(r.get("host_time", t0))
+        log_rows.append((t, str(r.get("source", "")), t, str(r.get("message", ""))))
+    textlog = pd.DataFrame(log_rows, columns=TEXTLOG_COLUMNS)
+
+    rec_time = time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(t0))
+    rec_time = rec_time[:-2] + ":" + rec_time[-2:]  # RFC 3339 offset, as chrono writes it
+    metadata = (
+        f"schema: {BRAID_SCHEMA}\n"
+        f"git_revision: flytrack-{__version__}\n"
+        f"original_recording_time: {rec_time}\n"
+        "save_empty_data2d: true\n"
+        "saving_program_name: flytrack\n"
+    )
+    readme = (
+        "# FlyTrack recording in Braid's .braidz format\n\n"
+        "A zip of gzipped CSV tables (kalman_estimates, data2d_distorted, data_association, cam_info,\n"
+        "trigger_clock_info, textlog), the calibration (flydra XML) and braid_metadata.yml.\n"
+        "Read it with Braid's tools (braidz-parser, pybraidz-tools) or with pandas:\n\n"
+        "    import zipfile, pandas as pd\n"
+        "    z = zipfile.ZipFile('FILE.braidz')\n"
+        "    df = pd.read_csv(z.open('kalman_estimates.csv.gz'), compression='gzip')\n\n"
+        f"Written by FlyTrack {__version__} from the recording of rig {rec.meta.get('rig_name', '?')!r}.\n"
+    )
+    cal_xml = _calibration_xml(rec)
+    tmp = out.with_name(out.name + ".tmp")
+    with zipfile.ZipFile(tmp, "w") as z:
+        z.writestr("README.md", readme, compress_type=zipfile.ZIP_DEFLATED)
+        z.writestr("braid_metadata.yml", metadata, compress_type=zipfile.ZIP_DEFLATED)
+        if cal_xml is not None:
+            z.writestr("calibration.xml", cal_xml, compress_type=zipfile.ZIP_DEFLATED)
+        for name, df in (("kalman_estimates", kal), ("data2d_distorted", data2d), ("data_association", assoc),
+                         ("cam_info", cam_info), ("trigger_clock_info", clock), ("textlog", textlog)):
+            z.writestr(f"{name}.csv.gz", _csv_gz(df), compress_type=zipfile.ZIP_STORED)
+    tmp.replace(out)
+    return counts
+
+
+# --- reading ----------------------------------------------------------------------------------
+
+
+def _read_table(z: zipfile.ZipFile, name: str) -> pd.DataFrame | None:
+    names = set(z.namelist())
+    # Braid archives may hold a top-level folder; accept "x/name" too.
+    for cand in (f"{name}.csv", f"{name}.csv.gz"):
+        hits = [n for n in names if n == cand or n.endswith("/" + cand)]
+        if hits:
+            data = z.read(hits[0])
+            if cand.endswith(".gz"):
+                try:
+                    data = gzip.decompress(data)
+                except (OSError, EOFError):
+                    # A braid still being written may end in a cut gzip stream: keep what inflates.
+                    data = _partial_gunzip(data)
+            return pd.read_csv(io.BytesIO(data), comment=None)
+    return None
+
+
+def _partial_gunzip(data: bytes) -> bytes:
+    import zlib
+
+    d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+    out = d.decompress(data)
+    return out[: out.rfind(b"\n") + 1]
+
+
+def read_braidz(path: Path | str) -> Data2D:
+    path = Path(path)
+    try:
+        z = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise BraidzError(f"{path}: not a .braidz (zip) file: {exc}") from None
+    with z:
+        d2 = _read_table(z, "data2d_distorted")
+        if d2 is None:
+            raise BraidzError(f"{path}: no data2d_distorted table; not a Braid archive")
+        missing = [c for c in ("camn", "frame", "x", "y") if c not in d2.columns]
+        if missing:
+            raise BraidzError(f"{path}: data2d_distorted lacks columns {missing}")
+        ci = _read_table(z, "cam_info")
+        names = {int(r.camn): str(r.cam_id) for r in ci.itertuples()} if ci is not None else {}
+        cal = None
+        for n in z.namelist():
+            if n == "calibration.xml" or n.endswith("/calibration.xml"):
+                cal = ("calibration.xml", z.read(n))
+        fps, params = None, None
+        tl = _read_table(z, "textlog")
+        if tl is not None and "message" in tl.columns:
+            for msg in tl["message"].astype(str):
+                m = re.match(r"MainBrain running at ([0-9.eE+-]+) ", msg + " ")
+                if m:
+                    try:
+                        fps = float(m.group(1))
+                    except ValueError:
+                        pass
+                elif msg.startswith("{") and "tracking_params" in msg:
+                    try:
+                        params = json.loads(msg)["tracking_params"]
+                    except (json.JSONDecodeError, KeyError, TypeError):
+                        pass
+    return Data2D(rows=_rows_from_braid_df(d2), cam_names=names, fps=fps, calibration=cal,
+                  source=str(path), tracking_params=None, notes=[f"braid tracking_params: {params}"] if params else [])
+
+
+def _rows_from_braid_df(d2: pd.DataFrame) -> np.ndarray:
+    """Braid/flydra data2d_distorted columns -> DATA2D rows (x_undist filled later from the calibration)."""
+    n = len(d2)
+    rows = empty_rows(n)
+
+    def col(name: str, default: float = np.nan) -> np.ndarray:
+        if name in d2.columns:
+            return pd.to_numeric(d2[name], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+        return np.full(n, default)
+
+    frame = col("frame", -1)
+    rows["trigger_frame"] = np.where(np.isfinite(frame), frame, -1).astype(np.int64)
+    rows["camera_index"] = col("camn", 0).astype(np.int64)
+    block = col("block_id", 0)
+    rows["camera_frame"] = np.where(np.isfinite(block), block, 0).astype(np.uint64)
+    rows["timestamp"] = col("timestamp")
+    rows["cam_received_timestamp"] = col("cam_received_timestamp")
+    dev = col("device_timestamp", 0)
+    rows["device_timestamp_ns"] = np.where(np.isfinite(dev), dev, 0).astype(np.uint64)
+    rows["x_dist"] = col("x")
+    rows["y_dist"] = col("y")
+    rows["area"] = col("area")
+    with np.errstate(invalid="ignore"):
+        rows["orientation"] = np.arctan(col("slope"))
+    rows["eccentricity"] = col("eccentricity")
+    pt = col("frame_pt_idx", 0)
+    rows["frame_pt_idx"] = np.where(np.isfinite(pt), pt, 0).astype(np.uint16)
+    cv = col("cur_val", 0)
+    rows["cur_val"] = np.where(np.isfinite(cv), cv, 0).astype(np.uint16)
+    rows["mean_val"] = col("mean_val")
+    rows["sumsq_val"] = col("sumsqf_val")
+    return rows
