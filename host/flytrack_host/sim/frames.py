@@ -100,6 +100,7 @@ class FrameFeeder:
         params: RenderParams,
         seed: int,
         frame_format: str = "raw",
+        warmup_frames: int = 0,
     ):
         if len(cameras) != len(edge_fds):
             raise ValueError("one edge pipe per camera is needed")
@@ -111,7 +112,7 @@ class FrameFeeder:
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
             target=_feed,
-            args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format,
+            args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format, warmup_frames,
                   self._handoff, self._edge_t, self._counters),
             name="flytrack-sim-frames",
             daemon=True,
@@ -178,6 +179,7 @@ def _feed(
     params: RenderParams,
     seed: int,
     frame_format: str,
+    warmup: int,
     handoff,
     edge_t,
     counters,
@@ -193,6 +195,7 @@ def _feed(
     render_s = write_s = 0.0
     buf = b""
     parser = EdgeLineParser()
+    no_pos = np.zeros((0, 3))
     try:
         if not conn.poll(60.0):
             return
@@ -224,11 +227,13 @@ def _feed(
                         done = True
                         break
                     edge_t[n] = t_edge
+                    # Before the animals are released the edges learn their background.
+                    pos, axis = (gt.pos[n], gt.axis[n]) if n >= warmup else (no_pos, no_pos)
                     for i, (r, fd) in enumerate(zip(renderers, edge_fds, strict=True)):
                         if closed[i]:
                             continue
                         t0 = time.perf_counter()
-                        img = r.render(gt.t[n], gt.pos[n], gt.axis[n], gt.body_length_m, gt.body_width_m)
+                        img = r.render(gt.t[n], pos, axis, gt.body_length_m, gt.body_width_m)
                         t1 = time.perf_counter()
                         try:
                             if frame_format == "y4m":

@@ -5,8 +5,8 @@ from flytrack_host.sim.flight import Arena, FlightParams, simulate_flight
 
 
 def test_animals_stay_inside_and_fly_at_paper_speed():
-    gt = simulate_flight(4, 20.0, 100.0, seed=3)
-    assert gt.pos.shape == (2000, 4, 3)
+    gt = simulate_flight(4, 10.0, 100.0, seed=3)
+    assert gt.pos.shape == (1000, 4, 3)
     assert np.all(gt.arena.contains(gt.pos.reshape(-1, 3)))
     hs = gt.horizontal_speed()[~gt.landed]
     # Seed 000 section 7: mean 0.15 m/s, sd 0.07 m/s. Our model aims at that, loosely.
@@ -18,7 +18,7 @@ def test_animals_stay_inside_and_fly_at_paper_speed():
 
 
 def test_saccades_are_fast_turns():
-    gt = simulate_flight(1, 20.0, 200.0, seed=5)
+    gt = simulate_flight(1, 10.0, 200.0, seed=5)
     v = gt.vel[:, 0, :2]
     ok = ~gt.landed[1:, 0] & ~gt.landed[:-1, 0]
     ang = np.arctan2(v[:, 1], v[:, 0])
@@ -43,7 +43,7 @@ def test_landings_rest_on_a_surface_and_take_off():
 
 
 def test_close_encounters_happen_and_are_flagged():
-    gt = simulate_flight(3, 30.0, 100.0, seed=2, params=FlightParams(encounter_rate_hz=0.5))
+    gt = simulate_flight(3, 12.0, 50.0, seed=2, params=FlightParams(encounter_rate_hz=0.8))
     assert gt.meta["encounters"] > 0
     close = gt.close_frames(0.03)
     assert close.any()
