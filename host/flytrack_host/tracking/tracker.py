@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from flytrack_host.camera import Camera
 from flytrack_host.tracking.association import PointSet, associate
-from flytrack_host.tracking.birth import find_births
+from flytrack_host.tracking.birth import Birth, find_births
 from flytrack_host.tracking.ekf import cv_process_noise, cv_transition, joseph_update, predict
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.orientation import axes_from_normals, plane_normals
@@ -63,6 +63,8 @@ class Tracker:
         self.frame_period_s = float(frame_period_s)
         self.stats: dict[str, int] = dict.fromkeys(STAT_KEYS, 0)
         self._last_frame: int | None = None
+        # The births of the latest frame (tentative targets started from unclaimed points).
+        self.last_births: list[Birth] = []
         self._next_obj_id = 0
         p = params
         self._P0 = np.diag([p.initial_position_std_m**2] * 3 + [p.initial_velocity_std_m_s**2] * 3)
@@ -87,6 +89,7 @@ class Tracker:
     def process(self, bundle: FrameBundle) -> FrameResult:
         frame = int(bundle.trigger_frame)
         result = FrameResult(trigger_frame=frame, timestamp=bundle.timestamp)
+        self.last_births = []
         if self._last_frame is not None:
             steps = frame - self._last_frame
             if steps <= 0:
@@ -153,6 +156,7 @@ class Tracker:
         if pts.n - int(claimed.sum()) >= p.birth_min_cameras:
             births = find_births(self.cams, pts, ~claimed, p, self._x[:, :3] if self.n_targets else None)
             if births:
+                self.last_births = births
                 assign, n_cams = self._add_births(births, pts, assign, n_cams)
 
         # Confirmation of targets seen in enough frames.
@@ -301,7 +305,7 @@ class Tracker:
         self._axis = self._axis[keep]
 
     def _add_births(
-        self, births: list, pts: PointSet, assign: NDArray[np.intp], n_cams: NDArray[np.intp]
+        self, births: list[Birth], pts: PointSet, assign: NDArray[np.intp], n_cams: NDArray[np.intp]
     ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         B = len(births)
         C = self.cams.n

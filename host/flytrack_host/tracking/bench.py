@@ -1,0 +1,172 @@
+"""`flytrack bench tracker`: per-frame latency of the tracker, and Stone Soup side by side.
+
+For each rig size (cameras x targets) one synthetic scenario (synthetic.py: 0.5 px noise, 5 % missed
+detections, 0.3 false positives per camera and frame, a close pass) is tracked frame by frame. Each
+`Tracker.process` call is timed with the wall clock and with this thread's CPU clock (the machine may
+be shared: CPU time is what our code costs, wall time what a user would see on an idle machine).
+Then, on the first frames of the same detections and in the same run, the Stone Soup tracker of
+stonesoup_baseline.py is timed the same way and both are scored against the ground truth.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from flytrack_host.tracking.evaluation import score
+from flytrack_host.tracking.params import TrackingParams
+from flytrack_host.tracking.synthetic import make_scenario
+from flytrack_host.tracking.tracker import Tracker
+
+app = typer.Typer(help="Benchmarks that print measured figures.", no_args_is_help=True)
+console = Console(width=200)
+
+CONFIGS = ((2, 1), (2, 3), (2, 10), (5, 1), (5, 2), (5, 3), (5, 10), (11, 1), (11, 3), (11, 10))
+
+
+def _pct(a: np.ndarray, q: float) -> float:
+    return float(np.percentile(a, q)) if a.size else float("nan")
+
+
+def _run_ours(sc, n: int) -> tuple[np.ndarray, np.ndarray, list, list]:  # noqa: ANN001
+    tr = Tracker(sc.cameras, TrackingParams(), sc.frame_period_s)
+    wall = np.empty(n)
+    cpu = np.empty(n)
+    est = []
+    births = []
+    for i, b in enumerate(sc.bundles[:n]):
+        c0 = time.thread_time_ns()
+        w0 = time.perf_counter_ns()
+        r = tr.process(b)
+        wall[i] = time.perf_counter_ns() - w0
+        cpu[i] = time.thread_time_ns() - c0
+        est.append({e.obj_id: e.state[:3] for e in r.estimates})
+        births.append(tr.last_births)
+    return wall / 1e6, cpu / 1e6, est, births
+
+
+def _run_stonesoup(sc, n: int, births: list) -> tuple[np.ndarray, np.ndarray, list]:  # noqa: ANN001
+    from flytrack_host.tracking.stonesoup_baseline import StoneSoupTracker
+
+    ss = StoneSoupTracker(sc.cameras, TrackingParams(), sc.frame_period_s)
+    wall = np.empty(n)
+    cpu = np.empty(n)
+    est = []
+    for i, b in enumerate(sc.bundles[:n]):
+        ss.add_births(births[i], b.trigger_frame)  # initiation is given, not timed
+        c0 = time.thread_time_ns()
+        w0 = time.perf_counter_ns()
+        est.append(ss.process(b))
+        wall[i] = time.perf_counter_ns() - w0
+        cpu[i] = time.thread_time_ns() - c0
+    return wall / 1e6, cpu / 1e6, est
+
+
+def _stonesoup_available() -> str | None:
+    try:
+        import stonesoup  # noqa: F401
+    except ImportError as exc:
+        return (f"Stone Soup is not installed ({exc}); install it with "
+                "`.venv/bin/pip install -r host/requirements-bench.txt` (make bench-tracker does).")
+    return None
+
+
+@app.command("tracker")
+def tracker_bench(
+    quick: bool = typer.Option(False, "--quick", help="Fewer frames and rig sizes (about 30 s)."),
+    frames: int = typer.Option(0, help="Frames tracked per rig size (default 1000, quick 300)."),
+    stonesoup_frames: int = typer.Option(0, help="Frames Stone Soup tracks per rig size (default 100, quick 40)."),
+    no_stonesoup: bool = typer.Option(False, "--no-stonesoup", help="Skip the Stone Soup comparison."),
+    json_path: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
+    seed: int = typer.Option(1, help="Scenario seed."),
+) -> None:
+    """Tracker latency (P50, P99) for 2, 5 and 11 cameras with 1 to 10 targets; real time at 100 and
+    200 fps; speed and accuracy against Stone Soup's EKF + nearest-neighbour tracker."""
+    n = frames or (300 if quick else 1000)
+    n_ss = min(n, stonesoup_frames or (40 if quick else 100))
+    configs = ((2, 1), (5, 2), (5, 10), (11, 3), (11, 10)) if quick else CONFIGS
+    ss_missing = None if no_stonesoup else _stonesoup_available()
+    if ss_missing:
+        console.print(f"[yellow]{ss_missing}[/yellow] Comparison skipped.", highlight=False)
+    use_ss = not no_stonesoup and ss_missing is None
+    rows: list[dict] = []
+    for C, T in configs:
+        sc = make_scenario(n_cameras=C, n_targets=T, duration_s=n / 100.0, fps=100.0,
+                           close_pass_m=0.006 if T >= 2 else None, seed=seed)
+        wall, cpu, est, births = _run_ours(sc, n)
+        s_all = score(sc.truth[:n], est)
+        row: dict = {
+            "cameras": C, "targets": T, "frames": n,
+            "p50_ms": _pct(wall, 50), "p99_ms": _pct(wall, 99), "mean_ms": float(wall.mean()),
+            "cpu_p50_ms": _pct(cpu, 50), "cpu_p99_ms": _pct(cpu, 99), "cpu_mean_ms": float(cpu.mean()),
+            "rmse_mm": s_all.rmse_m * 1e3, "mota": s_all.mota, "idf1": s_all.idf1,
+            "id_switches": s_all.id_switches, "merges": s_all.merges,
+        }
+        for fps in (100, 200):
+            period = 1e3 / fps
+            row[f"realtime_{fps}fps"] = bool(row["p99_ms"] < period)
+            row[f"realtime_{fps}fps_cpu"] = bool(row["cpu_p99_ms"] < period)
+        if use_ss:
+            ss_wall, ss_cpu, ss_est = _run_stonesoup(sc, n_ss, births)
+            s_ours = score(sc.truth[:n_ss], est[:n_ss])
+            s_ss = score(sc.truth[:n_ss], ss_est)
+            row.update({
+                "ss_frames": n_ss,
+                "ss_p50_ms": _pct(ss_wall, 50), "ss_cpu_p50_ms": _pct(ss_cpu, 50),
+                "ss_cpu_mean_ms": float(ss_cpu.mean()),
+                "speed_ratio_cpu_mean": float(ss_cpu.mean() / cpu[:n_ss].mean()),
+                "speed_ratio_cpu_p50": float(_pct(ss_cpu, 50) / _pct(cpu[:n_ss], 50)),
+                "same_frames_ours_rmse_mm": s_ours.rmse_m * 1e3, "same_frames_ours_mota": s_ours.mota,
+                "ss_rmse_mm": s_ss.rmse_m * 1e3, "ss_mota": s_ss.mota, "ss_idf1": s_ss.idf1,
+            })
+        rows.append(row)
+        _print_row(row)
+    _print_table(rows, use_ss)
+    if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps({"tracker": rows}, indent=2))
+        console.print(f"figures written to {json_path}", highlight=False)
+
+
+def _print_row(r: dict) -> None:
+    line = (f"{r['cameras']:>2} cameras x {r['targets']:>2} targets: wall P50 {r['p50_ms']:.3f} ms, "
+            f"P99 {r['p99_ms']:.3f} ms; CPU P50 {r['cpu_p50_ms']:.3f} ms, P99 {r['cpu_p99_ms']:.3f} ms; "
+            f"RMSE {r['rmse_mm']:.2f} mm, MOTA {r['mota']:.3f}, IDF1 {r['idf1']:.3f}")
+    if "ss_p50_ms" in r:
+        line += (f" | Stone Soup CPU P50 {r['ss_cpu_p50_ms']:.2f} ms "
+                 f"({r['speed_ratio_cpu_mean']:.0f}x slower), RMSE {r['ss_rmse_mm']:.2f} mm vs "
+                 f"{r['same_frames_ours_rmse_mm']:.2f}, MOTA {r['ss_mota']:.3f} vs "
+                 f"{r['same_frames_ours_mota']:.3f} on {r['ss_frames']} frames")
+    console.print(line, highlight=False)
+
+
+def _print_table(rows: list[dict], use_ss: bool) -> None:
+    t = Table(title="Tracker per-frame latency (ms) and accuracy")
+    cols = ["cams x targets", "P50", "P99", "CPU P50", "CPU P99", "100 fps", "200 fps", "RMSE mm", "MOTA"]
+    if use_ss:
+        cols += ["Stone Soup CPU P50", "speed ratio", "SS RMSE mm", "SS MOTA", "ours (same frames)"]
+    for c in cols:
+        t.add_column(c, justify="right")
+    for r in rows:
+        yes = lambda b: "yes" if b else "NO"  # noqa: E731
+        cells = [f"{r['cameras']} x {r['targets']}", f"{r['p50_ms']:.3f}", f"{r['p99_ms']:.3f}",
+                 f"{r['cpu_p50_ms']:.3f}", f"{r['cpu_p99_ms']:.3f}",
+                 f"{yes(r['realtime_100fps'])} ({yes(r['realtime_100fps_cpu'])} CPU)",
+                 f"{yes(r['realtime_200fps'])} ({yes(r['realtime_200fps_cpu'])} CPU)",
+                 f"{r['rmse_mm']:.2f}", f"{r['mota']:.3f}"]
+        if use_ss:
+            cells += [f"{r['ss_cpu_p50_ms']:.2f}", f"{r['speed_ratio_cpu_mean']:.0f}x",
+                      f"{r['ss_rmse_mm']:.2f}", f"{r['ss_mota']:.3f}",
+                      f"{r['same_frames_ours_rmse_mm']:.2f} mm, {r['same_frames_ours_mota']:.3f}"]
+        t.add_row(*cells)
+    console.print(t)
+    console.print("Real time: P99 per-frame latency under the frame period (wall clock; in brackets the "
+                  "same on this thread's CPU time, which other load on a shared machine does not inflate). "
+                  "Stone Soup gets our births (same frame, state and covariance); its time excludes "
+                  "initiation, ours includes the birth search.", highlight=False)

@@ -1,0 +1,148 @@
+"""A Stone Soup tracker equivalent to ours, for the side-by-side benchmark only (`flytrack bench tracker`).
+
+What a user would otherwise build from Stone Soup 1.9.1: its ExtendedKalmanPredictor and
+ExtendedKalmanUpdater, the same constant-velocity model (ConstantVelocity per axis: Braid's Q with the
+same noise scale), a nonlinear camera measurement model that projects with our `Camera` (lens
+distortion included, analytic Jacobian), and nearest-neighbour association: DistanceHypothesiser with
+the Mahalanobis measure plus GNNWith2DAssignment, run camera by camera in each frame so that each
+camera gives a track at most one point (sequential EKF updates at one timestamp).
+
+Track initiation is not compared: each birth our tracker makes (`Tracker.last_births`) starts a Stone
+Soup track at the same frame with the same state and covariance, and that frame's points update it
+through Stone Soup's own association. Deaths use our rule (position std over death_position_std_m),
+reporting our rule too (updated in confirm_min_frames frames). Stone Soup is imported only here.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from stonesoup.base import Property
+from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
+from stonesoup.hypothesiser.distance import DistanceHypothesiser
+from stonesoup.measures import Mahalanobis
+from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
+from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
+from stonesoup.predictor.kalman import ExtendedKalmanPredictor
+from stonesoup.types.array import StateVector, StateVectors
+from stonesoup.types.detection import Detection
+from stonesoup.types.state import GaussianState
+from stonesoup.types.track import Track
+from stonesoup.updater.kalman import ExtendedKalmanUpdater
+
+from flytrack_host.camera import Camera
+from flytrack_host.tracking.birth import Birth
+from flytrack_host.tracking.params import TrackingParams
+from flytrack_host.tracking.types import FrameBundle
+
+_POS = (0, 2, 4)  # Stone Soup's state order is (x, vx, y, vy, z, vz)
+_EPOCH = _dt.datetime(2020, 1, 1)
+
+
+class CameraMeasurementModel(NonLinearGaussianMeasurement):
+    """Distorted pixel (u, v) of the state's position through a FlyTrack `Camera`."""
+
+    camera: Camera = Property(doc="The calibrated camera (FlyTrack's model)")
+
+    @property
+    def ndim_meas(self) -> int:
+        return 2
+
+    def function(self, state, noise=False, **kwargs):  # noqa: ANN001, ANN201 - Stone Soup's signature
+        X = np.asarray(state.state_vector[self.mapping, :], dtype=np.float64).T
+        uv = self.camera.project(X).T
+        if isinstance(noise, bool) or noise is None:
+            noise = self.rvs(num_samples=X.shape[0], **kwargs) if noise else 0
+        out = uv + noise
+        return StateVectors(out) if out.shape[1] > 1 else StateVector(out)
+
+    def jacobian(self, state, **kwargs):  # noqa: ANN001, ANN201
+        X = np.asarray(state.state_vector[self.mapping, 0], dtype=np.float64)
+        _, J = self.camera.project_jacobian(X)
+        H = np.zeros((2, self.ndim_state))
+        H[:, list(self.mapping)] = J
+        return H
+
+
+class StoneSoupTracker:
+    def __init__(self, cameras: Mapping[int, Camera], params: TrackingParams, frame_period_s: float,
+                 gate_sigma: float = 10.0) -> None:
+        self.params = params
+        self.frame_period_s = frame_period_s
+        q = params.motion_noise_scale
+        self.transition = CombinedLinearGaussianTransitionModel([ConstantVelocity(q)] * 3)
+        self.predictor = ExtendedKalmanPredictor(self.transition)
+        self.updater = ExtendedKalmanUpdater(measurement_model=None)
+        r2 = params.measurement_noise_px**2
+        self.models = {
+            ci: CameraMeasurementModel(ndim_state=6, mapping=_POS, noise_covar=np.eye(2) * r2, camera=cam)
+            for ci, cam in cameras.items()
+        }
+        hyp = DistanceHypothesiser(self.predictor, self.updater, measure=Mahalanobis(), missed_distance=gate_sigma)
+        self.associator = GNNWith2DAssignment(hyp)
+        self.tracks: list[Track] = []
+        self._n_upd: dict[int, int] = {}
+        self._obj: dict[int, int] = {}
+        self._next = 0
+        p = params
+        self._P0 = np.diag([p.initial_position_std_m**2, p.initial_velocity_std_m_s**2] * 3)
+
+    def add_births(self, births: Sequence[Birth], frame: int) -> None:
+        ts = self._ts(frame)
+        for b in births:
+            sv = np.zeros(6)
+            sv[list(_POS)] = b.position
+            self.tracks.append(Track([GaussianState(StateVector(sv), self._P0.copy(), timestamp=ts)]))
+
+    def _ts(self, frame: int) -> _dt.datetime:
+        return _EPOCH + _dt.timedelta(seconds=frame * self.frame_period_s)
+
+    def process(self, bundle: FrameBundle) -> dict[int, np.ndarray]:
+        """Track one frame; returns reported id -> position (3,)."""
+        ts = self._ts(bundle.trigger_frame)
+        updated: set[int] = set()
+        tracks = set(self.tracks)
+        for ci in sorted(bundle.detections):
+            arr = bundle.detections[ci]
+            model = self.models.get(ci)
+            if model is None or not len(arr) or not tracks:
+                continue
+            u = arr["x_dist"].astype(np.float64)
+            v = arr["y_dist"].astype(np.float64)
+            ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(arr["area"])
+            dets = {
+                Detection(StateVector([u[i], v[i]]), timestamp=ts, measurement_model=model)
+                for i in np.flatnonzero(ok)
+            }
+            hyps = self.associator.associate(tracks, dets, ts)
+            for track, hyp in hyps.items():
+                if hyp:
+                    track.append(self.updater.update(hyp))
+                    updated.add(id(track))
+        out: dict[int, np.ndarray] = {}
+        alive: list[Track] = []
+        death_var = self.params.death_position_std_m**2
+        for track in self.tracks:
+            if track.state.timestamp < ts:
+                track.append(self.predictor.predict(track.state, timestamp=ts))
+            if id(track) in updated:
+                self._n_upd[id(track)] = self._n_upd.get(id(track), 0) + 1
+            cov = np.asarray(track.state.covar)
+            if not max(cov[i, i] for i in _POS) <= death_var:
+                continue
+            alive.append(track)
+            if self._n_upd.get(id(track), 0) >= self.params.confirm_min_frames:
+                if id(track) not in self._obj:
+                    self._obj[id(track)] = self._next
+                    self._next += 1
+                out[self._obj[id(track)]] = np.asarray(track.state.state_vector[list(_POS), 0], dtype=np.float64)
+        self.tracks = alive
+        # Keep only the latest state (what a live tracker needs) so memory does not grow.
+        for track in alive:
+            if len(track.states) > 2:
+                last = track.states[-1]
+                track.states.clear()
+                track.append(last)
+        return out
