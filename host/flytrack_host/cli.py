@@ -28,6 +28,7 @@ err_console = Console(stderr=True)
 # (module, attribute, command name, help): command groups that live in their components.
 _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.recording.cli", "app", "recording", "Recordings: recover after a crash, summarise."),
+    ("flytrack_host.tracking.bench", "app", "bench", "Benchmarks that print measured figures."),
 ]
 # (module, function, command name): top-level commands that live in their components.
 _COMMANDS: list[tuple[str, str, str]] = [
