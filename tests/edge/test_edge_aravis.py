@@ -1,0 +1,88 @@
+"""flytrack-edge against a real GenICam camera protocol: Aravis's fake GigE Vision camera on loopback.
+
+The camera is opened by its address (127.0.0.1): Aravis then streams to loopback. (Opened by its
+listed name, Aravis-Fake-<serial>, discovery can pick another interface for the stream on machines
+with one, and no frame arrives.)"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from flytrack_host.protocol import EdgeStatus, FeatureFrame
+
+FAKE = "arv-fake-gv-camera-0.8"
+
+
+def _free_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+@pytest.fixture
+def fake_camera():
+    if shutil.which(FAKE) is None:
+        pytest.fail(f"{FAKE} is missing: install aravis-tools (scripts/apt-packages.txt, make setup)")
+    serial = f"FT{os.getpid() % 100000}"
+    proc = subprocess.Popen([FAKE, "-i", "127.0.0.1", "-s", serial], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    time.sleep(0.7)
+    if proc.poll() is not None:
+        pytest.fail(f"the fake camera did not start: {proc.stdout.read().decode()}")
+    yield proc
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_aravis_fake_camera_streams_features(edge_bin: Path, receiver, fake_camera) -> None:
+    cmd = [str(edge_bin), "--source", "aravis", "--input", "127.0.0.1", "--fps", "50",
+           "--host", "127.0.0.1", "--port", str(receiver.port), "--control-port", str(_free_port()),
+           "--camera-index", "1", "--max-frames", "25", "--vanish-timeout-ms", "5000",
+           "--bg-update-interval", "5"]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    receiver.poll(0.5)
+    fr = [m for m in receiver.messages if isinstance(m, FeatureFrame)]
+    frames = sorted({m.camera_frame for m in fr})
+    assert len(frames) == 25, p.stderr
+    assert frames == sorted(frames) and all(m.camera_index == 1 for m in fr)
+    assert all(m.device_timestamp_ns > 0 for m in fr)  # the camera's own timestamps
+    for m in fr:
+        assert m.n_points <= 32 and m.part_index < m.part_count
+    # The fake camera's test pattern moves: after the background, some frames give points.
+    assert sum(m.n_points for m in fr) > 0
+    st = [m for m in receiver.messages if isinstance(m, EdgeStatus)]
+    assert st and st[-1].width == 512 and st[-1].height == 512 and st[-1].frames_seen == 25
+
+
+def test_camera_that_vanishes_is_an_error_exit(edge_bin: Path, receiver, fake_camera) -> None:
+    cmd = [str(edge_bin), "--source", "aravis", "--input", "127.0.0.1", "--fps", "50",
+           "--host", "127.0.0.1", "--port", str(receiver.port), "--control-port", str(_free_port()),
+           "--vanish-timeout-ms", "1500"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    got = receiver.wait_for(lambda m: isinstance(m, FeatureFrame) and m.camera_frame >= 3, 20.0)
+    assert got, "no frames from the fake camera"
+    fake_camera.kill()
+    fake_camera.wait()
+    rc = p.wait(30)
+    err = p.stderr.read()
+    assert rc == 3, err
+    assert "camera vanished" in err
+    receiver.poll(0.3)
+    last = [m for m in receiver.messages if isinstance(m, EdgeStatus)][-1]
+    assert last.state == 2 and "vanished" in last.last_error
