@@ -138,8 +138,12 @@ class LiveClient:
     """Receives LIVE_ESTIMATES on a UDP port. Use `recv(timeout)`, iterate `frames(timeout)`, or
     `run(callback, timeout)`."""
 
-    def __init__(self, port: int = 7100, host: str = "127.0.0.1"):
+    def __init__(self, port: int = 7100, host: str = "127.0.0.1", rcvbuf_bytes: int = 1 << 20):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:  # room for a few seconds of frames if the program is busy drawing
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
+        except OSError:
+            pass
         self.sock.bind((host, port))
         self.sock.setblocking(False)
         self.stats = LiveClientStats()

@@ -352,14 +352,13 @@ class HostPipeline:
         lat_row = self.latency.row(bundle.trigger_frame, bundle.timestamp, sb.first_arrival, sb.last_arrival,
                                    t_est, len(sb.frames), len(bundle.missing_cameras))
         if self.recorder is not None:
-            for fr in sb.frames.values():
-                self.recorder.append("data2d_distorted",
-                                     data2d_rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_TRACKED))
+            items = [("data2d_distorted", data2d_rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_TRACKED))
+                     for fr in sb.frames.values()]
             if result is not None:
                 k, a = result_rows(result, bundle.timestamp)
-                self.recorder.append("kalman_estimates", k)
-                self.recorder.append("data_association", a)
-            self.recorder.append("latency", lat_row)
+                items += [("kalman_estimates", k), ("data_association", a)]
+            items.append(("latency", lat_row))
+            self.recorder.append_many(items)
         if result is not None:
             if self.keep_results:
                 self.results.append(result)

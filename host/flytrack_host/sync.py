@@ -309,7 +309,9 @@ class FrameSynchronizer:
         if cam.offset is None:
             if self._sync_started is None:
                 self._sync_started = frame.recv_time
-            if frame.recv_time - self._sync_started <= self.period * 0.5 and self.max_accepted < 1:
+            # First frames of all cameras come from the same first pulse; allow most of a period of
+            # network/scheduling spread before a camera counts as a late joiner.
+            if frame.recv_time - self._sync_started <= self.period * 0.9 and self.max_accepted < 1:
                 tf = 0  # the frame-0 tie: all cameras' first frames come from the same first pulse
                 if isinstance(self.clock, FixedRateClock) and not self.clock.anchored:
                     self.clock.anchor(0, frame.recv_time)

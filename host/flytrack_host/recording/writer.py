@@ -54,6 +54,8 @@ class Recorder:
         self._files: dict[str, Any] = {}
         self._error: BaseException | None = None
         self._stopped = False
+        self._wake = threading.Event()
+        self.poll_s = min(0.05, self.flush_interval_s)
 
     # --- life cycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -85,6 +87,15 @@ class Recorder:
         if len(rows):
             self._q.put((table, rows))
 
+    def append_many(self, items: list[tuple[str, np.ndarray]]) -> None:
+        """Queue rows for several tables at once (one queue operation for a whole frame)."""
+        for table, rows in items:
+            if rows.dtype != TABLES[table]:
+                raise TypeError(f"rows for {table} have dtype {rows.dtype}, expected {TABLES[table]}")
+        items = [(t, r) for t, r in items if len(r)]
+        if items:
+            self._q.put(items)
+
     def log(self, message: str, source: str = "host", host_time: float | None = None) -> None:
         t = time.time() if host_time is None else host_time
         self._q.put(("__textlog__", {"host_time": t, "source": source, "message": message}))
@@ -96,6 +107,7 @@ class Recorder:
         self._stopped = True
         if self._thread is not None:
             self._q.put(_STOP)
+            self._wake.set()
             self._thread.join()
         for f in self._files.values():
             f.close()
@@ -109,38 +121,38 @@ class Recorder:
 
     # --- writer thread ------------------------------------------------------------------------
     def _run(self) -> None:
+        # Poll the queue every `poll_s` instead of blocking on it: a put then never wakes this
+        # thread, so the tracking thread does not lose the GIL to it once per row batch.
         next_flush = time.monotonic() + self.flush_interval_s
         try:
             while True:
-                timeout = max(0.0, next_flush - time.monotonic())
-                try:
-                    item = self._q.get(timeout=timeout)
-                except queue.Empty:
-                    item = None
-                if item is _STOP:
-                    self._drain()
-                    self._flush()
-                    return
-                if item is not None:
-                    self._write(item)
-                    # Keep writing what is queued before checking the clock again.
-                    depth = self._q.qsize()
-                    if depth > self.stats.max_queue_depth:
-                        self.stats.max_queue_depth = depth
-                if time.monotonic() >= next_flush:
+                stop = self._wake.wait(min(self.poll_s, max(0.0, next_flush - time.monotonic())))
+                done = self._drain()
+                if time.monotonic() >= next_flush or done or stop:
                     self._flush()
                     next_flush = time.monotonic() + self.flush_interval_s
+                if done:
+                    return
         except BaseException as exc:  # keep the error for stop(); never kill the tracker
             self._error = exc
             self.stats.write_errors += 1
 
-    def _drain(self) -> None:
+    def _drain(self) -> bool:
+        """Write everything queued; True when the stop marker was reached."""
+        n = 0
         while True:
             try:
                 item = self._q.get_nowait()
             except queue.Empty:
-                return
-            if item is not _STOP:
+                self.stats.max_queue_depth = max(self.stats.max_queue_depth, n)
+                return False
+            n += 1
+            if item is _STOP:
+                return True
+            if isinstance(item, list):
+                for sub in item:
+                    self._write(sub)
+            else:
                 self._write(item)
 
     def _write(self, item: tuple[str, Any]) -> None:

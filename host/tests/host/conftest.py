@@ -60,15 +60,19 @@ def points_for(cam: int, frame: int, n: int = 2) -> np.ndarray:
 class EdgeSim:
     """One simulated edge: sends FEATURES datagrams for a camera over real UDP."""
 
-    def __init__(self, cam: int, dest: tuple[str, int], src_ip: str = "127.0.0.1", frame0: int = 0):
+    def __init__(self, cam: int, dest: tuple[str, int], src_ip: str = "127.0.0.1", frame0: int = 0,
+                 edge_trigger: bool = False):
         self.cam = cam
+        self.edge_trigger = edge_trigger  # the edge fills trigger_frame itself
         self.dest = dest
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((src_ip, 0))
         self.seq = 0
         self.frame0 = frame0
 
-    def datagrams(self, frame: int, n_points: int = 2, trigger_frame: int = -1) -> list[bytes]:
+    def datagrams(self, frame: int, n_points: int = 2, trigger_frame: int | None = None) -> list[bytes]:
+        if trigger_frame is None:
+            trigger_frame = frame if self.edge_trigger else -1
         pts = points_for(self.cam, frame, n_points)
         ff = FeatureFrame(camera_index=self.cam, seq=self.seq, camera_frame=self.frame0 + frame,
                           trigger_frame=trigger_frame, total_points=n_points, points=pts,
