@@ -1,0 +1,108 @@
+"""Receiver details (split frames, sequence wrap, incomplete splits), live split datagrams, and a
+trigger clock jump through the whole pipeline."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from flytrack_host.live import LiveClient, LiveSender
+from flytrack_host.pipeline import HostPipeline
+from flytrack_host.receiver import Receiver
+from flytrack_host.recording import load_recording
+from flytrack_host.sync import CameraFrame
+from flytrack_host.tracking.types import Estimate, FrameResult
+
+ADDR = ("127.0.0.1", 5555)
+
+
+def test_split_frames_are_joined_and_incomplete_ones_passed_on(helpers):
+    rig = helpers.make_rig(1)
+    rx = Receiver(rig, bind="127.0.0.1:0", split_timeout_s=0.01)
+    try:
+        e = helpers.EdgeSim(0, ("127.0.0.1", 1))
+        parts = e.datagrams(0, n_points=70)  # 32 + 32 + 6
+        assert len(parts) == 3
+        out: list = []
+        for d in reversed(parts):  # any order
+            rx.handle(d, ADDR, 1.0, out)
+        assert len(out) == 1 and isinstance(out[0], CameraFrame)
+        assert np.array_equal(out[0].points["x_dist"], helpers.points_for(0, 0, 70)["x_dist"])
+        # A frame missing a part is passed on after the timeout, flagged incomplete.
+        parts = e.datagrams(1, n_points=70)
+        rx.handle(parts[0], ADDR, 2.0, out)
+        rx.handle(parts[2], ADDR, 2.0, out)
+        assert len(out) == 1
+        time.sleep(0.02)
+        rx.expire(time.monotonic(), out)
+        assert len(out) == 2 and out[1].incomplete and len(out[1].points) == 38
+        cs = rx.stats.cameras[0]
+        assert cs.split_incomplete == 1 and cs.lost == 1
+    finally:
+        rx.close()
+
+
+def test_sequence_numbers_wrap_without_counting_loss(helpers):
+    rig = helpers.make_rig(1)
+    rx = Receiver(rig, bind="127.0.0.1:0")
+    try:
+        e = helpers.EdgeSim(0, ("127.0.0.1", 1))
+        e.seq = 0xFFFFFFFE
+        out: list = []
+        for k in range(4):
+            for d in e.datagrams(k):
+                rx.handle(d, ADDR, 1.0, out)
+            e.seq &= 0xFFFFFFFF
+        cs = rx.stats.cameras[0]
+        assert len(out) == 4 and cs.lost == 0 and cs.reordered == 0 and cs.duplicated == 0
+    finally:
+        rx.close()
+
+
+def test_live_client_receives_split_frames():
+    client = LiveClient(0)
+    sender = LiveSender([f"127.0.0.1:{client.port}"])
+    try:
+        res = FrameResult(7, 100.0)
+        for i in range(60):  # 27 + 27 + 6 objects
+            res.estimates.append(Estimate(i, np.array([i, 0.1, 0.2, 1.0, 0.0, 0.0]), np.eye(6) * 1e-4, 3))
+        res.estimates.append(Estimate(99, np.full(6, np.nan), np.eye(6), 2))  # NaN: not sent, counted
+        assert sender.send(res, time.time()) == 3
+        f = client.recv(timeout=2.0)
+        assert f is not None and f.complete and f.trigger_frame == 7
+        assert list(f.objects["obj_id"]) == list(range(60))
+        assert np.allclose(f.objects["cov"][:, 0], 1e-4)
+        assert sender.stats.dropped_objects == 1
+        assert client.recv(timeout=0.05) is None  # timeout gives None
+    finally:
+        client.close()
+        sender.close()
+
+
+def test_trigger_clock_jump_through_the_pipeline(helpers, tmp_path):
+    rig = helpers.make_rig(2, fps=100.0)
+    pipe = HostPipeline(rig, cameras={0: None, 1: None}, tracker_factory=helpers.factory,
+                        recording_path=tmp_path / "r", bind="127.0.0.1:0", keep_results=True)
+    pipe.start()
+    edges = [helpers.EdgeSim(i, pipe.address) for i in range(2)]
+    try:
+        t0 = time.monotonic()
+        for k in range(120):
+            tf = k if k < 60 else k - 60  # the trigger count restarts at frame 60
+            for e in edges:
+                e.send(k, trigger_frame=tf)
+            time.sleep(max(0.0, t0 + (k + 1) / 100.0 - time.monotonic()))
+        time.sleep(0.05)
+    finally:
+        summary = pipe.stop()
+    assert summary["tracker_resets"] >= 1
+    assert any(j for j in (summary["sync"][0]["clock_jumps"], summary["sync"][1]["clock_jumps"]))
+    tfs = [r.trigger_frame for r in pipe.results]
+    assert tfs[:60] == list(range(60))
+    assert tfs[60:] == list(range(tfs[60], 60)) and tfs[60] <= 4  # tracking went on in the new numbering
+    rec = load_recording(summary["recording"])
+    d2 = rec.table("data2d_distorted")
+    for cam in (0, 1):  # nothing recorded is lost
+        assert set(d2[d2["camera_index"] == cam]["camera_frame"].tolist()) == set(range(120))
+    assert any("jumped" in r["message"] for r in rec.textlog)
