@@ -21,10 +21,13 @@ from flytrack_host.protocol import (
     LiveEstimates,
     PixelFormat,
     ProtocolError,
+    assemble_image,
     canonical_fields,
     decode_datagram,
     encode,
     encode_features,
+    encode_live_estimates,
+    image_chunks,
     join_feature_parts,
     make_points,
 )
@@ -134,3 +137,26 @@ def test_error_messages_say_what_is_wrong() -> None:
         decode_datagram(w[:-1])
     with pytest.raises(ProtocolError, match="state = 9 is not a CameraState"):
         decode_datagram(w[:15] + b"\x09" + w[16:])
+
+
+def test_live_estimates_split() -> None:
+    objs = np.zeros(60, OBJECT_DTYPE)
+    objs["obj_id"] = np.arange(60)
+    est = LiveEstimates(10, 1234.5, 7, 2.0, objects=objs)
+    wires = encode_live_estimates(est)
+    parts = [decode_datagram(w) for w in wires]
+    assert [p.n_objects for p in parts] == [27, 27, 6]
+    assert [(p.part_index, p.part_count, p.flags, p.seq) for p in parts] == [(i, 3, 1, 7 + i) for i in range(3)]
+    assert np.concatenate([p.objects for p in parts])["obj_id"].tolist() == list(range(60))
+    (one,) = encode_live_estimates(LiveEstimates(10, 1234.5, 7, 2.0, objects=objs[:3]))
+    assert decode_datagram(one).flags == 0
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_image_chunks_roundtrip(dtype) -> None:
+    img = (np.arange(50 * 61) * 37 % 4099).astype(dtype).reshape(50, 61)
+    chunks = [decode_datagram(encode(c)) for c in image_chunks(2, 0, 99, 5, 0, 0, img)]
+    assert all(c.chunk_len <= 1428 for c in chunks)
+    assert np.array_equal(assemble_image(chunks[::-1]), img)
+    with pytest.raises(ProtocolError):
+        assemble_image(chunks[1:])

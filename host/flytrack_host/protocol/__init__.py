@@ -88,9 +88,12 @@ from .udp import (  # noqa: E402
     MsgType,
     PixelFormat,
     UdpMessage,
+    assemble_image,
     decode_datagram,
     encode,
     encode_features,
+    encode_live_estimates,
+    image_chunks,
     join_feature_parts,
     make_points,
 )
@@ -112,5 +115,6 @@ __all__ = [
     "WINGEDGE_DTYPE", "WINGEDGES_MAX", "AckStatus", "CameraState", "Command", "Control", "ControlAck",
     "DvsClusters", "DvsWingbeat", "EdgeStatus", "FeatureFlags", "FeatureFrame", "ImageChunk", "ImageKind",
     "LiveEstimates", "LiveFlags", "MsgType", "PixelFormat", "UdpMessage", "decode_datagram", "encode",
-    "encode_features", "join_feature_parts", "make_points",
+    "encode_features", "join_feature_parts", "make_points", "encode_live_estimates", "image_chunks",
+    "assemble_image",
 ]  # fmt: skip

@@ -706,3 +706,62 @@ def join_feature_parts(parts: list[FeatureFrame]) -> FeatureFrame:
         FeatureFlags.TRUNCATED if truncated else 0
     )
     return replace(first, points=points, part_index=0, part_count=1, flags=int(flags))
+
+
+def encode_live_estimates(est: LiveEstimates) -> list[bytes]:
+    """The datagrams of one tracked frame: up to 27 objects in one, more SPLIT over several (seq + i)."""
+    objs = np.asarray(est.objects)
+    if len(objs) <= LIVE_MAX_OBJECTS:
+        return [encode(replace(est, part_index=0, part_count=1, flags=est.flags & ~LiveFlags.SPLIT))]
+    parts = -(-len(objs) // LIVE_MAX_OBJECTS)
+    if parts > MAX_PARTS:
+        raise ProtocolError("COUNT_OVERFLOW", f"{len(objs)} objects need {parts} datagrams, at most {MAX_PARTS}")
+    return [
+        encode(
+            replace(
+                est,
+                seq=(est.seq + i) & 0xFFFFFFFF,
+                part_index=i,
+                part_count=parts,
+                flags=int(est.flags | LiveFlags.SPLIT),
+                objects=objs[i * LIVE_MAX_OBJECTS : (i + 1) * LIVE_MAX_OBJECTS],
+            )
+        )
+        for i in range(parts)
+    ]
+
+
+def image_chunks(
+    camera_index: int, kind: int, image_id: int, camera_frame: int, x0: int, y0: int, pixels: np.ndarray
+) -> list[ImageChunk]:
+    """Cut a 2-D uint8 or uint16 image into IMAGE chunks of at most 1428 bytes (16-bit little-endian)."""
+    pixels = np.asarray(pixels)
+    if pixels.ndim != 2 or pixels.dtype not in (np.uint8, np.uint16):
+        raise ProtocolError("BAD_FIELD", "an image is a 2-D uint8 or uint16 array")
+    raw = np.ascontiguousarray(pixels, pixels.dtype.newbyteorder("<")).tobytes()
+    h, w = pixels.shape
+    bpp = pixels.dtype.itemsize
+    return [
+        ImageChunk(camera_index, kind, bpp, image_id, camera_frame, x0, y0, w, h, off, len(raw),
+                   raw[off : off + IMAGE_MAX_CHUNK])  # fmt: skip
+        for off in range(0, max(len(raw), 1), IMAGE_MAX_CHUNK)
+    ]
+
+
+def assemble_image(chunks: list[ImageChunk]) -> np.ndarray:
+    """The image of a complete set of IMAGE chunks (any order); BAD_FIELD when chunks are missing or mixed."""
+    if not chunks:
+        raise ProtocolError("BAD_FIELD", "no chunks")
+    c0 = chunks[0]
+    key = (c0.camera_index, c0.image_id, c0.width, c0.height, c0.bytes_per_pixel, c0.total_bytes)
+    if any((c.camera_index, c.image_id, c.width, c.height, c.bytes_per_pixel, c.total_bytes) != key for c in chunks):
+        raise ProtocolError("BAD_FIELD", "chunks of different images")
+    buf = bytearray(c0.total_bytes)
+    covered = np.zeros(c0.total_bytes, bool)
+    for c in chunks:
+        buf[c.offset : c.offset + c.chunk_len] = c.data
+        covered[c.offset : c.offset + c.chunk_len] = True
+    if not covered.all():
+        raise ProtocolError("BAD_FIELD", f"{int((~covered).sum())} image bytes missing")
+    dtype = np.dtype("<u2") if c0.bytes_per_pixel == 2 else np.dtype(np.uint8)
+    return np.frombuffer(bytes(buf), dtype).reshape(c0.height, c0.width)
