@@ -114,10 +114,10 @@ static ft_err dec_cobs(const uint8_t *b, size_t n) {
 }
 static ft_err dec_dvs(const uint8_t *b, size_t n) {
     ft_dvs_decoder d;
-    ft_dvs_event ev[512];
+    static ft_dvs_event ev[1024];
     size_t ne;
     ft_dvs_decoder_init(&d);
-    return ft_dvs_decode_packet(&d, b, n, ev, 512, &ne);
+    return ft_dvs_decode_packet(&d, b, n, ev, 1024, &ne);
 }
 static ft_err dec_rx(const uint8_t *b, size_t n) {
     /* Byte-at-a-time receiver, then decode of each frame it yields. */

@@ -34,14 +34,14 @@ typedef struct {
     int overflow;
 } vr_text;
 
-static void vr_reset(vr_text *t) {
+static inline void vr_reset(vr_text *t) {
     t->len = 0;
     t->s[0] = 0;
     t->overflow = 0;
 }
 
 /* Appends one `key=value` item (space-separated from the previous one). */
-static void vr_add(vr_text *t, const char *fmt, ...) {
+static inline void vr_add(vr_text *t, const char *fmt, ...) {
     va_list ap;
     int n;
     if (t->len > 0 && t->len + 1 < VR_TEXT_CAP)
@@ -57,14 +57,14 @@ static void vr_add(vr_text *t, const char *fmt, ...) {
     }
 }
 
-static void vr_u(vr_text *t, const char *key, uint64_t v) {
+static inline void vr_u(vr_text *t, const char *key, uint64_t v) {
     vr_add(t, "%s=%" PRIu64, key, v);
 }
-static void vr_i(vr_text *t, const char *key, int64_t v) {
+static inline void vr_i(vr_text *t, const char *key, int64_t v) {
     vr_add(t, "%s=%" PRId64, key, v);
 }
 
-static void vr_fmt_float(char *out, size_t cap, double v, int digits) {
+static inline void vr_fmt_float(char *out, size_t cap, double v, int digits) {
     if (isnan(v))
         snprintf(out, cap, "nan");
     else if (isinf(v))
@@ -72,17 +72,17 @@ static void vr_fmt_float(char *out, size_t cap, double v, int digits) {
     else
         snprintf(out, cap, "%.*g", digits, v);
 }
-static void vr_f32(vr_text *t, const char *key, float v) {
+static inline void vr_f32(vr_text *t, const char *key, float v) {
     char b[64];
     vr_fmt_float(b, sizeof b, (double)v, 9);
     vr_add(t, "%s=%s", key, b);
 }
-static void vr_f64(vr_text *t, const char *key, double v) {
+static inline void vr_f64(vr_text *t, const char *key, double v) {
     char b[64];
     vr_fmt_float(b, sizeof b, v, 17);
     vr_add(t, "%s=%s", key, b);
 }
-static void vr_str(vr_text *t, const char *key, const char *s) {
+static inline void vr_str(vr_text *t, const char *key, const char *s) {
     char b[4 * 256 + 1];
     size_t o = 0;
     for (; *s && o + 5 < sizeof b; s++) {
@@ -95,7 +95,7 @@ static void vr_str(vr_text *t, const char *key, const char *s) {
     b[o] = 0;
     vr_add(t, "%s=%s", key, b);
 }
-static void vr_hex(vr_text *t, const char *key, const uint8_t *p, size_t n) {
+static inline void vr_hex(vr_text *t, const char *key, const uint8_t *p, size_t n) {
     static char b[2 * FT_UDP_MAX_DATAGRAM + 1];
     size_t i;
     if (n > FT_UDP_MAX_DATAGRAM)
@@ -115,12 +115,12 @@ typedef struct {
     char problem[512]; /* not a codec error, but a runner-level failure (e.g. wrong type) */
 } vr_result;
 
-static void vr_hdr(vr_text *t, uint8_t type, uint16_t flags) {
+static inline void vr_hdr(vr_text *t, uint8_t type, uint16_t flags) {
     vr_u(t, "type", type);
     vr_u(t, "flags", flags);
 }
 
-static ft_err vr_features(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_features(const uint8_t *b, size_t n, vr_result *r) {
     ft_features_hdr h;
     ft_point p[FT_FEATURES_MAX_POINTS];
     vr_text *t = &r->text;
@@ -160,7 +160,7 @@ static ft_err vr_features(const uint8_t *b, size_t n, vr_result *r) {
     return ft_features_encode(r->again, sizeof r->again, &h, p, &r->again_len);
 }
 
-static ft_err vr_status(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_status(const uint8_t *b, size_t n, vr_result *r) {
     ft_status m;
     vr_text *t = &r->text;
     ft_err e = ft_status_decode(b, n, &m);
@@ -184,7 +184,7 @@ static ft_err vr_status(const uint8_t *b, size_t n, vr_result *r) {
     return ft_status_encode(r->again, sizeof r->again, &m, &r->again_len);
 }
 
-static ft_err vr_control(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_control(const uint8_t *b, size_t n, vr_result *r) {
     ft_control m;
     vr_text *t = &r->text;
     ft_err e = ft_control_decode(b, n, &m);
@@ -199,7 +199,7 @@ static ft_err vr_control(const uint8_t *b, size_t n, vr_result *r) {
     return ft_control_encode(r->again, sizeof r->again, &m, &r->again_len);
 }
 
-static ft_err vr_control_ack(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_control_ack(const uint8_t *b, size_t n, vr_result *r) {
     ft_control_ack m;
     vr_text *t = &r->text;
     ft_err e = ft_control_ack_decode(b, n, &m);
@@ -214,7 +214,7 @@ static ft_err vr_control_ack(const uint8_t *b, size_t n, vr_result *r) {
     return ft_control_ack_encode(r->again, sizeof r->again, &m, &r->again_len);
 }
 
-static ft_err vr_image(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_image(const uint8_t *b, size_t n, vr_result *r) {
     ft_image m;
     vr_text *t = &r->text;
     ft_err e = ft_image_decode(b, n, &m);
@@ -237,7 +237,7 @@ static ft_err vr_image(const uint8_t *b, size_t n, vr_result *r) {
     return ft_image_encode(r->again, sizeof r->again, &m, &r->again_len);
 }
 
-static ft_err vr_dvs_clusters(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_dvs_clusters(const uint8_t *b, size_t n, vr_result *r) {
     ft_dvs_clusters_hdr h;
     ft_dvs_cluster c[FT_DVS_MAX_CLUSTERS];
     vr_text *t = &r->text;
@@ -268,7 +268,7 @@ static ft_err vr_dvs_clusters(const uint8_t *b, size_t n, vr_result *r) {
     return ft_dvs_clusters_encode(r->again, sizeof r->again, &h, c, &r->again_len);
 }
 
-static ft_err vr_dvs_wingbeat(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_dvs_wingbeat(const uint8_t *b, size_t n, vr_result *r) {
     ft_dvs_wingbeat_hdr h;
     ft_wing_edge w[FT_DVS_MAX_EDGES];
     vr_text *t = &r->text;
@@ -296,7 +296,7 @@ static ft_err vr_dvs_wingbeat(const uint8_t *b, size_t n, vr_result *r) {
     return ft_dvs_wingbeat_encode(r->again, sizeof r->again, &h, w, &r->again_len);
 }
 
-static ft_err vr_live(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_live(const uint8_t *b, size_t n, vr_result *r) {
     ft_live_hdr h;
     ft_live_object o[FT_LIVE_MAX_OBJECTS];
     vr_text *t = &r->text;
@@ -333,7 +333,7 @@ static ft_err vr_live(const uint8_t *b, size_t n, vr_result *r) {
 }
 
 /* A serial vector is the whole wire frame, its 0x00 delimiter included. */
-static ft_err vr_serial(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_serial(const uint8_t *b, size_t n, vr_result *r) {
     uint8_t id, seq, pl[FT_TL_MAX_PAYLOAD], plen, out[FT_TL_MAX_PAYLOAD];
     vr_text *t = &r->text;
     ft_err e;
@@ -456,7 +456,7 @@ static ft_err vr_serial(const uint8_t *b, size_t n, vr_result *r) {
     return ft_tl_encode(r->again, sizeof r->again, id, seq, out, plen, &r->again_len);
 }
 
-static ft_err vr_dvs_words(const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_dvs_words(const uint8_t *b, size_t n, vr_result *r) {
     vr_text *t = &r->text;
     ft_dvs_decoder d;
     size_t i, n_events;
@@ -511,7 +511,7 @@ static const vr_family vr_families[] = {
 };
 #define VR_N_FAMILIES (sizeof vr_families / sizeof vr_families[0])
 
-static const vr_family *vr_family_by_type(uint8_t type) {
+static inline const vr_family *vr_family_by_type(uint8_t type) {
     size_t i;
     for (i = 0; i < VR_N_FAMILIES; i++)
         if (vr_families[i].udp_type == (int)type)
@@ -521,7 +521,7 @@ static const vr_family *vr_family_by_type(uint8_t type) {
 
 /* Decodes one vector's bytes as its family does: UDP datagrams by the type in their header (as
  * the Python runner does; a type other than the file's family is a failure). */
-static ft_err vr_decode(const vr_family *f, const uint8_t *b, size_t n, vr_result *r) {
+static inline ft_err vr_decode(const vr_family *f, const uint8_t *b, size_t n, vr_result *r) {
     vr_reset(&r->text);
     r->again_len = 0;
     r->problem[0] = 0;
@@ -547,7 +547,7 @@ typedef struct {
     FILE *log; /* failures are written here */
 } vr_counts;
 
-static int vr_hexval(int c) {
+static inline int vr_hexval(int c) {
     if (c >= '0' && c <= '9')
         return c - '0';
     if (c >= 'a' && c <= 'f')
@@ -558,7 +558,7 @@ static int vr_hexval(int c) {
 }
 
 /* Parses hex text into out (cap bytes); -1 on bad hex or too long. */
-static long vr_unhex(const char *s, uint8_t *out, size_t cap) {
+static inline long vr_unhex(const char *s, uint8_t *out, size_t cap) {
     size_t n = strlen(s), i;
     if (n % 2 || n / 2 > cap)
         return -1;
@@ -571,8 +571,8 @@ static long vr_unhex(const char *s, uint8_t *out, size_t cap) {
     return (long)(n / 2);
 }
 
-static void vr_fail(vr_counts *c, const char *file, long line, const char *name, const char *fmt,
-                    ...) {
+static inline void vr_fail(vr_counts *c, const char *file, long line, const char *name,
+                           const char *fmt, ...) {
     va_list ap;
     c->failed++;
     fprintf(c->log, "FAIL %s:%ld %s: ", file, line, name);
@@ -583,8 +583,8 @@ static void vr_fail(vr_counts *c, const char *file, long line, const char *name,
 }
 
 /* Checks one line (without its newline). Comments and empty lines are skipped. */
-static void vr_line(vr_counts *c, const vr_family *f, const char *file, long lineno, char *line,
-                    vr_result *r) {
+static inline void vr_line(vr_counts *c, const vr_family *f, const char *file, long lineno,
+                           char *line, vr_result *r) {
     static uint8_t data[65536];
     char *col[4];
     char *p = line;
@@ -644,7 +644,7 @@ static void vr_line(vr_counts *c, const vr_family *f, const char *file, long lin
 }
 
 /* Reads one .tsv file (path), family from its stem. */
-static void vr_file(vr_counts *c, const char *path, const char *stem, vr_result *r) {
+static inline void vr_file(vr_counts *c, const char *path, const char *stem, vr_result *r) {
     const vr_family *f = NULL;
     size_t i, cap = 1 << 16, len;
     char *line;
@@ -699,12 +699,12 @@ static void vr_file(vr_counts *c, const char *path, const char *stem, vr_result 
     fclose(fp);
 }
 
-static int vr_cmp(const void *a, const void *b) {
+static inline int vr_cmp(const void *a, const void *b) {
     return strcmp(*(char *const *)a, *(char *const *)b);
 }
 
 /* Runs every <dir>/<family>.tsv (in name order). */
-static void vr_run_dir(vr_counts *c, const char *dir) {
+static inline void vr_run_dir(vr_counts *c, const char *dir) {
     static vr_result r; /* large: keep off the stack */
     char *names[256];
     size_t n = 0, i;
