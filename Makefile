@@ -33,8 +33,8 @@ setup:
 	@./scripts/setup.sh
 
 cbuild: setup
-	@cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -Wno-dev > $(BUILD).cmake.log 2>&1 \
-	  || { cat $(BUILD).cmake.log; exit 1; }
+	@mkdir -p $(BUILD) && cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -Wno-dev > $(BUILD)/cmake.log 2>&1 \
+	  || { cat $(BUILD)/cmake.log; exit 1; }
 	@cmake --build $(BUILD) -j $(JOBS) 2>&1 | grep -vE '^\[ *[0-9]+%\]|^-- ' || true
 	@cmake --build $(BUILD) -j $(JOBS) > /dev/null
 
@@ -70,7 +70,7 @@ demo: build
 	@$(PY) -m flytrack_host.cli demo $(DEMO_ARGS)
 
 clean:
-	rm -rf $(BUILD) $(BUILD).cmake.log
+	rm -rf $(BUILD)
 
 firmware:
 	@true
