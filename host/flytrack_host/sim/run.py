@@ -1,0 +1,462 @@
+"""`flytrack demo`: the simulated rig, end to end, through every real part.
+
+    flight model -> trigger (firmware in simavr, or the software trigger) -> rendered camera frames
+    -> one real `flytrack-edge` process per camera (frames on its stdin) -> UDP feature datagrams on
+    loopback -> the real host pipeline (receive, synchronise, track, record, publish live)
+    -> scores against ground truth, latency, a figure, a summary table.
+
+The pieces are started in an order that matters: edge processes first, then the frame feeder (a
+forked child, so before any thread exists here), then the host, then the trigger, whose first
+pulse is frame 0 of every camera (the synchroniser ties each camera's first frame to it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import shutil
+import socket
+import subprocess
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from flytrack_host.camera import Camera
+from flytrack_host.sim.flight import Arena, FlightParams, GroundTruth, simulate_flight
+from flytrack_host.sim.frames import FrameFeeder
+from flytrack_host.sim.metrics import FrameTracks, TrackingScores, latency_summary, score_tracks
+from flytrack_host.sim.render import RenderParams
+from flytrack_host.sim.rig import make_cameras, rig_config, write_rig
+from flytrack_host.sim.trigger_source import DemoTrigger
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+class DemoError(RuntimeError):
+    """The demo cannot run; the message says which part is missing and how to get it."""
+
+
+@dataclass
+class DemoConfig:
+    cameras: int = 5
+    animals: int = 3
+    fps: float = 100.0
+    seconds: float = 10.0
+    noise: float = 2.0  # sensor noise, grey levels
+    seed: int = 0
+    out: Path = field(default_factory=lambda: ROOT / "build" / "demo")
+    width: int = 640
+    height: int = 480
+    trigger: str = "auto"  # auto | simavr | software
+    edge_bin: Path | None = None
+    firmware: Path | None = None
+    match_threshold_m: float = 0.02
+    close_distance_m: float = 0.02
+    progress: bool = True
+    flight: FlightParams = field(default_factory=FlightParams)
+    render: RenderParams | None = None
+
+    def check(self) -> None:
+        if not 2 <= self.cameras <= 64:
+            raise DemoError(f"--cameras must be 2..64 (3D needs two views), got {self.cameras}")
+        if not 1 <= self.animals <= 100:
+            raise DemoError(f"--animals must be 1..100, got {self.animals}")
+        if not (math.isfinite(self.fps) and 1 <= self.fps <= 1000):
+            raise DemoError(f"--fps must be 1..1000, got {self.fps}")
+        if not (math.isfinite(self.seconds) and 0.1 <= self.seconds <= 3600):
+            raise DemoError(f"--seconds must be 0.1..3600, got {self.seconds}")
+        if not (math.isfinite(self.noise) and 0 <= self.noise <= 40):
+            raise DemoError(f"--noise must be 0..40 grey levels, got {self.noise}")
+        if self.trigger not in ("auto", "simavr", "software"):
+            raise DemoError(f"--trigger must be auto, simavr or software, got {self.trigger!r}")
+
+
+@dataclass
+class HostResult:
+    frame: int
+    t_result: float
+    ids: np.ndarray
+    pos: np.ndarray
+
+
+@dataclass
+class DemoReport:
+    config: dict[str, Any]
+    trigger: str
+    trigger_note: str
+    scores: TrackingScores
+    latency: dict[str, float]  # hand-over to 3D estimate (exposure and transfer are simulated)
+    latency_host: dict[str, float]  # the host's own figure: trigger time (clock model) -> estimate
+    frames_triggered: int
+    frames_rendered: int
+    frames_tracked: int
+    frames_in_time: int
+    packets_lost: int
+    packets_late: int
+    live_frames: int
+    render_realtime_factor: float
+    host_kept_up: bool
+    recording: str | None
+    braidz: str | None
+    figure: str | None
+    rig_file: str
+    calibration: str | None
+    wall_s: float
+    notes: list[str] = field(default_factory=list)
+    host_summary: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["scores"] = self.scores.as_dict()
+        return d
+
+
+# --- parts ---------------------------------------------------------------------------------------
+def find_edge_binary(explicit: Path | None = None) -> Path:
+    cands = [explicit] if explicit else []
+    env = os.environ.get("FLYTRACK_BUILD_DIR")
+    if env:
+        cands.append(Path(env) / "edge" / "feature_extractor" / "flytrack-edge")
+    cands.append(ROOT / "build" / "edge" / "feature_extractor" / "flytrack-edge")
+    which = shutil.which("flytrack-edge")
+    if which:
+        cands.append(Path(which))
+    for c in cands:
+        if c is not None and c.is_file() and os.access(c, os.X_OK):
+            return c
+    raise DemoError(
+        "the edge extractor `flytrack-edge` is not built (looked in "
+        + ", ".join(str(c) for c in cands if c)
+        + "); run `make build`"
+    )
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list[str]:
+    """The command line of one edge extractor reading raw 8-bit frames from stdin, with the camera's
+    calibration for its undistorted coordinates (the same numbers as the calibration file)."""
+    K = cam.K
+    return [
+        str(edge_bin),
+        "--source", "raw", "--input", "-",
+        "--width", str(cam.width), "--height", str(cam.height), "--pixel-format", "mono8",
+        "--camera-index", str(cam_index), "--camera-name", cam.name,
+        "--host", "127.0.0.1", "--port", str(port), "--control-port", "0",
+        "--intrinsics", ",".join(repr(float(x)) for x in (K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1])),
+        "--distortion", ",".join(repr(float(x)) for x in cam.dist),
+    ]
+
+
+class EdgeFleet:
+    """One `flytrack-edge` process per camera, frames on stdin, logs in the output folder."""
+
+    def __init__(self, edge_bin: Path, cameras: list[Camera], port: int, log_dir: Path):
+        self.procs: list[subprocess.Popen] = []
+        self.logs: list[Path] = []
+        for i, cam in enumerate(cameras):
+            cmd = edge_command(edge_bin, i, cam, port)
+            log = log_dir / f"edge_{cam.name}.log"
+            self.logs.append(log)
+            with open(log, "wb") as lf:
+                p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=lf, stderr=subprocess.STDOUT,
+                                     close_fds=True)
+            self.procs.append(p)
+
+    @property
+    def stdin_fds(self) -> list[int]:
+        return [p.stdin.fileno() for p in self.procs]  # type: ignore[union-attr]
+
+    def close_stdins(self) -> None:
+        """Our copies of the pipes' write ends: the frame feeder holds its own."""
+        for p in self.procs:
+            if p.stdin is not None:
+                with contextlib.suppress(OSError):
+                    p.stdin.close()
+
+    def check_started(self) -> None:
+        time.sleep(0.2)
+        for p, log in zip(self.procs, self.logs, strict=True):
+            if p.poll() is not None:
+                text = log.read_text(errors="replace")[-2000:]
+                raise DemoError(f"flytrack-edge exited at start with code {p.returncode}:\n{text}")
+
+    def wait(self, timeout: float) -> list[int | None]:
+        end = time.monotonic() + timeout
+        for p in self.procs:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                p.wait(max(0.0, end - time.monotonic()))
+        return [p.poll() for p in self.procs]
+
+    def stop(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.terminate()
+        for p in self.procs:
+            try:
+                p.wait(2.0)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(2.0)
+
+
+# --- the run -------------------------------------------------------------------------------------
+def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    cfg.check()
+    console = console or Console()
+    wall0 = time.time()
+    out = Path(cfg.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    notes: list[str] = []
+    for old in ("recording.flytrack", "recording.braidz"):  # this demo's own previous output
+        p = out / old
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+    # 1. World: flight, cameras, calibration, rig file.
+    arena = Arena()
+    gt = simulate_flight(cfg.animals, cfg.seconds, cfg.fps, seed=cfg.seed, arena=arena, params=cfg.flight)
+    cams = make_cameras(cfg.cameras, arena, seed=cfg.seed, width=cfg.width, height=cfg.height)
+    calib_path = _write_calibration(cams, out / "calibration.xml", notes)
+    edge_bin = find_edge_binary(cfg.edge_bin)
+    port = _free_udp_port()
+    live_port = _free_udp_port()
+    render_params = cfg.render or RenderParams(noise_sigma=cfg.noise)
+    warmup = max(3, int(round(0.05 * cfg.fps)))
+    trig = DemoTrigger(cfg.trigger, cfg.fps, out, firmware=cfg.firmware)
+    notes.append(trig.note)
+
+    edges = feeder = host = live = None
+    results: list[HostResult] = []
+    live_frames = [0]
+    rig_path = out / "rig.toml"
+    try:
+        # 2. Edge extractors, then the frame feeder (it forks: no thread may exist yet), which then
+        #    follows the trigger's edge FIFO.
+        edges = EdgeFleet(edge_bin, cams, port, out)
+        feeder = FrameFeeder(gt, cams, edges.stdin_fds, render_params, cfg.seed, warmup_frames=warmup)
+        edges.close_stdins()
+        edges.check_started()
+        feeder.set_source(str(trig.fifo))
+
+        # 3. Trigger, rig file, host, live subscriber; then the trigger starts: frame 0.
+        trig.launch()
+        clock = trig.connect()
+        rig = rig_config(
+            cams, trig.actual_fps, listen=f"127.0.0.1:{port}", trigger_kind=trig.kind, trigger_port=trig.port,
+            calibration=calib_path.name if calib_path else None, recording_folder="recordings",
+            live_subscribers=[f"127.0.0.1:{live_port}"], name="simulated-rig",
+        )
+        write_rig(rig, rig_path)
+        from flytrack_host.pipeline import HostPipeline
+        from flytrack_host.rig import load_rig
+
+        rig = load_rig(rig_path)  # exactly what a user's host would read
+        cameras_for_host = _host_cameras(rig, cams, calib_path)
+
+        def on_result(r: Any) -> None:
+            ids = np.fromiter((e.obj_id for e in r.estimates), dtype=np.int64, count=len(r.estimates))
+            pos = np.array([e.state[:3] for e in r.estimates], dtype=np.float64).reshape(-1, 3)
+            results.append(HostResult(int(r.trigger_frame), time.time(), ids, pos))
+
+        host = HostPipeline(rig, cameras_for_host, clock=clock, on_result=on_result,
+                            rig_text=rig_path.read_text(), recording_path=out / "recording.flytrack")
+        host.start()
+        live = _LiveCounter(live_port, live_frames)
+        trig.start()
+
+        # 4. Run until every frame was rendered, with a progress bar.
+        budget = cfg.seconds * 4 + 30
+        t_end = time.monotonic() + budget
+        with Progress(TextColumn("[bold]simulated rig[/bold]"), BarColumn(), TextColumn("{task.description}"),
+                      TimeRemainingColumn(), console=console, disable=not cfg.progress, transient=True) as prog:
+            task = prog.add_task("", total=gt.n_frames)
+            while feeder.alive() and time.monotonic() < t_end:
+                time.sleep(0.1)
+                prog.update(task, completed=feeder.frames_rendered,
+                            description=f"frames {feeder.frames_rendered}/{gt.n_frames}  tracked {len(results)}")
+            prog.update(task, completed=feeder.frames_rendered)
+        if feeder.alive():
+            notes.append(f"the run did not finish within {budget:.0f} s; stopped early")
+            feeder.stop()
+        trig.stop()
+        edges.wait(5.0)
+        time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
+    finally:
+        host_summary = host.stop() if host is not None else {}
+        if live is not None:
+            live.stop()
+        if edges is not None:
+            edges.stop()
+        if feeder is not None:
+            feeder.stop()
+        trig.close()
+
+    fs = feeder.stats()
+    return _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
+                   notes, wall0, cams, warmup)
+
+
+def _write_calibration(cams: list[Camera], path: Path, notes: list[str]) -> Path | None:
+    try:
+        from flytrack_host.calibration.formats import save_flydra_xml
+    except ImportError:
+        notes.append("calibration writer missing: the host got the cameras directly")
+        return None
+    save_flydra_xml({c.name: c for c in cams}, path)
+    return path
+
+
+def _host_cameras(rig: Any, cams: list[Camera], calib_path: Path | None) -> dict[int, Camera]:
+    """Cameras for the host, read back from the calibration file when there is one (as a user's)."""
+    by_name = {c.name: c for c in cams}
+    if calib_path is not None:
+        from flytrack_host.calibration.formats import load_calibration
+
+        by_name = load_calibration(calib_path)
+    return {c.index: by_name[c.calib_name] for c in rig.cameras}
+
+
+class _LiveCounter:
+    """Counts LIVE_ESTIMATES frames published to the rig's live subscriber (a stimulus program)."""
+
+    def __init__(self, port: int, counter: list[int]):
+        from flytrack_host.live import LiveClient
+
+        self.client = LiveClient(port=port)
+        self.counter = counter
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True, name="sim-live")
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if self.client.recv(timeout=0.1) is not None:
+                self.counter[0] += 1
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.thread.join(1.0)
+        self.client.close()
+
+
+# --- results -------------------------------------------------------------------------------------
+def _scored_mask(gt: GroundTruth, cams: list[Camera]) -> np.ndarray:
+    """An animal counts in a frame when at least two cameras see it (else nobody can place it)."""
+    seen = np.zeros(gt.landed.shape, dtype=np.int32)
+    flat = gt.pos.reshape(-1, 3)
+    for c in cams:
+        seen += c.in_view(flat, margin=2.0).reshape(gt.landed.shape)
+    return seen >= 2
+
+
+def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path | None, trig: Any, fs: Any,
+            results: list[HostResult], host_summary: dict[str, Any], live_frames: int, out: Path,
+            notes: list[str], wall0: float, cams: list[Camera], warmup: int) -> DemoReport:
+    from flytrack_host.sim.plot import plot_tracks
+
+    hyps = [FrameTracks(r.frame, r.ids, r.pos) for r in results if 0 <= r.frame < gt.n_frames]
+    scored = _scored_mask(gt, cams)
+    scored[:warmup] = False  # animals not drawn yet: the edges were taking their background
+    scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
+                          match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
+    lat = []
+    for r in results:
+        if 0 <= r.frame < gt.n_frames and math.isfinite(fs.handoff_time[r.frame]):
+            lat.append(r.t_result - fs.handoff_time[r.frame])
+    lat_a = np.asarray(lat)
+    res_t = np.full(gt.n_frames, np.nan)
+    for r in results:
+        if 0 <= r.frame < gt.n_frames:
+            res_t[r.frame] = r.t_result
+    # Per-frame timing, for whoever wants to look closer than the summary.
+    np.savez(out / "frame_timing.npz", trigger_edge=fs.edge_time, handoff=fs.handoff_time, estimate=res_t)
+    period = 1.0 / cfg.fps
+    in_time = int(np.sum(lat_a < period)) if lat_a.size else 0
+    recv = host_summary.get("receiver", {}).get("cameras", {})
+    sync = host_summary.get("sync", {})
+    lost = sum(int(c.get("lost", 0)) for c in recv.values())
+    late = sum(int(s.get("late", 0)) for s in sync.values()) if isinstance(sync, dict) else 0
+    hl = host_summary.get("latency", {})
+    latency_host = {k.removeprefix("total_"): v for k, v in hl.items() if k.startswith("total_")}
+    rendered_s = fs.frames_rendered / cfg.fps
+    busy = fs.render_s + fs.write_s
+    rt = rendered_s / busy if busy > 0 else float("inf")
+    recording = host_summary.get("recording")
+    braidz = _export_braidz(recording, out, notes)
+    title = (f"{cfg.cameras} cameras, {cfg.animals} animals, {cfg.fps:g} fps, {cfg.seconds:g} s, seed {cfg.seed}\n"
+             f"RMSE {scores.rmse_mm:.2f} mm  MOTA {scores.mota:.3f}  IDF1 {scores.idf1:.3f}  "
+             f"ID switches {scores.id_switches}  tracks {scores.tracks_found}")
+    fig = plot_tracks(gt, hyps, out / "tracks.png", title=title)
+    frames_triggered = max(fs.edges, fs.frames_rendered)
+    return DemoReport(
+        config={k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()
+                if k not in ("flight", "render")},
+        trigger=trig.kind_label,
+        trigger_note=trig.note,
+        scores=scores,
+        latency=latency_summary(lat_a),
+        latency_host=latency_host,
+        frames_triggered=min(frames_triggered, gt.n_frames),
+        frames_rendered=fs.frames_rendered,
+        frames_tracked=len(hyps),
+        frames_in_time=in_time,
+        packets_lost=lost,
+        packets_late=late,
+        live_frames=live_frames,
+        render_realtime_factor=float(rt),
+        host_kept_up=bool(in_time >= 0.99 * min(frames_triggered, gt.n_frames)),
+        recording=recording,
+        braidz=braidz,
+        figure=str(fig),
+        rig_file=str(rig_path),
+        calibration=str(calib_path) if calib_path else None,
+        wall_s=time.time() - wall0,
+        notes=[n for n in notes if n],
+        host_summary=_jsonable(host_summary),
+    )
+
+
+def _export_braidz(recording: str | None, out: Path, notes: list[str]) -> str | None:
+    if not recording or not Path(recording).exists():
+        notes.append("no HDF5 recording to export")
+        return None
+    try:
+        from flytrack_host.recording import braidz as braidz_mod  # type: ignore[attr-defined]
+    except ImportError:
+        notes.append("braidz export not available yet (flytrack_host.recording.braidz missing)")
+        return None
+    dest = out / "recording.braidz"
+    braidz_mod.export_braidz(Path(recording), dest)
+    return str(dest)
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def write_json(report: DemoReport, path: Path) -> None:
+    Path(path).write_text(json.dumps(_jsonable(report.as_dict()), indent=1))
