@@ -18,8 +18,9 @@ typedef struct {
 static const opt_doc docs[] = {
     {"config", "FILE", "read options from a TOML file (flags given too win)"},
     {"source", "KIND", "frame source: raw, y4m, v4l2, aravis (default raw)"},
-    {"input", "WHERE", "raw/y4m: file or - for stdin (default -); v4l2: device (/dev/video0); "
-                       "aravis: camera name as Aravis lists it (e.g. Aravis-Fake-<serial>) or IP"},
+    {"input", "WHERE",
+     "raw/y4m: file or - for stdin (default -); v4l2: device (/dev/video0); "
+     "aravis: camera name as Aravis lists it (e.g. Aravis-Fake-<serial>) or IP"},
     {"width", "PX", "frame width (raw: required; others: set on the camera, or 0 = as is)"},
     {"height", "PX", "frame height"},
     {"pixel-format", "FMT", "mono8, mono16 (little-endian) or yuyv (luma used); default mono8"},
@@ -28,12 +29,14 @@ static const opt_doc docs[] = {
     {"host", "ADDR", "host receiving FEATURES, STATUS, IMAGE (default 127.0.0.1)"},
     {"port", "N", "its UDP port (default 7700)"},
     {"bind", "ADDR", "local address of the edge's socket (default 0.0.0.0)"},
-    {"control-port", "N", "local UDP port for CONTROL; features are sent from it too (default 7701, "
-                          "0 = any free port)"},
+    {"control-port", "N",
+     "local UDP port for CONTROL; features are sent from it too (default 7701, "
+     "0 = any free port)"},
     {"camera-index", "N", "this camera's index in the rig file (default 0)"},
     {"camera-name", "NAME", "name sent in STATUS (default: the input)"},
-    {"truncate", "0|1", "more than 32 points: send the strongest 32 flagged TRUNCATED (1) or split "
-                        "over several datagrams (0, default)"},
+    {"truncate", "0|1",
+     "more than 32 points: send the strongest 32 flagged TRUNCATED (1) or split "
+     "over several datagrams (0, default)"},
     {"start-stopped", "0|1", "wait for a CONTROL START before extracting (default 0)"},
     {"status-interval-ms", "MS", "STATUS heartbeat period (default 1000)"},
     {"regions", "HALF", "send an IMAGE region of half-size HALF px around each point (0 = off)"},
@@ -56,14 +59,17 @@ static const opt_doc docs[] = {
 };
 
 static void usage(const char *prog) {
-    printf("usage: %s [options]\n\n"
-           "flytrack-edge: reads camera frames, extracts 2D feature points (libflytrack_features) and\n"
-           "sends one FEATURES datagram per frame to the host (protocol/SPEC.md), a STATUS heartbeat,\n"
-           "and obeys CONTROL messages (set parameter, new background, full frame, regions, start,\n"
-           "stop) with a CONTROL_ACK. Exit status: 0 done (source ended, --max-frames, SIGINT/TERM),\n"
-           "2 bad configuration, 3 source failed (cannot open, vanished, ended inside a frame).\n\n"
-           "options (also TOML keys in --config FILE):\n",
-           prog);
+    printf(
+        "usage: %s [options]\n\n"
+        "flytrack-edge: reads camera frames, extracts 2D feature points (libflytrack_features) "
+        "and\n"
+        "sends one FEATURES datagram per frame to the host (protocol/SPEC.md), a STATUS "
+        "heartbeat,\n"
+        "and obeys CONTROL messages (set parameter, new background, full frame, regions, start,\n"
+        "stop) with a CONTROL_ACK. Exit status: 0 done (source ended, --max-frames, SIGINT/TERM),\n"
+        "2 bad configuration, 3 source failed (cannot open, vanished, ended inside a frame).\n\n"
+        "options (also TOML keys in --config FILE):\n",
+        prog);
     for (size_t i = 0; i < sizeof docs / sizeof docs[0]; i++) {
         char left[64];
         snprintf(left, sizeof left, "--%s %s", docs[i].name, docs[i].arg);

@@ -7,8 +7,8 @@
 #include "flytrack/features.h"
 
 typedef struct {
-    char source[16];  /* raw, y4m, v4l2, aravis */
-    char input[256];  /* path, "-" (stdin), /dev/videoN, or camera name */
+    char source[16]; /* raw, y4m, v4l2, aravis */
+    char input[256]; /* path, "-" (stdin), /dev/videoN, or camera name */
     uint32_t width, height;
     int pixel_format; /* -1: the source's */
     double fps;
@@ -19,14 +19,14 @@ typedef struct {
     int control_port;
     int camera_index;
     char camera_name[33];
-    int truncate;     /* 1: truncate to 32 points instead of splitting */
+    int truncate; /* 1: truncate to 32 points instead of splitting */
     int start_stopped;
     int status_interval_ms;
-    int region_half;  /* SEND_REGIONS half-size, 0 = off */
+    int region_half; /* SEND_REGIONS half-size, 0 = off */
     uint64_t max_frames;
     char mask[256];
     int verbose;
-    ft_fx_params fx;  /* width/height/pixel_format filled once the source is open */
+    ft_fx_params fx;      /* width/height/pixel_format filled once the source is open */
     double intrinsics[5]; /* fx fy cx cy skew */
     double distortion[5]; /* k1 k2 p1 p2 k3 */
     int have_intrinsics;

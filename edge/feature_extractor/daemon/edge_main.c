@@ -122,8 +122,13 @@ static void send_image(edge *e, const ft_frame *f, uint8_t kind, uint32_t id, ui
             else
                 chunk[k] = f->data[src_off + (size_t)x0 * bpp + col];
         }
-        ft_image m = {0, (uint16_t)e->cfg.camera_index, kind, bpp, id, f->camera_frame, x0, y0, w, h,
-                      off, total, (uint16_t)n, chunk};
+        ft_image m = {0,           (uint16_t)e->cfg.camera_index,
+                      kind,        bpp,
+                      id,          f->camera_frame,
+                      x0,          y0,
+                      w,           h,
+                      off,         total,
+                      (uint16_t)n, chunk};
         size_t len;
         ft_err r = ft_image_encode(buf, sizeof buf, &m, &len);
         if (r != FT_OK) {
@@ -220,7 +225,8 @@ static void ack(edge *e, const struct sockaddr_in *to, uint32_t req, uint8_t cmd
         send_to(e, buf, len, to);
 }
 
-static void handle_control(edge *e, const uint8_t *buf, size_t len, const struct sockaddr_in *from) {
+static void handle_control(edge *e, const uint8_t *buf, size_t len,
+                           const struct sockaddr_in *from) {
     ft_control c;
     ft_err r = ft_control_decode(buf, len, &c);
     if (r != FT_OK) {
@@ -231,10 +237,11 @@ static void handle_control(edge *e, const uint8_t *buf, size_t len, const struct
         logmsg("%s (ignored; %llu so far)", text, (unsigned long long)e->control_errors);
         set_error(e, 20, text);
         /* The framing was right but a field was not: answer, so the sender is not left waiting. */
-        if ((r == FT_E_BAD_FIELD || r == FT_E_NOT_FINITE) && len == FT_UDP_HEADER + FT_CONTROL_SIZE) {
+        if ((r == FT_E_BAD_FIELD || r == FT_E_NOT_FINITE) &&
+            len == FT_UDP_HEADER + FT_CONTROL_SIZE) {
             uint8_t cmd = buf[FT_UDP_HEADER + 6];
             uint8_t st = (cmd < FT_CMD_SET_PARAM || cmd > FT_CMD_STOP) ? FT_ACK_UNKNOWN_COMMAND
-                                                                        : FT_ACK_BAD_VALUE;
+                                                                       : FT_ACK_BAD_VALUE;
             ack(e, from, ft_ld_u32(buf + FT_UDP_HEADER), cmd, st, ft_err_name(r));
         }
         return;
@@ -353,7 +360,8 @@ static int open_socket(edge *e) {
         return -1;
     }
     if (bind(e->sock, (struct sockaddr *)&a, sizeof a) < 0) {
-        logmsg("cannot bind %s:%d for CONTROL: %s", e->cfg.bind, e->cfg.control_port, strerror(errno));
+        logmsg("cannot bind %s:%d for CONTROL: %s", e->cfg.bind, e->cfg.control_port,
+               strerror(errno));
         return -1;
     }
     memset(&e->host, 0, sizeof e->host);
@@ -456,7 +464,10 @@ int main(int argc, char **argv) {
     e.state = e.cfg.start_stopped ? FT_STATE_IDLE : FT_STATE_RUNNING;
     e.region_half = e.cfg.region_half;
     logmsg("%s %s: %ux%u %s -> %s:%d, control on port %d", e.cfg.source, e.cfg.input, e.src.width,
-           e.src.height, e.src.pixel_format == 0 ? "mono8" : e.src.pixel_format == 1 ? "mono16" : "yuyv",
+           e.src.height,
+           e.src.pixel_format == 0   ? "mono8"
+           : e.src.pixel_format == 1 ? "mono16"
+                                     : "yuyv",
            e.cfg.host, e.cfg.port, e.cfg.control_port);
     e.win_start_ns = mono_ns();
     send_status(&e);
@@ -476,7 +487,8 @@ int main(int argc, char **argv) {
                 if (prc) {
                     e.frames_dropped++;
                     set_error(&e, 30, ft_fx_strerror(prc));
-                    logmsg("frame %llu: %s", (unsigned long long)f.camera_frame, ft_fx_strerror(prc));
+                    logmsg("frame %llu: %s", (unsigned long long)f.camera_frame,
+                           ft_fx_strerror(prc));
                 } else {
                     send_features(&e, &f, &res);
                     if (e.region_half)

@@ -34,8 +34,8 @@ struct ft_source {
 /* Requested geometry; 0 = whatever the source says (Y4M header, camera's current setting). */
 typedef struct {
     uint32_t width, height;
-    int pixel_format; /* -1 = source's */
-    double fps;       /* cameras: frame rate to set, 0 = leave */
+    int pixel_format;      /* -1 = source's */
+    double fps;            /* cameras: frame rate to set, 0 = leave */
     int vanish_timeout_ms; /* cameras: no frame for this long = the camera vanished */
 } ft_source_req;
 
@@ -45,8 +45,8 @@ int ft_source_open_y4m(ft_source *s, const char *path, const ft_source_req *req)
 int ft_source_open_aravis(ft_source *s, const char *camera, const ft_source_req *req);
 
 /* V4L2 talks to the kernel only through this seam. No camera exists on the build machine, so the
- * tests (tests/test_v4l2_seam.c) replace these calls with a fake driver that plays recorded buffers;
- * ft_v4l2_sys_ops is the real kernel. */
+ * tests (tests/test_v4l2_seam.c) replace these calls with a fake driver that plays recorded
+ * buffers; ft_v4l2_sys_ops is the real kernel. */
 typedef struct {
     int (*open)(const char *path, int flags);
     int (*close)(int fd);

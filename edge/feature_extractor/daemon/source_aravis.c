@@ -122,11 +122,12 @@ int ft_source_open_aravis(ft_source *s, const char *camera, const ft_source_req 
                         : fmt == FT_FX_MONO16 ? ARV_PIXEL_FORMAT_MONO_16
                                               : ARV_PIXEL_FORMAT_YUV_422_YUYV_PACKED;
     TRY(arv_camera_set_pixel_format(a->cam, pf, &e_), "setting the pixel format");
-    TRY(ArvPixelFormat now = arv_camera_get_pixel_format(a->cam, &e_); if (!e_ && now != pf) {
-        aerr(s, "camera %s does not take pixel format %d", camera, fmt);
-        goto fail;
-    },
-        "reading the pixel format");
+    TRY(
+        ArvPixelFormat now = arv_camera_get_pixel_format(a->cam, &e_); if (!e_ && now != pf) {
+            aerr(s, "camera %s does not take pixel format %d", camera, fmt);
+            goto fail;
+        },
+                                                                       "reading the pixel format");
     gint x = 0, y = 0, w = 0, h = 0;
     if (req->width && req->height)
         TRY(arv_camera_set_region(a->cam, 0, 0, (gint)req->width, (gint)req->height, &e_),

@@ -1,8 +1,9 @@
 /* Raw 8/16-bit frames and Y4M, from a file or a pipe ("-" = stdin).
  *
- * Streaming: the fd is polled, and each read takes what has arrived into the frame buffer, so a frame
- * is handed over the moment its last byte is in (no read-ahead, no stdio buffering). A stream that
- * ends between frames is END; one that ends inside a frame is an ERROR naming the bytes missing.
+ * Streaming: the fd is polled, and each read takes what has arrived into the frame buffer, so a
+ * frame is handed over the moment its last byte is in (no read-ahead, no stdio buffering). A stream
+ * that ends between frames is END; one that ends inside a frame is an ERROR naming the bytes
+ * missing.
  */
 #include <errno.h>
 #include <stdarg.h>
@@ -43,7 +44,8 @@ __attribute__((format(printf, 2, 3))) static int set_err(ft_source *s, const cha
     return -1;
 }
 
-/* Reads what is there, up to want bytes; returns bytes read, 0 at EOF, -1 on error, -2 if none yet. */
+/* Reads what is there, up to want bytes; returns bytes read, 0 at EOF, -1 on error, -2 if none yet.
+ */
 static ssize_t read_some(int fd, void *dst, size_t want, int timeout_ms) {
     struct pollfd p = {.fd = fd, .events = POLLIN};
     int r = poll(&p, 1, timeout_ms);
@@ -102,7 +104,7 @@ static int file_next(ft_source *s, ft_frame *f, int timeout_ms) {
             if (fp->got == 0 && !fp->y4m)
                 return FT_SRC_END;
             set_err(s, "input ended inside frame %llu: got %zu of %zu bytes (wrong frame size?)",
-                     (unsigned long long)fp->count, fp->got, fp->frame_bytes);
+                    (unsigned long long)fp->count, fp->got, fp->frame_bytes);
             return FT_SRC_ERROR;
         }
         fp->got += (size_t)n;
@@ -121,7 +123,9 @@ static int file_next(ft_source *s, ft_frame *f, int timeout_ms) {
     }
 }
 
-static void file_release(ft_source *s) { (void)s; }
+static void file_release(ft_source *s) {
+    (void)s;
+}
 
 static void file_close(ft_source *s) {
     file_priv *fp = s->priv;
@@ -152,7 +156,9 @@ static void init_ops(ft_source *s) {
     s->close = file_close;
 }
 
-static size_t bpp_of(int fmt) { return fmt == FT_FX_MONO8 ? 1 : 2; }
+static size_t bpp_of(int fmt) {
+    return fmt == FT_FX_MONO8 ? 1 : 2;
+}
 
 int ft_source_open_raw(ft_source *s, const char *path, const ft_source_req *req) {
     memset(s, 0, sizeof *s);
@@ -248,8 +254,8 @@ int ft_source_open_y4m(ft_source *s, const char *path, const ft_source_req *req)
         return -1;
     }
     if ((req->width && (long)req->width != w) || (req->height && (long)req->height != h)) {
-        snprintf(s->error, sizeof s->error, "Y4M frames are %ldx%ld, but %ux%u was configured", w, h,
-                 req->width, req->height);
+        snprintf(s->error, sizeof s->error, "Y4M frames are %ldx%ld, but %ux%u was configured", w,
+                 h, req->width, req->height);
         file_close(s);
         return -1;
     }

@@ -1,8 +1,8 @@
 /* V4L2 capture: mmap streaming, GREY / Y16 / YUYV, driver timestamps and sequence numbers.
  *
- * Every kernel call goes through an ft_v4l2_ops seam (source.h). The build machine has no camera, so
- * tests/test_v4l2_seam.c drives this file with a fake driver playing recorded buffers; in production
- * ft_v4l2_sys_ops calls the kernel.
+ * Every kernel call goes through an ft_v4l2_ops seam (source.h). The build machine has no camera,
+ * so tests/test_v4l2_seam.c drives this file with a fake driver playing recorded buffers; in
+ * production ft_v4l2_sys_ops calls the kernel.
  */
 #include <errno.h>
 #include <fcntl.h>
@@ -20,8 +20,12 @@
 
 #define N_BUFFERS 4
 
-static int sys_open(const char *path, int flags) { return open(path, flags); }
-static int sys_ioctl(int fd, unsigned long req, void *arg) { return ioctl(fd, req, arg); }
+static int sys_open(const char *path, int flags) {
+    return open(path, flags);
+}
+static int sys_ioctl(int fd, unsigned long req, void *arg) {
+    return ioctl(fd, req, arg);
+}
 const ft_v4l2_ops ft_v4l2_sys_ops = {sys_open, close, sys_ioctl, mmap, munmap, poll};
 
 typedef struct {
@@ -58,7 +62,8 @@ static int v4l2_next(ft_source *s, ft_frame *f, int timeout_ms) {
     struct pollfd p = {.fd = v->fd, .events = POLLIN};
     int r = v->ops->poll(&p, 1, timeout_ms);
     if (r < 0)
-        return errno == EINTR ? FT_SRC_TIMEOUT : (verr(s, "poll: %s", strerror(errno)), FT_SRC_ERROR);
+        return errno == EINTR ? FT_SRC_TIMEOUT
+                              : (verr(s, "poll: %s", strerror(errno)), FT_SRC_ERROR);
     if (r == 0)
         return FT_SRC_TIMEOUT;
     if (p.revents & (POLLERR | POLLHUP | POLLNVAL)) {

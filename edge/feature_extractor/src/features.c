@@ -1,10 +1,11 @@
 /* libflytrack_features: see include/flytrack/features.h for the algorithm and the API.
  *
  * Speed plan: the per-pixel work is one tight loop over the frame against two precomputed per-pixel
- * integer thresholds (hi: brighter than the background by more than the allowed deviation; lo: darker),
- * so the hot loop is compares and an OR, which the compiler vectorises (-O3). Rows without a candidate
- * are never looked at again; only candidate pixels are labelled and measured. The float background
- * (mean, mean of squares) and the thresholds are recomputed only every bg_update_interval frames.
+ * integer thresholds (hi: brighter than the background by more than the allowed deviation; lo:
+ * darker), so the hot loop is compares and an OR, which the compiler vectorises (-O3). Rows without
+ * a candidate are never looked at again; only candidate pixels are labelled and measured. The float
+ * background (mean, mean of squares) and the thresholds are recomputed only every
+ * bg_update_interval frames.
  *
  * Float arithmetic is plain IEEE single precision in a fixed order (the library is built with
  * -ffp-contract=off), so a NumPy float32 reference reproduces the thresholds bit for bit.
@@ -42,8 +43,8 @@ struct ft_fx {
     float *mean, *sumsq;
     uint8_t *hi8, *lo8;
     uint16_t *hi16, *lo16;
-    uint8_t *mask; /* 1 = use, always allocated (all ones without a user mask) */
-    uint8_t *luma; /* YUYV: the luma plane of the current frame */
+    uint8_t *mask;   /* 1 = use, always allocated (all ones without a user mask) */
+    uint8_t *luma;   /* YUYV: the luma plane of the current frame */
     uint32_t *label; /* per pixel: 0, or candidate index + 1 during a frame (reset after) */
     uint32_t cap;
     uint32_t *cand_idx;
@@ -59,7 +60,7 @@ struct ft_fx {
 };
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Parameters                                                                                      */
+/* Parameters */
 
 void ft_fx_params_default(ft_fx_params *p, uint32_t width, uint32_t height, int32_t pixel_format) {
     memset(p, 0, sizeof *p);
@@ -98,7 +99,9 @@ static int fail(char *msg, size_t len, int code, const char *text) {
     return code;
 }
 
-static int finite_in(double v, double lo, double hi) { return isfinite(v) && v >= lo && v <= hi; }
+static int finite_in(double v, double lo, double hi) {
+    return isfinite(v) && v >= lo && v <= hi;
+}
 
 /* The runtime-tunable values: shared by ft_fx_params_check and ft_fx_set_param. */
 static int check_tunables(const ft_fx_params *p, char *msg, size_t len) {
@@ -158,7 +161,7 @@ size_t ft_fx_frame_bytes(const ft_fx_params *p) {
 }
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Create / destroy                                                                                */
+/* Create / destroy */
 
 void ft_fx_destroy(ft_fx *fx) {
     if (!fx)
@@ -309,7 +312,7 @@ static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, i
 }
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Candidate scan: the hot loop                                                                    */
+/* Candidate scan: the hot loop */
 
 /* Returns the number of candidates; sets *overflow when more than fx->cap were found. */
 #define DEFINE_SCAN(NAME, T, HI, LO)                                                               \
@@ -364,7 +367,7 @@ static void luma_from_yuyv(size_t w, size_t h, const uint8_t *restrict img, size
 }
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Regions: union-find over candidates (8-connectivity), then moments                              */
+/* Regions: union-find over candidates (8-connectivity), then moments */
 
 static uint32_t uf_find(uint32_t *parent, uint32_t k) {
     while (parent[k] != k) {
@@ -516,7 +519,7 @@ static uint32_t measure(ft_fx *fx, uint32_t n, uint32_t *total) {
 }
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Process                                                                                         */
+/* Process */
 
 int ft_fx_process(ft_fx *fx, const void *frame, size_t nbytes, ft_fx_result *res) {
     if (!fx || !frame || !res)
@@ -591,7 +594,7 @@ int ft_fx_set_mask(ft_fx *fx, const uint8_t *mask) {
 }
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Runtime parameters                                                                              */
+/* Runtime parameters */
 
 typedef enum { P_DOUBLE, P_U32, P_I32 } ptype;
 typedef struct {
@@ -600,11 +603,18 @@ typedef struct {
     size_t offset;
 } pdesc;
 
-#define PD(name, type) {#name, type, offsetof(ft_fx_params, name)}
+#define PD(name, type)                                                                             \
+    { #name, type, offsetof(ft_fx_params, name) }
 static const pdesc tunables[] = {
-    PD(alpha, P_DOUBLE),          PD(n_sigma, P_DOUBLE),        PD(diff_threshold, P_DOUBLE),
-    PD(bg_update_interval, P_U32), PD(polarity, P_I32),         PD(clear_fraction, P_DOUBLE),
-    PD(despeckle_threshold, P_DOUBLE), PD(min_area, P_U32),     PD(subtract_cut, P_I32),
+    PD(alpha, P_DOUBLE),
+    PD(n_sigma, P_DOUBLE),
+    PD(diff_threshold, P_DOUBLE),
+    PD(bg_update_interval, P_U32),
+    PD(polarity, P_I32),
+    PD(clear_fraction, P_DOUBLE),
+    PD(despeckle_threshold, P_DOUBLE),
+    PD(min_area, P_U32),
+    PD(subtract_cut, P_I32),
     PD(max_points, P_U32),
 };
 
@@ -673,14 +683,18 @@ int ft_fx_get_param(const ft_fx *fx, const char *name, double *value) {
     return FT_FX_OK;
 }
 
-const ft_fx_params *ft_fx_get_params(const ft_fx *fx) { return fx ? &fx->p : NULL; }
-const float *ft_fx_background_mean(const ft_fx *fx) { return fx && fx->have_bg ? fx->mean : NULL; }
+const ft_fx_params *ft_fx_get_params(const ft_fx *fx) {
+    return fx ? &fx->p : NULL;
+}
+const float *ft_fx_background_mean(const ft_fx *fx) {
+    return fx && fx->have_bg ? fx->mean : NULL;
+}
 const float *ft_fx_background_sumsq(const ft_fx *fx) {
     return fx && fx->have_bg ? fx->sumsq : NULL;
 }
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Lens distortion (OpenCV model, the same as host camera.py)                                      */
+/* Lens distortion (OpenCV model, the same as host camera.py) */
 
 static void distort_norm(const ft_fx_params *p, double x, double y, double *xd, double *yd) {
     double r2 = x * x + y * y;
@@ -760,6 +774,12 @@ const char *ft_fx_strerror(int code) {
     return "unknown error";
 }
 
-int ft_fx_abi_version(void) { return FT_FX_ABI_VERSION; }
-size_t ft_fx_sizeof_params(void) { return sizeof(ft_fx_params); }
-size_t ft_fx_sizeof_point(void) { return sizeof(ft_fx_point); }
+int ft_fx_abi_version(void) {
+    return FT_FX_ABI_VERSION;
+}
+size_t ft_fx_sizeof_params(void) {
+    return sizeof(ft_fx_params);
+}
+size_t ft_fx_sizeof_point(void) {
+    return sizeof(ft_fx_point);
+}

@@ -1,8 +1,9 @@
 /* Per-pixel candidate thresholds, in a file of its own because it is compiled with
  * -ffinite-math-only -fno-signed-zeros: without them GCC will not turn the float clamps into vector
- * max/min, and this loop runs over every pixel at each background update. Every input here is finite
- * (pixel values and checked parameters) and the sign of a zero never changes a threshold, so the flags
- * change no result; they are kept out of features.c, whose isfinite() checks must stay. */
+ * max/min, and this loop runs over every pixel at each background update. Every input here is
+ * finite (pixel values and checked parameters) and the sign of a zero never changes a threshold, so
+ * the flags change no result; they are kept out of features.c, whose isfinite() checks must stay.
+ */
 #include "thresholds.h"
 
 #include <math.h>
@@ -10,8 +11,8 @@
 /* Branch-free on purpose: a conditional here lets the compiler skip the float loads for masked
  * pixels, and then it no longer vectorises the loop. */
 #define DEFINE_THRESH(NAME, T)                                                                     \
-    void NAME(size_t n, const float *restrict mean, const float *restrict sumsq,            \
-                     const uint8_t *restrict mask, T *restrict hi, T *restrict lo, thr_cfg c) {    \
+    void NAME(size_t n, const float *restrict mean, const float *restrict sumsq,                   \
+              const uint8_t *restrict mask, T *restrict hi, T *restrict lo, thr_cfg c) {           \
         const uint32_t bright = c.bright ? 1u : 0u, dark = c.dark ? 1u : 0u;                       \
         const uint32_t maxv = (uint32_t)c.maxv;                                                    \
         for (size_t i = 0; i < n; i++) {                                                           \

@@ -11,7 +11,8 @@ typedef struct {
 } thr_cfg;
 
 void ft_fx_thresh8(size_t n, const float *restrict mean, const float *restrict sumsq,
-                   const uint8_t *restrict mask, uint8_t *restrict hi, uint8_t *restrict lo, thr_cfg c);
+                   const uint8_t *restrict mask, uint8_t *restrict hi, uint8_t *restrict lo,
+                   thr_cfg c);
 void ft_fx_thresh16(size_t n, const float *restrict mean, const float *restrict sumsq,
                     const uint8_t *restrict mask, uint16_t *restrict hi, uint16_t *restrict lo,
                     thr_cfg c);

@@ -1,6 +1,6 @@
-/* Unit tests of libflytrack_features: API errors, detection of synthetic blobs in every pixel format,
- * masks, polarity, parameters, overflow. (The point-for-point comparison with a NumPy reference is in
- * host/tests/features/.) Built twice: plain and under ASan + UBSan. */
+/* Unit tests of libflytrack_features: API errors, detection of synthetic blobs in every pixel
+ * format, masks, polarity, parameters, overflow. (The point-for-point comparison with a NumPy
+ * reference is in host/tests/features/.) Built twice: plain and under ASan + UBSan. */
 #include "flytrack/features.h"
 
 #include <math.h>
@@ -12,7 +12,7 @@ static int failures;
 #define CHECK(cond)                                                                                \
     do {                                                                                           \
         if (!(cond)) {                                                                             \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);              \
+            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);               \
             failures++;                                                                            \
         }                                                                                          \
     } while (0)

@@ -1,6 +1,7 @@
 /* V4L2 source through its seam: a fake driver (no camera exists on the build machine) that plays
- * recorded buffers (synthetic frames with a blob) with sequence numbers and timestamps, and fails the
- * ways real drivers do (size adjusted, format refused, device unplugged). Run under ASan + UBSan. */
+ * recorded buffers (synthetic frames with a blob) with sequence numbers and timestamps, and fails
+ * the ways real drivers do (size adjusted, format refused, device unplugged). Run under ASan +
+ * UBSan. */
 #include <errno.h>
 #include <linux/videodev2.h>
 #include <math.h>
@@ -46,7 +47,9 @@ static int f_open(const char *p, int fl) {
     }
     return 42;
 }
-static int f_close(int fd) { return fd == 42 ? 0 : -1; }
+static int f_close(int fd) {
+    return fd == 42 ? 0 : -1;
+}
 static int f_poll(struct pollfd *p, nfds_t n, int t) {
     (void)n;
     (void)t;
@@ -82,7 +85,8 @@ static int f_ioctl(int fd, unsigned long req, void *arg) {
         if (req == VIDIOC_S_FMT) { /* like drivers: adjust to what the hardware can */
             drv.w = f->fmt.pix.width > drv.max_w ? drv.max_w : f->fmt.pix.width;
             drv.h = f->fmt.pix.height > drv.max_h ? drv.max_h : f->fmt.pix.height;
-            drv.fourcc = f->fmt.pix.pixelformat == drv.fourcc_ok ? drv.fourcc_ok : V4L2_PIX_FMT_MJPEG;
+            drv.fourcc =
+                f->fmt.pix.pixelformat == drv.fourcc_ok ? drv.fourcc_ok : V4L2_PIX_FMT_MJPEG;
         }
         f->fmt.pix.width = drv.w;
         f->fmt.pix.height = drv.h;
@@ -153,7 +157,8 @@ static void reset(uint32_t fourcc) {
             for (int x = 0; x < FW; x++) {
                 double v = 20;
                 if (k > 0) /* a blob moving right by one pixel a frame */
-                    v += 180 * exp(-((x - 20.25 - k) * (x - 20.25 - k) + (y - 24.5) * (y - 24.5)) / 4.5);
+                    v += 180 *
+                         exp(-((x - 20.25 - k) * (x - 20.25 - k) + (y - 24.5) * (y - 24.5)) / 4.5);
                 uint8_t *p = &drv.rec[k][(y * FW + x) * bpp];
                 p[0] = (uint8_t)lround(v);
                 if (bpp == 2)

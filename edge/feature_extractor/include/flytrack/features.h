@@ -1,12 +1,13 @@
 /* libflytrack_features: camera frames -> 2D feature points (seed 000 §2, flydra/Braid style).
  *
  * Per pixel: a running Gaussian average of the background (mean and mean of squares, updated every
- * `bg_update_interval` frames with weight `alpha`). A pixel is a candidate when its difference to the
- * background mean exceeds both `diff_threshold` and `n_sigma` x the background std. Candidates are grouped
- * into 8-connected regions; each region gives one point: peak difference beta, pixels below
- * max(`clear_fraction` x beta, `diff_threshold`, `despeckle_threshold`) cleared, area (pixel count), centre (1st moments), orientation and eccentricity
- * (2nd central moments), then the centre is corrected for lens distortion (OpenCV model, as the host's
- * camera.py). Points are ordered strongest first.
+ * `bg_update_interval` frames with weight `alpha`). A pixel is a candidate when its difference to
+ * the background mean exceeds both `diff_threshold` and `n_sigma` x the background std. Candidates
+ * are grouped into 8-connected regions; each region gives one point: peak difference beta, pixels
+ * below max(`clear_fraction` x beta, `diff_threshold`, `despeckle_threshold`) cleared, area (pixel
+ * count), centre (1st moments), orientation and eccentricity (2nd central moments), then the centre
+ * is corrected for lens distortion (OpenCV model, as the host's camera.py). Points are ordered
+ * strongest first.
  *
  * No allocation after ft_fx_create; one object per camera, not thread-safe (one thread per camera).
  * Pixel (0, 0) is the centre of the top-left pixel, as in OpenCV and camera.py.
@@ -32,37 +33,38 @@ enum { FT_FX_POLARITY_BOTH = 0, FT_FX_POLARITY_BRIGHT = 1, FT_FX_POLARITY_DARK =
 /* Result codes (0 is success; negatives are errors). */
 enum {
     FT_FX_OK = 0,
-    FT_FX_E_ARG = -1,          /* NULL pointer or invalid argument */
-    FT_FX_E_SIZE = -2,         /* width/height/stride out of range */
-    FT_FX_E_FORMAT = -3,       /* unknown pixel format */
-    FT_FX_E_NOMEM = -4,        /* allocation failed at create */
-    FT_FX_E_FRAME_SIZE = -5,   /* frame buffer smaller than the geometry requires */
-    FT_FX_E_UNKNOWN_PARAM = -6,/* ft_fx_set_param: no such parameter */
-    FT_FX_E_BAD_VALUE = -7,    /* parameter value out of range or not finite */
-    FT_FX_E_ABI = -8           /* the caller's struct sizes differ from the library's */
+    FT_FX_E_ARG = -1,           /* NULL pointer or invalid argument */
+    FT_FX_E_SIZE = -2,          /* width/height/stride out of range */
+    FT_FX_E_FORMAT = -3,        /* unknown pixel format */
+    FT_FX_E_NOMEM = -4,         /* allocation failed at create */
+    FT_FX_E_FRAME_SIZE = -5,    /* frame buffer smaller than the geometry requires */
+    FT_FX_E_UNKNOWN_PARAM = -6, /* ft_fx_set_param: no such parameter */
+    FT_FX_E_BAD_VALUE = -7,     /* parameter value out of range or not finite */
+    FT_FX_E_ABI = -8            /* the caller's struct sizes differ from the library's */
 };
 
 /* Flags in ft_fx_result.flags. */
 #define FT_FX_RES_BACKGROUND_TAKEN 0x1u /* this frame became the background; no points */
 #define FT_FX_RES_BG_UPDATED 0x2u       /* the running background was updated after this frame */
-#define FT_FX_RES_CAND_OVERFLOW 0x4u    /* more candidate pixels than max_candidates: the rest ignored */
-#define FT_FX_RES_TRUNCATED 0x8u        /* more regions than max_points: only the strongest kept */
+#define FT_FX_RES_CAND_OVERFLOW                                                                    \
+    0x4u                         /* more candidate pixels than max_candidates: the rest ignored */
+#define FT_FX_RES_TRUNCATED 0x8u /* more regions than max_points: only the strongest kept */
 
 typedef struct {
     uint32_t width, height;
-    uint32_t stride;       /* bytes between rows; 0 = packed (width x bytes per pixel) */
-    int32_t pixel_format;  /* FT_FX_MONO8, FT_FX_MONO16, FT_FX_YUYV (luma used) */
-    int32_t polarity;      /* FT_FX_POLARITY_* */
-    double alpha;          /* background running-average weight, (0, 1]; Braid 0.01 */
-    double n_sigma;        /* std multiple a candidate must exceed; Braid 7 */
-    double diff_threshold; /* absolute difference a candidate must exceed; Braid 30 */
+    uint32_t stride;             /* bytes between rows; 0 = packed (width x bytes per pixel) */
+    int32_t pixel_format;        /* FT_FX_MONO8, FT_FX_MONO16, FT_FX_YUYV (luma used) */
+    int32_t polarity;            /* FT_FX_POLARITY_* */
+    double alpha;                /* background running-average weight, (0, 1]; Braid 0.01 */
+    double n_sigma;              /* std multiple a candidate must exceed; Braid 7 */
+    double diff_threshold;       /* absolute difference a candidate must exceed; Braid 30 */
     uint32_t bg_update_interval; /* update the background every N frames (0 = never); Braid 200 */
     double clear_fraction; /* pixels below this fraction of the region's peak are cleared; 0.3 */
     double despeckle_threshold; /* pixels with a difference below this are cleared too (Braid 5) */
-    uint32_t min_area;     /* regions with fewer kept pixels are dropped as speckle; 1 */
-    int32_t subtract_cut;  /* 1: moment weight = diff - cut (weights fall to 0 at the edge: less
-                              centre bias); 0: weight = diff, as flydra */
-    uint32_t max_points;   /* at most this many points per frame, strongest first; 100 */
+    uint32_t min_area;          /* regions with fewer kept pixels are dropped as speckle; 1 */
+    int32_t subtract_cut;    /* 1: moment weight = diff - cut (weights fall to 0 at the edge: less
+                                centre bias); 0: weight = diff, as flydra */
+    uint32_t max_points;     /* at most this many points per frame, strongest first; 100 */
     uint32_t max_candidates; /* candidate pixels examined per frame; 0 = 65536 */
     /* Camera calibration for undistortion (camera.py: K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]],
      * dist = k1 k2 p1 p2 k3). fx = 0 means no calibration: undistorted = distorted. */
@@ -130,7 +132,8 @@ const ft_fx_params *ft_fx_get_params(const ft_fx *fx);
 const float *ft_fx_background_mean(const ft_fx *fx);
 const float *ft_fx_background_sumsq(const ft_fx *fx);
 
-/* Lens-distortion correction of one point with the calibration in p (camera.py Camera.undistort). */
+/* Lens-distortion correction of one point with the calibration in p (camera.py Camera.undistort).
+ */
 void ft_fx_undistort(const ft_fx_params *p, double u, double v, double *u_out, double *v_out);
 
 const char *ft_fx_strerror(int code);
