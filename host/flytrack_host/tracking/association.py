@@ -56,6 +56,20 @@ class AssociationResult:
     merges_prevented: int  # targets stripped of their points by the merge-prevention rule
 
 
+def inv3(M: F64) -> F64:
+    """Inverses of a stack of 3x3 matrices (..., 3, 3) by the adjugate: a few elementwise NumPy
+    operations, much cheaper than np.linalg.inv's per-call overhead for a handful of matrices."""
+    m = M.reshape(M.shape[:-2] + (9,))
+    a, b, c, d, e, f, g, h, i = (m[..., k] for k in range(9))
+    co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co_a + b * co_b + c * co_c
+    out = np.stack(
+        [co_a, c * h - b * i, b * f - c * e, co_b, a * i - c * g, c * d - a * f, co_c, b * g - a * h, a * e - b * d],
+        axis=-1,
+    )
+    return (out / det[..., None]).reshape(M.shape)
+
+
 def ray_mahalanobis(mean: F64, cov_pos: F64, origins: F64, dirs: F64) -> F64:
     """Mahalanobis distance (N, T) from each target's mean (T, 3), covariance (T, 3, 3), to the
     closest point of each ray origins (N, 3) + s * dirs (N, 3).
@@ -63,7 +77,7 @@ def ray_mahalanobis(mean: F64, cov_pos: F64, origins: F64, dirs: F64) -> F64:
     Minimising (o + s d - m)^T A (o + s d - m) over s (A = inverse covariance) gives
     d^2 = w^T A w - (d^T A w)^2 / (d^T A d) with w = m - o (seed 000, below eq. 3.12).
     """
-    A = np.linalg.inv(cov_pos)  # (T, 3, 3), covariances are kept positive definite
+    A = inv3(cov_pos)  # (T, 3, 3), covariances are kept positive definite
     w = mean[None, :, :] - origins[:, None, :]  # (N, T, 3)
     Aw = (A[None] @ w[..., None])[..., 0]
     Ad = (A[None] @ dirs[:, None, :, None])[..., 0]  # (N, T, 3)

@@ -25,6 +25,7 @@ from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams
 
 F64 = NDArray[np.float64]
+_PREFILTER = 4.0  # a pair goes to the SVD when its midpoint's error is under this many thresholds
 
 
 @dataclass(slots=True)
@@ -75,12 +76,16 @@ def find_births(
     """Births from the points where `free` (N,) is True. `existing` (T, 3): positions of current
     targets, for params.birth_min_separation_m."""
     rows = np.flatnonzero(free)
-    if rows.size < params.birth_min_cameras or np.unique(points.slot[rows]).size < params.birth_min_cameras:
+    if rows.size < params.birth_min_cameras:
+        return []
+    sl = points.slot[rows]  # non-decreasing
+    if 1 + int(np.count_nonzero(sl[1:] != sl[:-1])) < params.birth_min_cameras:
         return []
     thr = params.birth_max_reproj_px
     i, j = np.triu_indices(rows.size, 1)
     diff_cam = points.slot[rows[i]] != points.slot[rows[j]]
     tuples = np.stack([rows[i[diff_cam]], rows[j[diff_cam]]], axis=1)
+    tuples = tuples[_midpoint_error(cams, points, tuples) <= _PREFILTER * thr]
     hyps: list[tuple[NDArray[np.intp], F64, F64]] = []  # (tuples, X, err) per size
     k = 2
     while tuples.shape[0]:
@@ -122,6 +127,35 @@ def find_births(
         used[extra] = True
         births.append(Birth(X.copy(), np.concatenate([tup, extra]), int(tup.size), err))
     return births
+
+
+def _midpoint_error(cams: CameraArray, points: PointSet, pairs: NDArray[np.intp]) -> F64:
+    """Cheap prefilter for pairs: the mean reprojection error of the midpoint of the two rays' closest
+    approach (inf when the rays meet behind a camera). The DLT point's error is close to the optimum,
+    which is never above the midpoint's; the midpoint's can exceed it by about the ratio of the two
+    cameras' depths, hence the margin _PREFILTER. Saves an SVD per chance pair of false positives."""
+    a, b = pairs[:, 0], pairs[:, 1]
+    ca, cb = cams.centers[points.slot[a]], cams.centers[points.slot[b]]
+    da, db = points.rays[a], points.rays[b]
+    w = ca - cb
+    aa = np.einsum("ij,ij->i", da, da)
+    ab = np.einsum("ij,ij->i", da, db)
+    bb = np.einsum("ij,ij->i", db, db)
+    aw = np.einsum("ij,ij->i", da, w)
+    bw = np.einsum("ij,ij->i", db, w)
+    den = aa * bb - ab * ab
+    ok = den > 1e-12 * aa * bb
+    den = np.where(ok, den, 1.0)
+    s = (ab * bw - bb * aw) / den
+    t = (aa * bw - ab * aw) / den
+    ok &= (s > 0) & (t > 0)
+    X = 0.5 * (ca + s[:, None] * da + cb + t[:, None] * db)
+    slots = np.concatenate([points.slot[a], points.slot[b]])
+    proj, front = cams.project_ideal(slots, np.concatenate([X, X]))
+    uv = np.stack([points.u_ideal[np.concatenate([a, b])], points.v_ideal[np.concatenate([a, b])]], axis=1)
+    err = np.linalg.norm(proj - uv, axis=1).reshape(2, -1).mean(axis=0)
+    ok &= front.reshape(2, -1).all(axis=0)
+    return np.where(ok, err, np.inf)
 
 
 def _extend(points: PointSet, tuples: NDArray[np.intp], rows: NDArray[np.intp]) -> NDArray[np.intp]:

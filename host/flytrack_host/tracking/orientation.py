@@ -34,10 +34,13 @@ def axes_from_normals(normals: F64, min_plane_angle_deg: float) -> tuple[F64, ND
     """Best intersection direction of each set of planes: normals (T, C, 3), zero rows for cameras
     that do not contribute. Returns unit axes (T, 3) and a mask (T,) of sets whose planes are not
     all (nearly) parallel."""
-    _, s, vt = np.linalg.svd(normals)
-    axes = vt[:, -1, :]
+    # The right singular vectors of N are the eigenvectors of N^T N (3x3, cheaper to decompose), its
+    # eigenvalues the squared singular values, in ascending order.
+    lam, vec = np.linalg.eigh(np.swapaxes(normals, 1, 2) @ normals)
+    axes = vec[:, :, 0]
+    s = np.sqrt(np.maximum(lam, 0.0))
     # Two unit normals at angle phi give singular values sqrt(1 +- cos phi): s1/s0 = tan(phi / 2).
-    ratio = s[:, 1] / np.maximum(s[:, 0], 1e-300)
+    ratio = s[:, 1] / np.maximum(s[:, 2], 1e-300)
     ok = ratio >= np.tan(np.radians(min_plane_angle_deg) / 2.0)
     return axes, ok
 

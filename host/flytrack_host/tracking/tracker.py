@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flytrack_host.camera import Camera
+from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.tracking.association import PointSet, associate
 from flytrack_host.tracking.birth import Birth, find_births
 from flytrack_host.tracking.ekf import cv_process_noise, cv_transition, joseph_update, predict
@@ -190,17 +191,18 @@ class Tracker:
         parts.sort(key=lambda sa: sa[0])
         counts = np.array([len(a) for _, a in parts])
         slots = np.array([s for s, _ in parts], dtype=np.intp)
-        cat = parts[0][1] if len(parts) == 1 else np.concatenate([a for _, a in parts])
         slot = np.repeat(slots, counts)
         offsets = np.repeat(np.cumsum(counts) - counts, counts)
         index = np.arange(slot.size) - offsets
-        u = cat["x_dist"].astype(np.float64)
-        v = cat["y_dist"].astype(np.float64)
-        ui = cat["x_undist"].astype(np.float64)
-        vi = cat["y_undist"].astype(np.float64)
-        area = cat["area"].astype(np.float64)
-        ori = cat["orientation"].astype(np.float64)
-        ecc = cat["eccentricity"].astype(np.float64)
+        if all(a.dtype == POINT_DTYPE and a.flags.c_contiguous for _, a in parts):
+            # Fast path: a protocol point is 11 little-endian 4-byte words (f4 but for the u2 pair at
+            # word 8), so a point array is an (n, 11) float32 table; concatenating those avoids NumPy's
+            # slow structured-dtype concatenation. Columns 0-7 are the fields used here, in order.
+            tab = np.concatenate([a.view("<f4").reshape(-1, 11)[:, :8] for _, a in parts]).astype(np.float64)
+            u, v, ui, vi, area, _, ori, ecc = tab.T
+        else:
+            cat = parts[0][1] if len(parts) == 1 else np.concatenate([a[list(_REQUIRED_FIELDS)] for _, a in parts])
+            u, v, ui, vi, area, ori, ecc = (cat[f].astype(np.float64) for f in _REQUIRED_FIELDS)
         finite = np.isfinite(u) & np.isfinite(v) & np.isfinite(ui) & np.isfinite(vi) & np.isfinite(area)
         n_bad = slot.size - int(finite.sum())
         if n_bad:
@@ -339,21 +341,26 @@ class Tracker:
     def _report(
         self, result: FrameResult, assoc: tuple[NDArray[np.intp], PointSet] | None, n_cams: NDArray[np.intp]
     ) -> None:
-        cam_index = self.cams.indices
-        for k in np.flatnonzero(self._obj_id >= 0):
-            obj = int(self._obj_id[k])
-            axis = self._axis[k]
-            result.estimates.append(
-                Estimate(
-                    obj_id=obj,
-                    state=self._x[k].copy(),
-                    covariance=self._P[k].copy(),
-                    n_cameras=int(n_cams[k]),
-                    orientation=axis.copy() if np.isfinite(axis[0]) else None,
+        conf = np.flatnonzero(self._obj_id >= 0)
+        if conf.size == 0:
+            return
+        # One fancy-indexed copy per array; each Estimate holds rows of these fresh arrays.
+        xs, Ps, axes = self._x[conf], self._P[conf], self._axis[conf]
+        ids = self._obj_id[conf].tolist()
+        ncs = n_cams[conf].tolist()
+        has_axis = np.isfinite(axes[:, 0]).tolist()
+        result.estimates.extend(
+            Estimate(obj_id=ids[i], state=xs[i], covariance=Ps[i], n_cameras=ncs[i],
+                     orientation=axes[i] if has_axis[i] else None)
+            for i in range(conf.size)
+        )
+        if assoc is not None:
+            assign, pts = assoc
+            sub = assign[:, conf]
+            cs, ks = np.nonzero(sub >= 0)
+            if cs.size:
+                cam_index = np.asarray(self.cams.indices)[cs].tolist()
+                pidx = pts.index[sub[cs, ks]].tolist()
+                result.associations.extend(
+                    Association(ids[k], c, p) for k, c, p in zip(ks.tolist(), cam_index, pidx, strict=True)
                 )
-            )
-            if assoc is not None:
-                assign, pts = assoc
-                for c in np.flatnonzero(assign[:, k] >= 0):
-                    row = assign[c, k]
-                    result.associations.append(Association(obj, cam_index[c], int(pts.index[row])))
