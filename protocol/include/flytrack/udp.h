@@ -26,6 +26,11 @@
 
 #include "wire.h"
 
+/* Floats travel as IEEE-754 binary32/binary64 bits: refuse to build where float/double differ
+ * (e.g. avr-gcc, whose double is 32 bits; the AVR needs only trigger_link.h). */
+typedef char
+    ft_udp_needs_ieee754_float_and_double[(sizeof(float) == 4 && sizeof(double) == 8) ? 1 : -1];
+
 #define FT_UDP_MAGIC0 0x46 /* 'F' */
 #define FT_UDP_MAGIC1 0x54 /* 'T' */
 #define FT_UDP_HEADER 8
