@@ -436,13 +436,11 @@ def _export_braidz(recording: str | None, out: Path, notes: list[str]) -> str | 
     if not recording or not Path(recording).exists():
         notes.append("no HDF5 recording to export")
         return None
-    try:
-        from flytrack_host.recording import braidz as braidz_mod  # type: ignore[attr-defined]
-    except ImportError:
-        notes.append("braidz export not available yet (flytrack_host.recording.braidz missing)")
-        return None
+    from flytrack_host.io.braidz import export_braidz
+    from flytrack_host.recording import load_recording
+
     dest = out / "recording.braidz"
-    braidz_mod.export_braidz(Path(recording), dest)
+    export_braidz(load_recording(recording), dest)
     return str(dest)
 
 
