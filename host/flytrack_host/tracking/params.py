@@ -42,7 +42,10 @@ class TrackingParams(BaseModel):
         3, ge=2, description="Largest camera combination tried when triangulating a birth (Braid: 2-3)."
     )
     death_position_std_m: float = Field(
-        0.01212, gt=0, description="A target dies when its position std passes this, metres (Braid: 0.01212)."
+        0.01212, gt=0, description=(
+            "A target dies when its position std (the square root of the largest diagonal entry of its "
+            "position covariance) passes this, metres (Braid: 0.01212)."
+        ),
     )
     min_eccentricity_for_orientation: float = Field(
         1.4, ge=1, description="Only points at least this elongated contribute to body orientation."
