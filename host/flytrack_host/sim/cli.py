@@ -43,6 +43,8 @@ def summary_table(r: DemoReport) -> Table:
                   "host's own: trigger time (clock model) -> estimate, incl. simulated exposure")
     t.add_row("packets lost", str(r.packets_lost), "sequence gaps on loopback")
     t.add_row("packets late", str(r.packets_late), "arrived after their frame was tracked")
+    t.add_row("frames misnumbered", str(r.frames_misnumbered), "camera frames the host synchroniser "
+              "gave a wrong trigger frame")
     t.add_row("frames in time", f"{r.frames_in_time}/{r.frames_triggered}",
               f"3D estimate within one frame period; host kept up: {'yes' if r.host_kept_up else 'NO'}")
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",

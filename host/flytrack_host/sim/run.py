@@ -99,6 +99,7 @@ class DemoReport:
     frames_in_time: int
     packets_lost: int
     packets_late: int
+    frames_misnumbered: int  # camera frames the host's synchroniser gave a wrong trigger frame
     live_frames: int
     render_realtime_factor: float
     host_kept_up: bool
@@ -375,10 +376,18 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     scored[:warmup] = False  # animals not drawn yet: the edges were taking their background
     scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
                           match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
+    recording = host_summary.get("recording")
+    numbering = _frame_numbering(recording, fs.handoff_time)
+    if numbering["misnumbered"]:
+        notes.append(f"the host's synchroniser gave {numbering['misnumbered']} of {numbering['camera_frames']} "
+                     "camera frames a wrong trigger frame number (scores use the host's numbers)")
+    # Latency from the hand-over of the frames a bundle was made of to its estimate: independent of
+    # the numbering, so a misnumbered frame still gets its true processing time.
     lat = []
     for r in results:
-        if 0 <= r.frame < gt.n_frames and math.isfinite(fs.handoff_time[r.frame]):
-            lat.append(r.t_result - fs.handoff_time[r.frame])
+        t0 = numbering["bundle_handoff"].get(r.frame, math.nan)
+        if math.isfinite(t0):
+            lat.append(r.t_result - t0)
     lat_a = np.asarray(lat)
     res_t = np.full(gt.n_frames, np.nan)
     for r in results:
@@ -397,7 +406,6 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     rendered_s = fs.frames_rendered / cfg.fps
     busy = fs.render_s + fs.write_s
     rt = rendered_s / busy if busy > 0 else float("inf")
-    recording = host_summary.get("recording")
     braidz = _export_braidz(recording, out, notes)
     title = (f"{cfg.cameras} cameras, {cfg.animals} animals, {cfg.fps:g} fps, {cfg.seconds:g} s, seed {cfg.seed}\n"
              f"RMSE {scores.rmse_mm:.2f} mm  MOTA {scores.mota:.3f}  IDF1 {scores.idf1:.3f}  "
@@ -418,6 +426,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         frames_in_time=in_time,
         packets_lost=lost,
         packets_late=late,
+        frames_misnumbered=numbering["misnumbered"],
         live_frames=live_frames,
         render_realtime_factor=float(rt),
         host_kept_up=bool(in_time >= 0.99 * min(frames_triggered, gt.n_frames)),
@@ -430,6 +439,43 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         notes=[n for n in notes if n],
         host_summary=_jsonable(host_summary),
     )
+
+
+def _frame_numbering(recording: str | None, handoff: np.ndarray) -> dict[str, Any]:
+    """Check the host's frame numbering against the truth, from the recording's 2D rows.
+
+    Every edge got every pulse's frame in order from the first, so camera frame c is trigger frame c.
+    Returns the count of camera frames numbered otherwise, and per host trigger frame the hand-over
+    time of the latest camera frame it was built from."""
+    out: dict[str, Any] = {"misnumbered": 0, "camera_frames": 0, "bundle_handoff": {}}
+    if not recording or not Path(recording).exists():
+        return out
+    import h5py
+
+    from flytrack_host.recording.schema import FLAG_TRACKED
+
+    with h5py.File(recording, "r") as f:
+        if "data2d_distorted" not in f:
+            return out
+        d = f["data2d_distorted"][:]
+    if len(d) == 0:
+        return out
+    key = d["camera_index"].astype(np.int64) * (1 << 40) + d["camera_frame"].astype(np.int64)
+    _, first = np.unique(key, return_index=True)
+    u = d[first]  # one row per camera frame
+    out["camera_frames"] = int(len(u))
+    out["misnumbered"] = int(np.sum(u["trigger_frame"] != u["camera_frame"]))
+    tracked = u[(u["flags"] & FLAG_TRACKED) != 0]
+    cf = tracked["camera_frame"].astype(np.int64)
+    ok = (cf >= 0) & (cf < handoff.size)
+    tf, cf = tracked["trigger_frame"][ok].astype(np.int64), cf[ok]
+    t = handoff[cf]
+    bh: dict[int, float] = {}
+    for a, b in zip(tf.tolist(), t.tolist(), strict=True):
+        if math.isfinite(b) and b > bh.get(a, -math.inf):
+            bh[a] = b
+    out["bundle_handoff"] = bh
+    return out
 
 
 def _export_braidz(recording: str | None, out: Path, notes: list[str]) -> str | None:
