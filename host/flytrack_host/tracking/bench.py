@@ -27,6 +27,11 @@ from flytrack_host.tracking.tracker import Tracker
 app = typer.Typer(help="Benchmarks that print measured figures.", no_args_is_help=True)
 console = Console(width=200)
 
+@app.callback()
+def _group() -> None:
+    """Benchmarks that print measured figures (a group, so that `bench tracker` stays a subcommand)."""
+
+
 CONFIGS = ((2, 1), (2, 3), (2, 10), (5, 1), (5, 2), (5, 3), (5, 10), (11, 1), (11, 3), (11, 10))
 
 
@@ -110,8 +115,9 @@ def tracker_bench(
         }
         for fps in (100, 200):
             period = 1e3 / fps
-            row[f"realtime_{fps}fps"] = bool(row["p99_ms"] < period)
-            row[f"realtime_{fps}fps_cpu"] = bool(row["cpu_p99_ms"] < period)
+            row[f"keeps_up_{fps}fps"] = bool(row["mean_ms"] < period)  # throughput: no backlog grows
+            row[f"p99_within_period_{fps}fps"] = bool(row["p99_ms"] < period)
+            row[f"cpu_p99_within_period_{fps}fps"] = bool(row["cpu_p99_ms"] < period)
         if use_ss:
             ss_wall, ss_cpu, ss_est = _run_stonesoup(sc, n_ss, births)
             s_ours = score(sc.truth[:n_ss], est[:n_ss])
@@ -148,7 +154,8 @@ def _print_row(r: dict) -> None:
 
 def _print_table(rows: list[dict], use_ss: bool) -> None:
     t = Table(title="Tracker per-frame latency (ms) and accuracy")
-    cols = ["cams x targets", "P50", "P99", "CPU P50", "CPU P99", "100 fps", "200 fps", "RMSE mm", "MOTA"]
+    cols = ["cams x targets", "P50", "P99", "CPU P50", "CPU P99", "keeps up 100 fps", "keeps up 200 fps",
+            "RMSE mm", "MOTA"]
     if use_ss:
         cols += ["Stone Soup CPU P50", "speed ratio", "SS RMSE mm", "SS MOTA", "ours (same frames)"]
     for c in cols:
@@ -157,8 +164,10 @@ def _print_table(rows: list[dict], use_ss: bool) -> None:
         yes = lambda b: "yes" if b else "NO"  # noqa: E731
         cells = [f"{r['cameras']} x {r['targets']}", f"{r['p50_ms']:.3f}", f"{r['p99_ms']:.3f}",
                  f"{r['cpu_p50_ms']:.3f}", f"{r['cpu_p99_ms']:.3f}",
-                 f"{yes(r['realtime_100fps'])} ({yes(r['realtime_100fps_cpu'])} CPU)",
-                 f"{yes(r['realtime_200fps'])} ({yes(r['realtime_200fps_cpu'])} CPU)",
+                 f"{yes(r['keeps_up_100fps'])}, P99 {yes(r['p99_within_period_100fps'])} "
+                 f"({yes(r['cpu_p99_within_period_100fps'])} CPU)",
+                 f"{yes(r['keeps_up_200fps'])}, P99 {yes(r['p99_within_period_200fps'])} "
+                 f"({yes(r['cpu_p99_within_period_200fps'])} CPU)",
                  f"{r['rmse_mm']:.2f}", f"{r['mota']:.3f}"]
         if use_ss:
             cells += [f"{r['ss_cpu_p50_ms']:.2f}", f"{r['speed_ratio_cpu_mean']:.0f}x",
@@ -166,7 +175,9 @@ def _print_table(rows: list[dict], use_ss: bool) -> None:
                       f"{r['same_frames_ours_rmse_mm']:.2f} mm, {r['same_frames_ours_mota']:.3f}"]
         t.add_row(*cells)
     console.print(t)
-    console.print("Real time: P99 per-frame latency under the frame period (wall clock; in brackets the "
-                  "same on this thread's CPU time, which other load on a shared machine does not inflate). "
+    console.print("100/200 fps: 'keeps up' when the mean per-frame time is under the frame period (no "
+                  "backlog grows); 'P99' when the 99th percentile wall-clock latency is too (in brackets "
+                  "the same on this thread's CPU time, which other load on a shared machine does not "
+                  "inflate). "
                   "Stone Soup gets our births (same frame, state and covariance); its time excludes "
                   "initiation, ours includes the birth search.", highlight=False)
