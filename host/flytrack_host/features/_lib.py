@@ -15,8 +15,8 @@ LIB_NAME = "libflytrack_features.so"
 ABI_VERSION = 1
 
 
-class FeatureLibraryError(RuntimeError):
-    """The C library is missing or does not match these bindings."""
+class FeatureLibraryError(OSError):
+    """The C library is missing or does not match these bindings (an OSError, as ctypes load failures)."""
 
 
 class Params(ctypes.Structure):
