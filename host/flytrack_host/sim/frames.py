@@ -87,6 +87,7 @@ class FrameFeedStats:
     render_s: float  # CPU seconds spent rendering
     write_s: float  # seconds spent writing frames to the edges
     bad_lines: int = 0  # edge-stream lines that could not be read
+    priority_raised: bool = False
 
 
 class FrameFeeder:
@@ -108,7 +109,8 @@ class FrameFeeder:
         ctx = mp.get_context("fork")
         self._handoff = ctx.RawArray("d", [math.nan] * gt.n_frames)
         self._edge_t = ctx.RawArray("d", [math.nan] * gt.n_frames)
-        self._counters = ctx.RawArray("d", 6)  # edges, rendered, render_s, write_s, done, bad lines
+        # edges, rendered, render_s, write_s, done, bad lines, priority raised
+        self._counters = ctx.RawArray("d", 7)
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
             target=_feed,
@@ -123,6 +125,10 @@ class FrameFeeder:
         """Where trigger edges come from: a path (file or FIFO, followed as it grows), or a file
         descriptor number inherited by the child (create it before the feeder)."""
         self._conn.send(source)
+
+    @property
+    def priority_raised(self) -> bool:
+        return bool(self._counters[6])
 
     @property
     def frames_rendered(self) -> int:
@@ -157,7 +163,24 @@ class FrameFeeder:
             render_s=float(self._counters[2]),
             write_s=float(self._counters[3]),
             bad_lines=int(self._counters[5]),
+            priority_raised=bool(self._counters[6]),
         )
+
+
+SIM_NICE = -5
+
+
+def raise_priority(pid: int = 0) -> bool:
+    """Run simulated hardware (cameras, trigger) ahead of the software under test.
+
+    Real cameras and trigger boxes are silicon: a busy host PC never delays an exposure. Here they are
+    processes sharing the CPU with the edges and the host, so they get a somewhat higher priority (nice
+    -5, when allowed) and a loaded machine delays the software under test, not the simulated clock."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, pid, SIM_NICE)
+        return True
+    except (PermissionError, OSError):
+        return False
 
 
 def _write_all(fd: int, buf: memoryview) -> None:
@@ -184,6 +207,7 @@ def _feed(
     edge_t,
     counters,
 ) -> None:
+    counters[6] = raise_priority()
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
     for fd in edge_fds:
         grow_pipe(fd)

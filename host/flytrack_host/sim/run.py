@@ -100,6 +100,9 @@ class DemoReport:
     packets_lost: int
     packets_late: int
     frames_misnumbered: int  # camera frames the host's synchroniser gave a wrong trigger frame
+    exposure_lateness: dict[str, float]  # hand-over vs an ideal clock: how faithful the simulated timing was
+    clock_model: dict[str, float]
+    sim_priority_raised: bool
     live_frames: int
     render_realtime_factor: float
     host_kept_up: bool
@@ -427,6 +430,9 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         packets_lost=lost,
         packets_late=late,
         frames_misnumbered=numbering["misnumbered"],
+        exposure_lateness=_lateness(fs.handoff_time, trig.actual_fps),
+        clock_model=trig.clock_summary(),
+        sim_priority_raised=bool(fs.priority_raised),
         live_frames=live_frames,
         render_realtime_factor=float(rt),
         host_kept_up=bool(in_time >= 0.99 * min(frames_triggered, gt.n_frames)),
@@ -439,6 +445,17 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         notes=[n for n in notes if n],
         host_summary=_jsonable(host_summary),
     )
+
+
+def _lateness(handoff: np.ndarray, fps: float) -> dict[str, float]:
+    """How late each frame reached the edges compared with a perfect clock at the trigger's rate,
+    anchored on the earliest frame: a real camera's is ~0; ours grows when the machine is busy."""
+    n = np.arange(handoff.size)
+    ok = np.isfinite(handoff)
+    if not np.any(ok):
+        return latency_summary([])
+    lag = handoff[ok] - n[ok] / fps
+    return latency_summary(lag - lag.min())
 
 
 def _frame_numbering(recording: str | None, handoff: np.ndarray) -> dict[str, Any]:

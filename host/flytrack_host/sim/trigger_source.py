@@ -46,6 +46,7 @@ class DemoTrigger:
         self._bridge: threading.Thread | None = None
         self._bridge_stop = threading.Event()
         self.bridge_frames = 0
+        self.priority_raised = False
 
     @property
     def kind_label(self) -> str:
@@ -71,6 +72,9 @@ class DemoTrigger:
 
             self.sim = SimulatedTrigger(elf=self.firmware, realtime=True, edge_log=self.fifo)
             self.port = self.sim.pty
+            from flytrack_host.sim.frames import raise_priority
+
+            self.priority_raised = raise_priority(self.sim.proc.pid)
         else:
             from flytrack_host.trigger.software import SoftwareTrigger
 
