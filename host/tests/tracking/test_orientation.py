@@ -44,10 +44,15 @@ def test_tracker_reports_body_axis_of_flying_targets() -> None:
     sc = make_scenario(n_cameras=5, n_targets=2, duration_s=3.0, close_pass_m=None, seed=5)
     tr = Tracker(sc.cameras, TrackingParams(), sc.frame_period_s)
     errs = []
+    prev: dict[int, np.ndarray] = {}
+    flips = 0
     for b, truth_axis, truth in zip(sc.bundles, sc.truth_axis, sc.truth, strict=True):
         for e in tr.process(b).estimates:
             if e.orientation is None:
                 continue
+            if e.obj_id in prev and float(np.dot(prev[e.obj_id], e.orientation)) < 0:
+                flips += 1  # the sign is kept continuous from frame to frame
+            prev[e.obj_id] = e.orientation
             gt = min(truth, key=lambda k: np.linalg.norm(truth[k] - e.state[:3]))
             errs.append(_angle_deg(e.orientation, truth_axis[gt]))
             assert abs(np.linalg.norm(e.orientation) - 1) < 1e-9
@@ -55,4 +60,5 @@ def test_tracker_reports_body_axis_of_flying_targets() -> None:
     print(f"orientation error: median {np.median(errs):.2f} deg, 95th pct {np.percentile(errs, 95):.2f} deg, "
           f"{errs.size} estimates")
     assert errs.size > 400
+    assert flips == 0
     assert np.median(errs) < 3.0

@@ -141,3 +141,13 @@ def test_constructor_checks() -> None:
             Tracker(sc.cameras, TrackingParams(), bad)
     with pytest.raises(ValueError, match="camera"):
         Tracker({}, TrackingParams(), 0.01)
+
+
+def test_flydra_association_with_merge_prevention_does_not_merge() -> None:
+    """flydra's independent per-target choice (exclusive_points = false): the merge-prevention rule
+    fires during the close pass and the two trajectories stay apart."""
+    sc = make_scenario(n_cameras=5, n_targets=4, duration_s=10.0, close_pass_m=0.006, seed=1)
+    tr, _, s = _track(sc, TrackingParams(exclusive_points=False))
+    print(f"\nflydra association: {s.line()}, merges prevented {tr.stats['merges_prevented']}")
+    assert tr.stats["merges_prevented"] > 0
+    assert s.merges == 0 and s.id_switches <= 1 and s.rmse_m < 0.002
