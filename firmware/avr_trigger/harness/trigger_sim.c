@@ -1,8 +1,11 @@
 /* flytrack_trigger_sim: runs the unchanged trigger firmware .elf in simavr.
  *
- * - The firmware's UART is connected to a pseudo-terminal (simavr's uart_pty part). The pty's slave
- *   path is printed on stdout as "PTY /dev/pts/N" (and written to --pty-file): simavr also makes a
- *   /tmp/simavr-uart0 link, but that name is shared by every simavr on the machine, so use the path.
+ * - The firmware's UART is connected to a pseudo-terminal. The pty's slave path is printed on stdout
+ *   as "PTY /dev/pts/N" (and written to --pty-file). simavr's own uart_pty part is not used: in 1.6
+ *   its thread spins when a client closes the port (read() = -1 taken as a length) so the process
+ *   can never be stopped, it shares the /tmp/simavr-uart0 link between all simavrs on the machine,
+ *   and it moves bytes from a second thread. Here the main loop moves the bytes (non-blocking
+ *   master fd; the harness keeps the slave open so clients may come and go).
  * - Every edge of the trigger, pulse and stimulus outputs (and of the injected event input) is
  *   written to the edge log, one line per edge, line-buffered (the path may be a FIFO):
  *
@@ -39,7 +42,11 @@
 #include "sim_avr.h"
 #include "sim_elf.h"
 #include "sim_io.h"
-#include "uart_pty.h"
+#include "avr_uart.h"
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <termios.h>
 
 enum { SIG_TRIGGER = 0, SIG_PULSE0, SIG_OUT1, SIG_OUT2, SIG_OUT3, SIG_EVENT, SIG_COUNT };
 static const char *const sig_names[SIG_COUNT] = {"trigger", "pulse0", "out1", "out2", "out3",
@@ -161,6 +168,80 @@ static avr_cycle_count_t event_tick(struct avr_t *avr, avr_cycle_count_t when, v
     }
     avr_cycle_timer_register(g_avr, g_ev_period - g_ev_high - (g_avr->cycle - when), event_tick,
                              (void *)(intptr_t)1);
+    return 0;
+}
+
+/* pty bridge: AVR UART <-> pty master, serviced from the main loop */
+static int g_master = -1;
+static avr_irq_t *g_uart_in;
+static int g_xon = 1;
+static uint8_t g_rx[512]; /* host -> AVR, waiting for the UART to accept */
+static size_t g_rx_len, g_rx_done;
+static uint8_t g_tx[4096]; /* AVR -> host, waiting for the pty */
+static size_t g_tx_len;
+
+static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    (void)param;
+    if (g_tx_len < sizeof g_tx)
+        g_tx[g_tx_len++] = (uint8_t)value;
+}
+static void xon_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    (void)value;
+    (void)param;
+    g_xon = 1;
+}
+static void xoff_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    (void)value;
+    (void)param;
+    g_xon = 0;
+}
+
+static void bridge_service(void) {
+    if (g_tx_len) {
+        ssize_t w = write(g_master, g_tx, g_tx_len);
+        if (w > 0) {
+            memmove(g_tx, g_tx + w, g_tx_len - (size_t)w);
+            g_tx_len -= (size_t)w;
+        }
+    }
+    if (g_rx_done == g_rx_len) {
+        ssize_t r = read(g_master, g_rx, sizeof g_rx);
+        g_rx_len = r > 0 ? (size_t)r : 0;
+        g_rx_done = 0;
+    }
+    while (g_xon && g_rx_done < g_rx_len)
+        avr_raise_irq(g_uart_in, g_rx[g_rx_done++]);
+}
+
+static int bridge_open(char uart, char *name, size_t name_len) {
+    int m, s;
+    char buf[128];
+    struct termios tio;
+    if (openpty(&m, &s, buf, NULL, NULL) < 0)
+        return -1;
+    tcgetattr(s, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(s, TCSANOW, &tio);
+    tcgetattr(m, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(m, TCSANOW, &tio);
+    fcntl(m, F_SETFL, fcntl(m, F_GETFL) | O_NONBLOCK);
+    g_master = m; /* s stays open for the life of the process */
+    snprintf(name, name_len, "%s", buf);
+    uint32_t f = 0;
+    avr_ioctl(g_avr, AVR_IOCTL_UART_GET_FLAGS(uart), &f);
+    f &= ~AVR_UART_FLAG_STDIO;
+    avr_ioctl(g_avr, AVR_IOCTL_UART_SET_FLAGS(uart), &f);
+    g_uart_in = avr_io_getirq(g_avr, AVR_IOCTL_UART_GETIRQ(uart), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(g_avr, AVR_IOCTL_UART_GETIRQ(uart), UART_IRQ_OUTPUT),
+                            uart_out_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(g_avr, AVR_IOCTL_UART_GETIRQ(uart), UART_IRQ_OUT_XON),
+                            xon_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(g_avr, AVR_IOCTL_UART_GETIRQ(uart), UART_IRQ_OUT_XOFF),
+                            xoff_hook, NULL);
     return 0;
 }
 
@@ -296,10 +377,12 @@ int main(int argc, char **argv) {
         avr_cycle_timer_register(g_avr, g_ev_phase ? g_ev_phase : g_ev_period, event_tick,
                                  (void *)(intptr_t)0);
 
-    static uart_pty_t pty;
-    uart_pty_init(g_avr, &pty);
-    uart_pty_connect(&pty, '0' + (strcmp(mcu, "atmega32u4") == 0 ? 1 : 0));
-    printf("PTY %s\n", pty.port[0].slavename);
+    char pty_name[128];
+    if (bridge_open(strcmp(mcu, "atmega32u4") == 0 ? '1' : '0', pty_name, sizeof pty_name) != 0) {
+        fprintf(stderr, "error: cannot create a pty: %s\n", strerror(errno));
+        return 2;
+    }
+    printf("PTY %s\n", pty_name);
     fflush(stdout);
     if (pty_file) {
         FILE *f = fopen(pty_file, "w");
@@ -307,7 +390,7 @@ int main(int argc, char **argv) {
             fprintf(stderr, "error: cannot write %s: %s\n", pty_file, strerror(errno));
             return 2;
         }
-        fprintf(f, "%s\n", pty.port[0].slavename);
+        fprintf(f, "%s\n", pty_name);
         fclose(f);
     }
 
@@ -325,8 +408,10 @@ int main(int argc, char **argv) {
             limit = c;
     }
     const double t0 = now_s();
-    const uint64_t pace_step = freq / 8000; /* check the wall clock every 125 us of sim time */
-    uint64_t next_pace = pace_step;
+    /* Host bytes are taken every 50 us of simulated time when paced (a wait for the wall clock is a
+     * ppoll on the pty, so a request arriving then is taken at once), every 250 us when free. */
+    const uint64_t step = realtime ? freq / 20000 : freq / 4000;
+    uint64_t next_service = step;
     int state = cpu_Running, rc = 0;
     while (!g_stop) {
         state = avr_run(g_avr);
@@ -338,17 +423,22 @@ int main(int argc, char **argv) {
         }
         if (limit && g_avr->cycle >= limit)
             break;
-        if (realtime && g_avr->cycle >= next_pace) {
-            next_pace = g_avr->cycle + pace_step;
+        if (g_avr->cycle < next_service)
+            continue;
+        next_service = g_avr->cycle + step;
+        if (realtime) {
             double ahead = (double)g_avr->cycle / (double)freq - (now_s() - t0);
-            if (ahead > 50e-6) {
-                struct timespec ts = {(time_t)ahead, (long)((ahead - (double)(time_t)ahead) * 1e9)};
-                nanosleep(&ts, NULL);
+            if (ahead > 20e-6 && g_rx_done == g_rx_len) {
+                struct pollfd pfd = {g_master, POLLIN, 0};
+                struct timespec ts = {(time_t)ahead,
+                                      (long)((ahead - (double)(time_t)ahead) * 1e9)};
+                ppoll(&pfd, 1, &ts, NULL);
             }
         }
+        bridge_service();
     }
     double wall = now_s() - t0;
-    uart_pty_stop(&pty);
+    bridge_service(); /* last replies out */
     if (g_log)
         fclose(g_log);
     fprintf(stderr,

@@ -1,0 +1,7 @@
+"""Trigger devices: the FlyTrack firmware driver, the strawlab triggerbox driver, the simavr runner,
+a software stand-in, and the clock model they share."""
+
+from .clock_model import ClockModel
+from .common import TriggerError
+
+__all__ = ["ClockModel", "TriggerError"]

@@ -1,0 +1,181 @@
+"""The trigger clock model: host time = gain x device time + offset.
+
+Each clock query gives a device time (frame count and timer ticks -> seconds since frame 0 began)
+bracketed by two host times (request sent, reply received). The device time belongs somewhere in
+that round trip; its midpoint is the estimate, good to half the round trip. So the model keeps only
+samples whose round trip is small (an absolute bound, then the better part of the window), fits
+gain and offset by least squares over a window of recent samples, drops outliers (beyond a few
+robust standard deviations) and refits. A device time that goes backwards, or a run of samples far
+off the model, means the device restarted (or was reset): the window starts afresh.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ClockSample:
+    host_t0: float  # host time the query was sent (s)
+    host_t1: float  # host time the reply arrived (s)
+    device_time_s: float
+
+    @property
+    def rtt_s(self) -> float:
+        return self.host_t1 - self.host_t0
+
+    @property
+    def host_mid(self) -> float:
+        return 0.5 * (self.host_t0 + self.host_t1)
+
+
+class ClockModel:
+    """Least-squares map from device time to host time over a window of recent clock samples."""
+
+    def __init__(
+        self,
+        frame_period_s: float | None = None,
+        window: int = 100,
+        max_rtt_s: float = 0.010,
+        keep_fraction: float = 0.5,
+        outlier_sigmas: float = 4.0,
+        jump_threshold_s: float = 0.020,
+        jump_count: int = 3,
+        min_samples: int = 3,
+    ) -> None:
+        if window < 2 or not 0 < keep_fraction <= 1 or max_rtt_s <= 0:
+            raise ValueError("window >= 2, 0 < keep_fraction <= 1 and max_rtt_s > 0 are required")
+        self.frame_period_s = frame_period_s
+        self.window = window
+        self.max_rtt_s = max_rtt_s
+        self.keep_fraction = keep_fraction
+        self.outlier_sigmas = outlier_sigmas
+        self.jump_threshold_s = jump_threshold_s
+        self.jump_count = jump_count
+        self.min_samples = min_samples
+        self._samples: deque[ClockSample] = deque(maxlen=window)
+        self._far = 0
+        self.gain = 1.0
+        self.offset = 0.0
+        self.residual_s = math.nan
+        self.n_samples = 0  # samples used by the last fit
+        self.fitted = False
+        self.rejected_rtt = 0
+        self.restarts = 0
+
+    # ------------------------------------------------------------------ samples
+
+    def reset(self) -> None:
+        self._samples.clear()
+        self._far = 0
+        self.fitted = False
+        self.n_samples = 0
+        self.residual_s = math.nan
+
+    def add_sample(self, host_t0: float, host_t1: float, device_time_s: float) -> bool:
+        """Adds one clock query; returns False when it was rejected (round trip too long, not finite)."""
+        if not all(math.isfinite(v) for v in (host_t0, host_t1, device_time_s)) or host_t1 < host_t0:
+            self.rejected_rtt += 1
+            return False
+        s = ClockSample(host_t0, host_t1, device_time_s)
+        if s.rtt_s > self.max_rtt_s:
+            self.rejected_rtt += 1
+            return False
+        if self._samples and device_time_s < self._samples[-1].device_time_s:
+            self._restart()
+        elif self.fitted and abs(self.device_to_host(device_time_s) - s.host_mid) > self.jump_threshold_s:
+            self._far += 1
+            if self._far < self.jump_count:
+                return True  # held back: an outlier unless the next ones agree
+            self._restart()
+        else:
+            self._far = 0
+        self._samples.append(s)
+        self.fit()
+        return True
+
+    def _restart(self) -> None:
+        self.restarts += 1
+        self.reset()
+
+    # ------------------------------------------------------------------ fit
+
+    def fit(self) -> bool:
+        """Refits gain and offset; False while there are too few samples."""
+        samples = list(self._samples)
+        if len(samples) < self.min_samples:
+            return False
+        rtts = np.array([s.rtt_s for s in samples])
+        keep_n = max(self.min_samples, int(math.ceil(self.keep_fraction * len(samples))))
+        idx = np.argsort(rtts, kind="stable")[:keep_n]
+        dev = np.array([samples[i].device_time_s for i in idx])
+        host = np.array([samples[i].host_mid for i in idx])
+        if np.ptp(dev) <= 0:
+            return False
+        mask = np.ones(len(dev), dtype=bool)
+        for _ in range(3):
+            gain, offset, resid = self._lstsq(dev[mask], host[mask])
+            full = host - (gain * dev + offset)
+            mad = float(np.median(np.abs(full[mask] - np.median(full[mask]))))
+            sigma = max(1.4826 * mad, 1e-6)
+            new_mask = np.abs(full) <= self.outlier_sigmas * sigma
+            if new_mask.sum() < self.min_samples or np.array_equal(new_mask, mask):
+                break
+            mask = new_mask
+        gain, offset, resid = self._lstsq(dev[mask], host[mask])
+        self.gain, self.offset = gain, offset
+        self.residual_s = float(np.sqrt(np.mean(resid**2)))
+        self.n_samples = int(mask.sum())
+        self.fitted = True
+        return True
+
+    @staticmethod
+    def _lstsq(dev: np.ndarray, host: np.ndarray) -> tuple[float, float, np.ndarray]:
+        # Centred so that large epoch host times keep their precision.
+        d0, h0 = float(dev.mean()), float(host.mean())
+        dc, hc = dev - d0, host - h0
+        denom = float(np.dot(dc, dc))
+        gain = float(np.dot(dc, hc) / denom) if denom > 0 else 1.0
+        offset = h0 - gain * d0
+        return gain, offset, hc - gain * dc
+
+    # ------------------------------------------------------------------ conversions
+
+    def _need_fit(self) -> None:
+        if not self.fitted:
+            raise RuntimeError("the clock model has no fit yet (too few clock samples)")
+
+    def device_to_host(self, t: float) -> float:
+        self._need_fit()
+        return self.gain * t + self.offset
+
+    def host_to_device(self, t: float) -> float:
+        self._need_fit()
+        return (t - self.offset) / self.gain
+
+    def _period(self) -> float:
+        if not self.frame_period_s:
+            raise RuntimeError("the frame period is not known (set_rate not called)")
+        return self.frame_period_s
+
+    def frame_to_host_time(self, frame: float) -> float:
+        """Host time at which frame `frame` (0-based; fractional = within the frame) began."""
+        return self.device_to_host(frame * self._period())
+
+    def host_time_to_frame(self, t: float) -> float:
+        """Fractional frame number at host time t (floor gives the frame under way)."""
+        return self.host_to_device(t) / self._period()
+
+    def summary(self) -> dict[str, float]:
+        return {
+            "gain": self.gain,
+            "offset": self.offset,
+            "residual_us": self.residual_s * 1e6,
+            "n_samples": float(self.n_samples),
+            "rejected_rtt": float(self.rejected_rtt),
+            "restarts": float(self.restarts),
+        }

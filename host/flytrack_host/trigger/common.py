@@ -1,0 +1,112 @@
+"""Pieces shared by the trigger drivers: errors, serial opening, rate choice, the clock thread."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import serial
+
+PRESCALERS: dict[int, int] = {1: 1, 2: 8, 3: 64, 4: 256, 5: 1024}  # SPEC prescaler code -> divisor
+
+
+class TriggerError(RuntimeError):
+    """A trigger device problem with a clear cause: missing or busy port, wrong protocol, refusal."""
+
+
+@dataclass(frozen=True)
+class RateChoice:
+    prescaler_code: int
+    top: int
+    f_cpu: int
+
+    @property
+    def divisor(self) -> int:
+        return PRESCALERS[self.prescaler_code]
+
+    @property
+    def fps(self) -> float:
+        return self.f_cpu / ((self.top + 1) * self.divisor)
+
+    @property
+    def tick_s(self) -> float:
+        return self.divisor / self.f_cpu
+
+    @property
+    def period_s(self) -> float:
+        return (self.top + 1) * self.tick_s
+
+
+def choose_rate(
+    fps: float,
+    f_cpu: int,
+    codes: tuple[int, ...] = (1, 2, 3, 4, 5),
+    min_top: int = 15,
+    min_period_cycles: int = 1600,
+) -> RateChoice:
+    """Prescaler and TOP whose frame rate is closest to `fps` (ties: the finer prescaler)."""
+    if not fps > 0:
+        raise TriggerError(f"frame rate must be positive, got {fps}")
+    best: RateChoice | None = None
+    for code in codes:
+        div = PRESCALERS[code]
+        ideal = f_cpu / (div * fps) - 1
+        for top in {int(ideal), int(ideal) + 1}:
+            if not min_top <= top <= 0xFFFF or (top + 1) * div < min_period_cycles:
+                continue
+            c = RateChoice(code, top, f_cpu)
+            if best is None or abs(c.fps - fps) < abs(best.fps - fps) - 1e-12:
+                best = c
+    if best is None:
+        lo = f_cpu / (PRESCALERS[max(codes)] * 65536)
+        hi = f_cpu / max(min_period_cycles, min_top + 1)
+        raise TriggerError(f"{fps} fps is outside what the device can make ({lo:.3g} .. {hi:.6g} fps)")
+    return best
+
+
+def open_serial(port: str, baudrate: int, timeout: float = 0.05) -> serial.Serial:
+    """Opens a serial port exclusively, turning pyserial's errors into clear TriggerErrors."""
+    try:
+        return serial.Serial(port, baudrate, timeout=timeout, exclusive=True)
+    except serial.SerialException as exc:
+        text = str(exc)
+        if "No such file" in text or "could not open port" in text and "Errno 2" in text:
+            raise TriggerError(f"serial port {port} does not exist (is the board plugged in?)") from None
+        if "exclusively lock" in text or "Resource temporarily unavailable" in text or "busy" in text.lower():
+            raise TriggerError(f"serial port {port} is busy: another program has it open") from None
+        if "Permission denied" in text:
+            raise TriggerError(f"no permission to open {port} (add yourself to the dialout group)") from None
+        raise TriggerError(f"cannot open serial port {port}: {text}") from None
+
+
+class ClockThread:
+    """Calls `query` every `period_s` seconds in a daemon thread until stopped."""
+
+    def __init__(self, query: Callable[[], object], period_s: float) -> None:
+        self._query = query
+        self._period = period_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="trigger-clock", daemon=True)
+        self.errors = 0
+        self.last_error: Exception | None = None
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self._query()
+            except (TriggerError, OSError, serial.SerialException) as exc:
+                self.errors += 1
+                self.last_error = exc
+            next_t += self._period
+            self._stop.wait(max(0.0, next_t - time.monotonic()))
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout=2)

@@ -1,0 +1,28 @@
+"""Shared fixtures of the firmware-in-simavr tests: build once, skip clearly without the AVR tools."""
+
+from __future__ import annotations
+
+import pytest
+
+from flytrack_host.trigger import simulator
+
+FIGURES: dict[str, str] = {}
+
+
+@pytest.fixture(scope="session")
+def built() -> tuple:
+    if not simulator.tools_available():
+        pytest.skip("avr-gcc / simavr not installed: the firmware cannot run here (SoftwareTrigger covers the host)")
+    return simulator.build("atmega328p")
+
+
+@pytest.fixture
+def figures() -> dict[str, str]:
+    return FIGURES
+
+
+def pytest_terminal_summary(terminalreporter) -> None:  # noqa: ANN001 - pytest hook
+    if FIGURES:
+        terminalreporter.section("trigger firmware figures (simavr)")
+        for k, v in FIGURES.items():
+            terminalreporter.write_line(f"{k}: {v}")
