@@ -56,6 +56,64 @@ class RenderParams:
             raise ValueError(f"background level must be 1..250, got {self.background_level}")
 
 
+def _stamp(out: U8, u: float, v: float, s_maj: float, s_min: float, ang: float, gain: float, add: float) -> None:
+    """out <- out * (1 + (gain - 1) g) + add g in a small window, g an elongated Gaussian at (u, v)
+    with standard deviations s_maj along `ang` and s_min across; rounded, clipped to 0..255."""
+    h, w = out.shape
+    r = int(math.ceil(3.5 * s_maj)) + 1
+    iu, iv = int(u), int(v)
+    x0, x1 = max(0, iu - r), min(w, iu + r + 2)
+    y0, y1 = max(0, iv - r), min(h, iv + r + 2)
+    if x0 >= x1 or y0 >= y1:
+        return
+    ca, sa = math.cos(ang), math.sin(ang)
+    i_maj, i_min = 1.0 / (s_maj * s_maj), 1.0 / (s_min * s_min)
+    # Quadratic form of the inverse covariance, so the exponent is three broadcast terms.
+    qa = ca * ca * i_maj + sa * sa * i_min
+    qc = sa * sa * i_maj + ca * ca * i_min
+    qb = 2.0 * ca * sa * (i_maj - i_min)
+    dx = np.arange(x0 - u, x1 - u, dtype=np.float32)[: x1 - x0]
+    dy = np.arange(y0 - v, y1 - v, dtype=np.float32)[: y1 - y0, None]
+    g = np.exp(-0.5 * (qa * dx * dx + qc * dy * dy + qb * dy * dx))
+    win = out[y0:y1, x0:x1]
+    val = win * (1.0 + (gain - 1.0) * g)
+    if add:
+        val += add * g
+    np.clip(val + 0.5, 0, 255, out=val)
+    win[...] = val
+
+
+def _stamp_many(out: U8, u: np.ndarray, v: np.ndarray, s_maj: np.ndarray, s_min: np.ndarray, ang: np.ndarray,
+                gain: np.ndarray) -> None:
+    """Several multiplicative blobs (as `_stamp` with add = 0): their Gaussians are computed in one
+    batch over equal windows, then applied one window at a time (so overlapping blobs compose)."""
+    h, w = out.shape
+    r = int(math.ceil(3.5 * float(s_maj.max()))) + 1
+    size = 2 * r + 2
+    iu, iv = u.astype(np.int64), v.astype(np.int64)
+    x0, y0 = iu - r, iv - r
+    ca, sa = np.cos(ang), np.sin(ang)
+    i_maj, i_min = 1.0 / (s_maj * s_maj), 1.0 / (s_min * s_min)
+    qa = (ca * ca * i_maj + sa * sa * i_min)[:, None, None]
+    qc = (sa * sa * i_maj + ca * ca * i_min)[:, None, None]
+    qb = (2.0 * ca * sa * (i_maj - i_min))[:, None, None]
+    steps = np.arange(size, dtype=np.float64)
+    dx = (x0[:, None] + steps[None, :] - u[:, None])[:, None, :]
+    dy = (y0[:, None] + steps[None, :] - v[:, None])[:, :, None]
+    g = np.exp(-0.5 * (qa * dx * dx + qc * dy * dy + qb * dy * dx))
+    f = (1.0 + (gain - 1.0)[:, None, None] * g).astype(np.float32)
+    for i in range(u.size):
+        xa, ya = int(x0[i]), int(y0[i])
+        xs, ys = max(0, xa), max(0, ya)
+        xe, ye = min(w, xa + size), min(h, ya + size)
+        if xs >= xe or ys >= ye:
+            continue
+        win = out[ys:ye, xs:xe]
+        val = win * f[i, ys - ya : ye - ya, xs - xa : xe - xa]
+        np.clip(val + 0.5, 0, 255, out=val)
+        win[...] = val
+
+
 @dataclass
 class _FalseBlob:
     u: float
@@ -169,37 +227,25 @@ class CameraRenderer:
         s_maj = np.sqrt((l_px / 3.0) ** 2 + p.psf_sigma_px**2)
         s_min = np.sqrt((w_px / 3.0) ** 2 + p.psf_sigma_px**2)
         # Occlusion: a nearer animal whose blob covers this one's centre hides it.
-        order = np.argsort(depth)
-        shown: list[int] = []
-        for i in order:
-            if not visible[i]:
-                continue
-            if any(np.hypot(*(c[i] - c[j])) < s_maj[j] for j in shown):
-                continue
-            shown.append(int(i))
-        for i in shown:
-            ang = math.atan2(major[i, 1], major[i, 0]) if l_px[i] > 1e-9 else 0.0
-            self._blob(out, c[i, 0], c[i, 1], s_maj[i], s_min[i], ang, bool(self.bright[i]))
-            if drawn is not None:
-                drawn.append(DrawnBlob(int(i), float(c[i, 0]), float(c[i, 1])))
-
-    def _blob(self, out: U8, u: float, v: float, s_maj: float, s_min: float, ang: float, bright: bool) -> None:
-        h, w = out.shape
-        r = int(math.ceil(3.5 * s_maj)) + 1
-        x0, x1 = max(0, int(u) - r), min(w, int(u) + r + 2)
-        y0, y1 = max(0, int(v) - r), min(h, int(v) + r + 2)
-        if x0 >= x1 or y0 >= y1:
+        order = [int(i) for i in np.argsort(depth) if visible[i]]
+        if len(order) > 1:
+            dist = np.hypot(c[:, None, 0] - c[None, :, 0], c[:, None, 1] - c[None, :, 1]).tolist()
+            smaj = s_maj.tolist()
+            shown: list[int] = []
+            for i in order:
+                if not any(dist[i][j] < smaj[j] for j in shown):
+                    shown.append(i)
+        else:
+            shown = order
+        if not shown:
             return
-        ys, xs = np.ogrid[y0:y1, x0:x1]
-        dx, dy = xs - u, ys - v
-        ca, sa = math.cos(ang), math.sin(ang)
-        a = dx * ca + dy * sa
-        b = -dx * sa + dy * ca
-        g = np.exp(-0.5 * (a * a / (s_maj * s_maj) + b * b / (s_min * s_min)))
-        win = out[y0:y1, x0:x1].astype(np.float32)
-        k = self.params.contrast * g
-        win = win * (1.0 + k) if bright else win * (1.0 - k)
-        out[y0:y1, x0:x1] = np.clip(np.rint(win), 0, 255).astype(np.uint8)
+        idx = np.asarray(shown)
+        ang = np.where(l_px[idx] > 1e-9, np.arctan2(major[idx, 1], major[idx, 0]), 0.0)
+        k = p.contrast
+        gain = np.where(self.bright[idx], 1.0 + k, 1.0 - k)
+        _stamp_many(out, c[idx, 0], c[idx, 1], s_maj[idx], s_min[idx], ang, gain)
+        if drawn is not None:
+            drawn.extend(DrawnBlob(int(i), float(c[i, 0]), float(c[i, 1])) for i in shown)
 
     def _draw_false(self, out: U8, drawn: list[DrawnBlob] | None) -> None:
         p = self.params
@@ -216,13 +262,7 @@ class CameraRenderer:
             )
         keep: list[_FalseBlob] = []
         for fb in self._false:
-            r = int(math.ceil(3.5 * fb.sigma)) + 1
-            x0, x1 = max(0, int(fb.u) - r), min(w, int(fb.u) + r + 2)
-            y0, y1 = max(0, int(fb.v) - r), min(h, int(fb.v) + r + 2)
-            ys, xs = np.ogrid[y0:y1, x0:x1]
-            g = np.exp(-0.5 * ((xs - fb.u) ** 2 + (ys - fb.v) ** 2) / fb.sigma**2)
-            win = out[y0:y1, x0:x1].astype(np.float32) + fb.amplitude * g
-            out[y0:y1, x0:x1] = np.clip(np.rint(win), 0, 255).astype(np.uint8)
+            _stamp(out, fb.u, fb.v, fb.sigma, fb.sigma, 0.0, 1.0, fb.amplitude)
             if drawn is not None:
                 drawn.append(DrawnBlob(-1, fb.u, fb.v))
             fb.frames_left -= 1
