@@ -1,0 +1,106 @@
+"""StrawlabTriggerbox against a pty peer that speaks the triggerbox protocol (MISSION.md)."""
+
+from __future__ import annotations
+
+import os
+import struct
+import threading
+import time
+import tty
+
+import pytest
+
+from flytrack_host.trigger.common import TriggerError
+from flytrack_host.trigger.strawlab import StrawlabTriggerbox, checksum
+
+
+class _Box:
+    """Answers like the triggerbox firmware, frame count from the host clock."""
+
+    def __init__(self, corrupt: bool = False) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.port = os.ttyname(self.slave)
+        self.corrupt = corrupt
+        self.commands: list[bytes] = []
+        self.icr, self.div, self.running, self.t0 = 19999, 8, False, 0.0
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _reply(self, header: bytes, payload: bytes) -> None:
+        cs = (checksum(payload) + (1 if self.corrupt else 0)) & 0xFF
+        os.write(self.master, header + bytes([len(payload)]) + payload + bytes([cs]))
+
+    def _run(self) -> None:
+        buf = b""
+        while True:
+            try:
+                buf += os.read(self.master, 64)
+            except OSError:
+                return
+            while len(buf) >= 2:
+                c = buf[:2]
+                if c == b"V?":
+                    self._reply(b"V", b"\x02")
+                    buf = buf[2:]
+                elif c == b"N?":
+                    self._reply(b"N", b"box-1\0\0\0")
+                    buf = buf[2:]
+                elif c[:1] == b"P":
+                    cyc = (time.monotonic() - self.t0) * 16e6 if self.running else 0
+                    per = (self.icr + 1) * self.div
+                    self._reply(b"P", struct.pack("<BIH", c[1], int(cyc // per), int(cyc % per) // self.div))
+                    buf = buf[2:]
+                elif c[:1] == b"S":
+                    self.running = c == b"S1"
+                    self.t0 = time.monotonic()
+                    self.commands.append(c)
+                    buf = buf[2:]
+                elif c == b"T=":
+                    if len(buf) < 5:
+                        break
+                    self.icr = struct.unpack("<H", buf[2:4])[0]
+                    self.div = 8 if buf[4:5] == b"1" else 64
+                    self.commands.append(buf[:5])
+                    buf = buf[5:]
+                elif c == b"O=":
+                    if len(buf) < 7:
+                        break
+                    self.commands.append(buf[:7])
+                    buf = buf[7:]
+                else:
+                    buf = buf[1:]
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self.slave)
+
+
+def test_strawlab_driver_and_shared_clock_model() -> None:
+    box = _Box()
+    try:
+        with StrawlabTriggerbox(box.port, reset_wait_s=0) as tb:
+            assert tb.version == 2 and tb.info()["name"] == "box-1"
+            assert tb.set_rate(100.0) == pytest.approx(100.0)
+            tb.start()
+            for _ in range(30):
+                tb.query_clock()
+                time.sleep(0.005)
+            assert tb.model.fitted and abs(tb.model.gain - 1) < 0.05
+            tb.set_output(1, 1)
+            with pytest.raises(TriggerError, match="no pulse"):
+                tb.pulse()
+            tb.stop()
+        time.sleep(0.2)  # let the peer read the last commands
+        assert box.commands[0] == b"T=" + struct.pack("<H", 19999) + b"1"
+        assert b"S1" in box.commands and b"O=" + struct.pack("<HHB", 0, 0xFFFF, 3) in box.commands
+    finally:
+        box.close()
+
+
+def test_bad_checksum_is_an_error() -> None:
+    box = _Box(corrupt=True)
+    try:
+        with pytest.raises(TriggerError, match="strawlab"):
+            StrawlabTriggerbox(box.port, reset_wait_s=0, timeout_s=0.2)
+    finally:
+        box.close()
