@@ -1,0 +1,38 @@
+"""Checks of a calibration against a known truth (synthetic rigs): used by tests and the benchmark."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flytrack_host.calibration.align import umeyama
+from flytrack_host.calibration.observations import Observations
+from flytrack_host.calibration.selfcal import refine_points
+from flytrack_host.camera import Camera
+
+__all__ = ["reprojection_error", "centre_error"]
+
+
+def reprojection_error(cameras: Mapping[str, Camera], obs: Observations, use: NDArray[np.bool_]) -> float:
+    """Mean reprojection error (px) of the `use` observations, each frame triangulated and refined with
+    these cameras: the same measure for any calibration, whichever program produced it."""
+    cams = [cameras[n] for n in obs.camera_names]
+    _, inv = obs.point_index()
+    X = refine_points(cams, obs, inv, use, int(inv.max()) + 1)
+    errs = []
+    for c, cam in enumerate(cams):
+        s = use & (obs.cam == c)
+        e = np.linalg.norm(cam.project(X[inv[s]]) - obs.uv[s], axis=1)
+        errs.append(e[np.isfinite(e)])
+    return float(np.mean(np.concatenate(errs)))
+
+
+def centre_error(cameras: Mapping[str, Camera], truth: Mapping[str, Camera]) -> float:
+    """Largest camera-centre distance after the best similarity onto the true centres (world units)."""
+    names = list(truth)
+    a = np.array([cameras[n].center for n in names])
+    b = np.array([truth[n].center for n in names])
+    sim = umeyama(a, b)
+    return float(np.max(np.linalg.norm(sim.apply(a) - b, axis=1)))

@@ -1,0 +1,423 @@
+"""Multi-camera self-calibration from one bright point (an LED) waved through the volume.
+
+What this implements (honestly): not Svoboda's projective factorisation + Euclidean upgrade, but the
+robust alternative the issue allows, as incremental structure-from-motion does it:
+
+1. Pairwise outlier rejection: for every camera pair with enough common frames, RANSAC on the essential
+   matrix (cv2.findEssentialMat) in normalised coordinates from approximate intrinsics; an observation is
+   dropped when most of the pairs it takes part in reject it.
+2. Initialisation: the pair with the most inliers gives relative pose (cv2.recoverPose) and the first
+   points; every other camera is added by RANSAC PnP (cv2.solvePnPRansac) on the points seen so far, in
+   the order of how many of them it sees, and new points are triangulated as cameras join. Missing views
+   are simply absent observations (no filling is needed).
+3. Bundle adjustment (`bundle.py`) of all cameras (pose, focal length, principal point, radial and
+   optionally tangential distortion) and all points: first with a robust loss, then rejection of
+   observations beyond ~4.5 sigma, then again with a Huber loss tuned to the measured noise.
+
+The result is exact up to a similarity (rotation, translation, scale): `align.py` fixes it to the world.
+Approximate intrinsics are needed to start: a focal length guess in pixels (the lens focal length
+divided by the pixel pitch), or an intrinsics file, or by default the image's larger side (~53 deg).
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from flytrack_host.calibration.bundle import DISTORTION_MODELS, bundle_adjust
+from flytrack_host.calibration.observations import Observations
+from flytrack_host.camera import Camera
+
+__all__ = ["SelfCalError", "SelfCalResult", "self_calibrate", "initial_cameras", "triangulate_frames",
+           "check_observations"]
+
+F64 = NDArray[np.float64]
+MIN_POINTS_PER_CAMERA = 30
+MIN_PAIR_POINTS = 15
+
+
+class SelfCalError(ValueError):
+    """Self-calibration cannot proceed; the message says what is wrong and what to do."""
+
+
+@dataclass
+class SelfCalResult:
+    cameras: dict[str, Camera]
+    points: F64  # (P, 3) LED positions (self-calibration frame: arbitrary similarity)
+    point_frames: NDArray[np.int64]  # (P,) frame number of each point
+    obs: Observations  # the input observations
+    inlier: NDArray[np.bool_]  # (N,) which observations the final solution uses
+    obs_point: NDArray[np.int64]  # (N,) index into points (or -1)
+    residuals: F64  # (N, 2) reprojection residual of each observation (NaN if no point)
+    initial_cameras: dict[str, Camera]  # the starting point of the bundle adjustment
+    initial_points: F64
+    initial_obs_mask: NDArray[np.bool_]  # the observations the bundle adjustment started from
+    timings: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    sigma_px: float = float("nan")
+
+
+# ------------------------------------------------------------------------------------------------
+# input checks
+# ------------------------------------------------------------------------------------------------
+def check_observations(obs: Observations, min_points: int = MIN_POINTS_PER_CAMERA) -> None:
+    """Raise SelfCalError for input that cannot give a calibration (before any heavy work)."""
+    if obs.n_cameras < 2:
+        raise SelfCalError(f"only {obs.n_cameras} camera in the points file: self-calibration needs at least 2 "
+                           "(3 or more for a reliable result). Add the other cameras' detections.")
+    counts = obs.counts()
+    empty = [n for n, c in zip(obs.camera_names, counts, strict=True) if c == 0]
+    if empty:
+        raise SelfCalError(f"camera(s) {', '.join(empty)} have no points. Check that they saw the LED (exposure, "
+                           "threshold, aim) and record again, or remove them from the points file.")
+    few = [f"{n} ({c})" for n, c in zip(obs.camera_names, counts, strict=True) if c < min_points]
+    if few:
+        raise SelfCalError(f"too few points in camera(s) {', '.join(few)}: at least {min_points} are needed, "
+                           "a few hundred spread over the whole image are better. Wave the LED longer "
+                           "through the part of the volume these cameras see.")
+    _, inv = obs.point_index()
+    nviews = np.bincount(inv)
+    if int(np.sum(nviews >= 2)) < min_points:
+        raise SelfCalError(f"only {int(np.sum(nviews >= 2))} frames show the LED in 2 or more cameras; at least "
+                           f"{min_points} are needed. Check that the cameras' frame numbers are synchronised "
+                           "and that the LED is in the common field of view.")
+
+
+def _degeneracy(X: F64) -> str | None:
+    """'collinear' or 'planar' when the 3D points do not span a volume, else None."""
+    if len(X) < 4:
+        return "collinear"
+    Xc = X - np.median(X, axis=0)
+    s = np.linalg.svd(Xc[np.all(np.isfinite(Xc), axis=1)], compute_uv=False)
+    if s[1] < 0.02 * s[0]:
+        return "collinear"
+    if s[2] < 0.02 * s[0]:
+        return "planar"
+    return None
+
+
+# ------------------------------------------------------------------------------------------------
+# geometry helpers
+# ------------------------------------------------------------------------------------------------
+def _normalised(cam: Camera, uv: F64) -> F64:
+    ideal = cam.undistort(uv)
+    xn, yn = cam._normalize(ideal)  # noqa: SLF001 (our own camera model)
+    return np.stack([xn, yn], axis=1)
+
+
+def triangulate_frames(Ps: list[F64 | None], cam: NDArray[np.intp], pt: NDArray[np.intp], xy: F64,
+                       n_points: int) -> F64:
+    """Linear triangulation of every point from its normalised observations xy in cameras with known P=[R|t].
+
+    Observations whose camera has no P yet are ignored; points seen by < 2 such cameras get NaN."""
+    out = np.full((n_points, 3), np.nan)
+    have = np.array([P is not None for P in Ps])
+    use = have[cam]
+    cam, pt, xy = cam[use], pt[use], xy[use]
+    if not len(cam):
+        return out
+    order = np.argsort(pt, kind="stable")
+    cam, pt, xy = cam[order], pt[order], xy[order]
+    Pst = np.stack([P if P is not None else np.zeros((3, 4)) for P in Ps])
+    rows_a = xy[:, 0:1] * Pst[cam, 2] - Pst[cam, 0]
+    rows_b = xy[:, 1:2] * Pst[cam, 2] - Pst[cam, 1]
+    bounds = np.flatnonzero(np.diff(pt)) + 1
+    starts = np.concatenate([[0], bounds])
+    ends = np.concatenate([bounds, [len(pt)]])
+    for s, e in zip(starts, ends, strict=True):
+        if e - s < 2:
+            continue
+        A = np.empty((2 * (e - s), 4))
+        A[0::2] = rows_a[s:e]
+        A[1::2] = rows_b[s:e]
+        A /= np.linalg.norm(A, axis=1, keepdims=True)
+        _, _, vt = np.linalg.svd(A)
+        X = vt[-1]
+        if abs(X[3]) > 1e-12:
+            out[pt[s]] = X[:3] / X[3]
+    return out
+
+
+def _reproj_norm(Ps: list[F64 | None], X: F64, cam: NDArray[np.intp], pt: NDArray[np.intp], xy: F64) -> F64:
+    """Reprojection error (normalised units) of each observation; NaN where camera or point is unknown."""
+    err = np.full(len(cam), np.nan)
+    for c, P in enumerate(Ps):
+        if P is None:
+            continue
+        sel = np.flatnonzero(cam == c)
+        Xs = X[pt[sel]]
+        ok = np.all(np.isfinite(Xs), axis=1)
+        sel, Xs = sel[ok], Xs[ok]
+        Xc = Xs @ P[:, :3].T + P[:, 3]
+        good = Xc[:, 2] > 0
+        proj = Xc[:, :2] / np.where(good, Xc[:, 2], 1.0)[:, None]
+        e = np.linalg.norm(proj - xy[sel], axis=1)
+        e[~good] = np.inf
+        err[sel] = e
+    return err
+
+
+# ------------------------------------------------------------------------------------------------
+# initialisation
+# ------------------------------------------------------------------------------------------------
+def _guess_cameras(obs: Observations, focal_px: float | Mapping[str, float] | None,
+                   intrinsics: Mapping[str, Camera] | None) -> list[Camera]:
+    cams = []
+    for name, (w, h) in zip(obs.camera_names, obs.sizes, strict=True):
+        if intrinsics is not None and name in intrinsics:
+            src = intrinsics[name]
+            cams.append(Camera(name=name, width=w, height=h, K=src.K.copy(), R=np.eye(3), t=np.zeros(3),
+                               dist=src.dist.copy()))
+            continue
+        if isinstance(focal_px, Mapping):
+            f = float(focal_px.get(name, max(w, h)))
+        else:
+            f = float(focal_px) if focal_px else float(max(w, h))
+        K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        cams.append(Camera(name=name, width=w, height=h, K=K, R=np.eye(3), t=np.zeros(3)))
+    return cams
+
+
+def _pairwise_outliers(obs: Observations, inv: NDArray[np.int64], xy: F64, fpx: F64, thresh_px: float,
+                       rng_seed: int) -> tuple[NDArray[np.bool_], dict[tuple[int, int], int]]:
+    """Essential-matrix RANSAC per camera pair; returns (observation is an outlier, inliers per pair)."""
+    n_frames = int(inv.max()) + 1
+    C = obs.n_cameras
+    lookup = np.full((C, n_frames), -1, dtype=np.int64)
+    lookup[obs.cam, inv] = np.arange(len(inv))
+    votes_bad = np.zeros(len(inv))
+    votes_all = np.zeros(len(inv))
+    pair_inliers: dict[tuple[int, int], int] = {}
+    cv2.setRNGSeed(rng_seed)
+    for i, j in itertools.combinations(range(C), 2):
+        both = np.flatnonzero((lookup[i] >= 0) & (lookup[j] >= 0))
+        if len(both) < MIN_PAIR_POINTS:
+            continue
+        oi, oj = lookup[i, both], lookup[j, both]
+        thr = thresh_px / np.sqrt(fpx[i] * fpx[j])
+        E, mask = cv2.findEssentialMat(xy[oi], xy[oj], np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=thr,
+                                       maxIters=2000)
+        if E is None or mask is None:
+            continue
+        m = mask.ravel().astype(bool)
+        pair_inliers[(i, j)] = int(m.sum())
+        for o in (oi, oj):
+            votes_all[o] += 1
+            votes_bad[o] += ~m
+    outlier = (votes_all > 0) & (votes_bad > 0.5 * votes_all)
+    return outlier, pair_inliers
+
+
+def initial_cameras(obs: Observations, focal_px: float | Mapping[str, float] | None = None,
+                    intrinsics: Mapping[str, Camera] | None = None, ransac_px: float | None = None,
+                    seed: int = 0) -> tuple[list[Camera], F64, NDArray[np.bool_], list[str], tuple[int, int]]:
+    """Robust initial cameras and points (arbitrary similarity frame).
+
+    Returns cameras, points, which observations are usable, warnings, and the reference pair (gauge)."""
+    warns: list[str] = []
+    cams = _guess_cameras(obs, focal_px, intrinsics)
+    frames, inv = obs.point_index()
+    n_pts = len(frames)
+    xy = np.empty_like(obs.uv)
+    for c, cam in enumerate(cams):
+        sel = obs.cam == c
+        xy[sel] = _normalised(cam, obs.uv[sel])
+    fpx = np.array([c.K[0, 0] for c in cams])
+    if ransac_px is None:
+        # Generous: the initial model ignores the (unknown) lens distortion, which can bend epipolar
+        # geometry by several pixels at the image edges; the bundle adjustment does the fine rejection.
+        ransac_px = max(4.0, 0.006 * max(max(s) for s in obs.sizes))
+    outlier, pair_inliers = _pairwise_outliers(obs, inv, xy, fpx, ransac_px, seed)
+    good = ~outlier
+    if not pair_inliers:
+        raise SelfCalError(f"no pair of cameras shares {MIN_PAIR_POINTS} or more frames with the LED. The "
+                           "cameras must overlap: wave the LED where several cameras see it at once.")
+    (i0, j0), n0 = max(pair_inliers.items(), key=lambda kv: kv[1])
+    n_frames = int(inv.max()) + 1
+    lookup = np.full((obs.n_cameras, n_frames), -1, dtype=np.int64)
+    lookup[obs.cam[good], inv[good]] = np.flatnonzero(good)
+    both = np.flatnonzero((lookup[i0] >= 0) & (lookup[j0] >= 0))
+    oi, oj = lookup[i0, both], lookup[j0, both]
+    thr = ransac_px / np.sqrt(fpx[i0] * fpx[j0])
+    E, mask = cv2.findEssentialMat(xy[oi], xy[oj], np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=thr)
+    if E is None:
+        raise SelfCalError("the relative pose of the two best-overlapping cameras could not be found; the LED "
+                           "path may be degenerate (all on a line or in a plane). Wave it through a volume.")
+    E = E[:3]
+    _, R, t, mask2 = cv2.recoverPose(E, xy[oi], xy[oj], np.eye(3), mask=mask.copy())
+    Ps: list[F64 | None] = [None] * obs.n_cameras
+    Ps[i0] = np.hstack([np.eye(3), np.zeros((3, 1))])
+    Ps[j0] = np.hstack([R, t.reshape(3, 1)])
+    cam_idx = obs.cam.astype(np.intp)
+    X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
+    degenerate = _degeneracy(X[np.all(np.isfinite(X), axis=1)])
+    if degenerate:
+        raise SelfCalError(f"the LED positions are {degenerate}: self-calibration needs points that fill a volume. "
+                           "Wave the LED up and down as well as across, through the whole tracking volume.")
+    thr_norm = ransac_px / float(np.median(fpx))
+    registered = {i0, j0}
+    while len(registered) < obs.n_cameras:
+        best, best_n = -1, 0
+        known = np.all(np.isfinite(X), axis=1)
+        for c in range(obs.n_cameras):
+            if c in registered:
+                continue
+            n = int(np.sum(good & (obs.cam == c) & known[inv]))
+            if n > best_n:
+                best, best_n = c, n
+        if best < 0 or best_n < 12:
+            missing = [obs.camera_names[c] for c in range(obs.n_cameras) if c not in registered]
+            raise SelfCalError(f"camera(s) {', '.join(missing)} share too few LED frames with the other cameras to "
+                               "be placed. Wave the LED where these cameras and at least two others see it.")
+        sel = np.flatnonzero(good & (obs.cam == best) & known[inv])
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(X[inv[sel]], xy[sel], np.eye(3), None, reprojectionError=thr_norm,
+                                                 iterationsCount=500, confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+        if not ok or inl is None or len(inl) < 12:
+            raise SelfCalError(f"camera {obs.camera_names[best]} could not be placed from the LED points it shares "
+                               "with the others (PnP failed). Check its detections and its image size.")
+        inl = inl.ravel()
+        ok, rvec, tvec = cv2.solvePnP(X[inv[sel[inl]]], xy[sel[inl]], np.eye(3), None, rvec, tvec,
+                                      useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+        Rm, _ = cv2.Rodrigues(rvec)
+        Ps[best] = np.hstack([Rm, tvec.reshape(3, 1)])
+        registered.add(best)
+        X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
+        err = _reproj_norm(Ps, X, cam_idx, inv, xy)
+        # Drop wildly inconsistent observations now so they do not spoil later PnP steps.
+        good &= ~(np.isfinite(err) & (err > 3 * thr_norm))
+        X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
+    for c, cam in enumerate(cams):
+        P = Ps[c]
+        assert P is not None
+        cam.R = P[:, :3].copy()
+        cam.t = P[:, 3].copy()
+    err = _reproj_norm(Ps, X, cam_idx, inv, xy)
+    good &= np.isfinite(err) & (err < 3 * thr_norm)
+    if int(np.sum(outlier)) > 0.2 * len(outlier):
+        warns.append(f"{int(np.sum(outlier))} of {len(outlier)} detections ({100 * np.mean(outlier):.0f} %) "
+                     "disagree with the epipolar geometry: check for reflections or a second bright spot.")
+    return cams, X, good, warns, (i0, j0)
+
+
+# ------------------------------------------------------------------------------------------------
+# the whole pipeline
+# ------------------------------------------------------------------------------------------------
+def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | None = None,
+                   intrinsics: Mapping[str, Camera] | None = None, distortion: str = "k1k2",
+                   ransac_px: float | None = None, max_nfev: int = 60, seed: int = 0,
+                   max_ba_points: int = 1500, final_ftol: float = 1e-5) -> SelfCalResult:
+    if distortion not in DISTORTION_MODELS:
+        raise SelfCalError(f"distortion model {distortion!r} unknown; choose one of {', '.join(DISTORTION_MODELS)}.")
+    check_observations(obs)
+    t0 = time.perf_counter()
+    cams, X, good, warns, gauge = initial_cameras(obs, focal_px, intrinsics, ransac_px, seed)
+    t1 = time.perf_counter()
+    frames, inv = obs.point_index()
+    init_cams = {c.name: Camera(c.name, c.width, c.height, c.K.copy(), c.R.copy(), c.t.copy(), c.dist.copy())
+                 for c in cams}
+    init_X = X.copy()
+    init_mask = good.copy()
+
+    usable = good & np.all(np.isfinite(X[inv]), axis=1)
+    sigma = float("nan")
+    inlier = usable
+    X_cur = X
+    bres = None
+    rng = np.random.default_rng(seed)
+    # Stage 1: robust loss from the rough start; later stages: reject and refine with the noise measured.
+    for stage, (loss, fs) in enumerate([("soft_l1", 3.0), ("huber", None), ("linear", None)]):
+        pts = np.unique(inv[inlier & (_views_per_point(inv, inlier) >= 2)])
+        if len(pts) > max_ba_points:
+            # A few hundred well-observed points fix ~10 parameters per camera; more only slow the solver.
+            nv = np.bincount(inv[inlier], minlength=len(frames))[pts].astype(float)
+            pts = np.sort(rng.choice(pts, size=max_ba_points, replace=False, p=nv / nv.sum()))
+        sel = inlier & np.isin(inv, pts)
+        remap = np.full(len(frames), -1, dtype=np.int64)
+        remap[pts] = np.arange(len(pts))
+        f_scale = fs if fs is not None else max(0.3, 2.5 * sigma)
+        bres = bundle_adjust(cams, X_cur[pts], obs.cam[sel], remap[inv[sel]], obs.uv[sel], distortion=distortion,
+                             loss=loss, f_scale=f_scale, max_nfev=max_nfev, gauge=gauge,
+                             ftol=final_ftol if stage == 2 else 1e-4)
+        cams = bres.cameras
+        sigma = float(np.median(np.linalg.norm(bres.residuals, axis=1)) / 1.1774)  # 2D Gaussian: 1.1774 sigma
+        # Every frame (also those outside the bundle sample) is triangulated from the current inliers and
+        # refined, then every observation (also those rejected before) is measured against the model.
+        X_cur = refine_points(cams, obs, inv, inlier, len(frames))
+        rn = np.linalg.norm(_pixel_residuals(cams, X_cur, obs, inv), axis=1)
+        inlier = np.isfinite(rn) & (rn < max(6.0 * sigma, 1.0))
+        inlier &= _views_per_point(inv, inlier) >= 2
+    X_cur = refine_points(cams, obs, inv, inlier, len(frames))
+    assert bres is not None
+    t2 = time.perf_counter()
+    all_res = _pixel_residuals(cams, X_cur, obs, inv)
+    result = SelfCalResult(
+        cameras={c.name: c for c in cams}, points=X_cur, point_frames=frames, obs=obs, inlier=inlier,
+        obs_point=inv.copy(), residuals=all_res, initial_cameras=init_cams, initial_points=init_X,
+        initial_obs_mask=init_mask, timings={"init_s": t1 - t0, "bundle_s": t2 - t1}, warnings=warns,
+        sigma_px=sigma)
+    return result
+
+
+def refine_points(cams: list[Camera], obs: Observations, inv: NDArray[np.int64], use: NDArray[np.bool_],
+                  n_points: int, iterations: int = 5) -> F64:
+    """Triangulate each frame from its `use` observations (linear), then Gauss-Newton on reprojection error.
+
+    All points are refined at once (vectorised); the 3x3 normal equations of each point are independent."""
+    xy = np.empty_like(obs.uv)
+    for c, cam in enumerate(cams):
+        s = obs.cam == c
+        xy[s] = _normalised(cam, obs.uv[s])
+    Ps: list[F64 | None] = [np.hstack([c.R, c.t[:, None]]) for c in cams]
+    cam_idx = obs.cam.astype(np.intp)
+    X = triangulate_frames(Ps, cam_idx[use], inv[use], xy[use], n_points)
+    idx = np.flatnonzero(use & np.all(np.isfinite(X[inv]), axis=1))
+    if not len(idx):
+        return X
+    c_i, p_i, uv = cam_idx[idx], inv[idx], obs.uv[idx]
+
+    def proj(Xp: F64) -> F64:
+        out = np.empty((len(idx), 2))
+        for c, cam in enumerate(cams):
+            s = c_i == c
+            out[s] = cam.project(Xp[p_i[s]])
+        return out
+
+    h = 1e-6 * max(1.0, float(np.nanmax(np.abs(X))))
+    for _ in range(iterations):
+        r = proj(X) - uv
+        J = np.empty((len(idx), 2, 3))
+        for k in range(3):
+            Xk = X.copy()
+            Xk[:, k] += h
+            J[:, :, k] = (proj(Xk) - uv - r) / h
+        ok = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(r), axis=1)
+        JtJ = np.zeros((n_points, 3, 3))
+        Jtr = np.zeros((n_points, 3))
+        np.add.at(JtJ, p_i[ok], np.einsum("nki,nkj->nij", J[ok], J[ok]))
+        np.add.at(Jtr, p_i[ok], np.einsum("nki,nk->ni", J[ok], r[ok]))
+        has = np.abs(np.linalg.det(JtJ)) > 1e-30
+        step = np.zeros_like(X)
+        step[has] = np.linalg.solve(JtJ[has], Jtr[has][:, :, None])[:, :, 0]
+        X = X - step
+    return X
+
+
+def _views_per_point(inv: NDArray[np.int64], mask: NDArray[np.bool_]) -> NDArray[np.int64]:
+    counts = np.bincount(inv[mask], minlength=int(inv.max()) + 1)
+    return counts[inv]
+
+
+def _pixel_residuals(cams: list[Camera], X: F64, obs: Observations, inv: NDArray[np.int64]) -> F64:
+    res = np.full((len(inv), 2), np.nan)
+    for c, cam in enumerate(cams):
+        sel = np.flatnonzero(obs.cam == c)
+        Xs = X[inv[sel]]
+        ok = np.all(np.isfinite(Xs), axis=1)
+        res[sel[ok]] = cam.project(Xs[ok]) - obs.uv[sel[ok]]
+    return res
