@@ -17,6 +17,7 @@ def _f(x: float, fmt: str = ".2f") -> str:
 
 
 def summary_table(r: DemoReport) -> Table:
+    """The summary, kept within 80 columns: figure, value, a short note (the README explains more)."""
     s = r.scores
     lat = r.latency
     t = Table(title="FlyTrack simulated rig: summary", show_header=True, header_style="bold")
@@ -24,34 +25,32 @@ def summary_table(r: DemoReport) -> Table:
     t.add_column("value", justify="right")
     t.add_column("note", style="dim")
     c = r.config
-    t.add_row("rig", f"{c['cameras']} cams, {c['animals']} animals", f"{c['fps']:g} fps, {c['seconds']:g} s, "
-              f"seed {c['seed']}, noise {c['noise']:g}")
-    t.add_row("trigger", r.trigger, r.trigger_note)
-    t.add_row("tracks found", str(s.tracks_found), f"{s.gt_objects} animals; {s.tracks_total} track ids in all")
+    t.add_row("rig", f"{c['cameras']} cams, {c['animals']} animals",
+              f"{c['fps']:g} fps, {c['seconds']:g} s, seed {c['seed']}")
+    t.add_row("trigger", r.trigger, "")
+    t.add_row("tracks found", str(s.tracks_found), f"{s.gt_objects} animals, {s.tracks_total} ids")
     t.add_row("3D RMSE", f"{_f(s.rmse_mm)} mm", f"matched within {s.match_threshold_m * 1000:.0f} mm")
-    t.add_row("MOTA", _f(s.mota, ".4f"), f"misses {s.misses}, false positives {s.false_positives}")
-    t.add_row("IDF1", _f(s.idf1, ".4f"), f"recall {s.recall:.4f}, precision {s.precision:.4f}")
-    t.add_row("ID switches", str(s.id_switches), f"{s.id_switches_free_flight} outside close encounters")
-    t.add_row("merges", str(s.merges), f"{s.merge_frames} animal-frames covered by another's track")
-    t.add_row("latency P50", f"{_f(lat['p50_ms'])} ms", "frame handed to the edges -> 3D estimate")
-    t.add_row("latency P99", f"{_f(lat['p99_ms'])} ms", "(exposure and image transfer are simulated,")
-    t.add_row("latency max", f"{_f(lat['max_ms'])} ms", " so they are left out)")
+    t.add_row("MOTA", _f(s.mota, ".4f"), f"{s.misses} misses, {s.false_positives} false pos.")
+    t.add_row("IDF1", _f(s.idf1, ".4f"), f"recall {s.recall:.3f}, precision {s.precision:.3f}")
+    t.add_row("ID switches", str(s.id_switches), f"{s.id_switches_free_flight} in free flight")
+    t.add_row("merges", str(s.merges), f"{s.merge_frames} animal-frames")
+    t.add_row("latency P50", f"{_f(lat['p50_ms'])} ms", "frames to the edges -> 3D")
+    t.add_row("latency P99", f"{_f(lat['p99_ms'])} ms", "(simulated exposure and")
+    t.add_row("latency max", f"{_f(lat['max_ms'])} ms", " transfer left out)")
     hl = r.latency_host
     if hl:
         nan = float("nan")
         t.add_row("host latency P50/P99", f"{_f(hl.get('p50_ms', nan))}/{_f(hl.get('p99_ms', nan))} ms",
-                  "host's own: trigger time (clock model) -> estimate, incl. simulated exposure")
-    t.add_row("packets lost", str(r.packets_lost), "sequence gaps on loopback")
-    t.add_row("packets late", str(r.packets_late), "arrived after their frame was tracked")
-    t.add_row("frames misnumbered", str(r.frames_misnumbered), "camera frames the host synchroniser "
-              "gave a wrong trigger frame")
+                  "host's trigger time -> 3D")
+    t.add_row("packets lost / late", f"{r.packets_lost} / {r.packets_late}", "loopback UDP")
+    t.add_row("frames misnumbered", str(r.frames_misnumbered), "by the host synchroniser")
     t.add_row("frames in time", f"{r.frames_in_time}/{r.frames_triggered}",
-              f"3D estimate within one frame period; host kept up: {'yes' if r.host_kept_up else 'NO'}")
+              f"host kept up: {'yes' if r.host_kept_up else 'NO'}")
     el = r.exposure_lateness
-    t.add_row("exposure lateness P99/max", f"{_f(el['p99_ms'])}/{_f(el['max_ms'])} ms",
-              "simulated cameras vs a perfect clock (real cameras: ~0; large = machine too busy)")
+    t.add_row("camera lateness P99/max", f"{_f(el['p99_ms'], '.1f')}/{_f(el['max_ms'], '.1f')} ms",
+              "simulated cameras vs clock")
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
-              f"renderer {r.render_realtime_factor:.1f}x real time; live frames published {r.live_frames}")
+              f"{r.live_frames} live frames sent")
     return t
 
 
