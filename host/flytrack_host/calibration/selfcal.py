@@ -408,6 +408,22 @@ def refine_points(cams: list[Camera], obs: Observations, inv: NDArray[np.int64],
     return X
 
 
+def robust_points(cams: list[Camera], obs: Observations, rounds: int = 3) -> tuple[F64, NDArray[np.bool_], F64]:
+    """Points of a fixed calibration with outlier views dropped: (points, inlier mask, residuals)."""
+    _, inv = obs.point_index()
+    n = int(inv.max()) + 1
+    use = np.ones(len(inv), dtype=bool)
+    for _ in range(rounds):
+        X = refine_points(cams, obs, inv, use, n)
+        rn = np.linalg.norm(_pixel_residuals(cams, X, obs, inv), axis=1)
+        good = rn[use & np.isfinite(rn)]
+        sigma = float(np.median(good) / 1.1774) if len(good) else 1.0
+        use = np.isfinite(rn) & (rn < max(6.0 * sigma, 1.0))
+        use &= _views_per_point(inv, use) >= 2
+    X = refine_points(cams, obs, inv, use, n)
+    return X, use, _pixel_residuals(cams, X, obs, inv)
+
+
 def _views_per_point(inv: NDArray[np.int64], mask: NDArray[np.bool_]) -> NDArray[np.int64]:
     counts = np.bincount(inv[mask], minlength=int(inv.max()) + 1)
     return counts[inv]

@@ -1,0 +1,263 @@
+"""`flytrack calibrate ...`: the calibration commands."""
+
+from __future__ import annotations
+
+import csv
+import functools
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import typer
+from rich.console import Console
+
+from flytrack_host.calibration.align import AlignError, align_cameras, umeyama
+from flytrack_host.calibration.dlt import DLTError, dlt_camera
+from flytrack_host.calibration.formats import CalibrationFormatError, load_calibration, save_calibration
+from flytrack_host.calibration.intrinsics import IntrinsicsError
+from flytrack_host.calibration.observations import PointsFileError, load_points, save_points
+from flytrack_host.calibration.selfcal import SelfCalError
+from flytrack_host.camera import Camera, triangulate
+
+app = typer.Typer(help="Camera calibration: DLT, LED self-calibration, alignment, formats.", no_args_is_help=True)
+console = Console()
+err = Console(stderr=True)
+
+_ERRORS = (CalibrationFormatError, PointsFileError, SelfCalError, AlignError, DLTError, IntrinsicsError)
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class InputError(ValueError):
+    """Bad command-line input (a CSV that does not parse, a size that is not WxH)."""
+
+
+def _clean_errors(fn: F) -> F:
+    """Known bad input -> one paragraph on stderr and exit code 2, never a traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except (*_ERRORS, InputError) as exc:
+            err.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+            raise typer.Exit(code=2) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _parse_size(s: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in s.lower().split("x"))
+    except ValueError:
+        raise InputError(f"image size {s!r} is not WIDTHxHEIGHT (e.g. 1280x1024).") from None
+    return w, h
+
+
+def _read_rows(path: Path, columns: list[str]) -> list[dict[str, str]]:
+    if not path.exists():
+        raise InputError(f"{path}: no such file.")
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    rows = list(csv.DictReader(lines))
+    if not rows or any(c not in rows[0] for c in columns):
+        raise InputError(f"{path}: expected a CSV with the header {','.join(columns)} and at least one row.")
+    return rows
+
+
+def _floats(row: dict[str, str], keys: list[str], path: Path) -> list[float]:
+    try:
+        return [float(row[k]) for k in keys]
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: row {row} has a value that is not a number.") from None
+
+
+def _print_report(cameras: dict[str, Camera], obs: Any, residuals: np.ndarray, inlier: np.ndarray,
+                  points: np.ndarray, plot: Path | None) -> None:
+    from flytrack_host.calibration.report import make_report, plot_report
+
+    rep = make_report(cameras, obs, residuals, inlier)
+    for line in rep.lines():
+        console.print(line, highlight=False)
+    if plot is not None:
+        plot_report(cameras, points, obs, residuals, inlier, plot)
+        console.print(f"plot written to {plot}", highlight=False)
+
+
+@app.command("selfcal")
+@_clean_errors
+def selfcal_cmd(
+    points: Path = typer.Argument(..., help="Points file (CSV or NPZ of frame, camera, u, v; see docs)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration to write (.xml flydra, .json pymvg, .toml)."),
+    focal: float = typer.Option(0.0, help="Approximate focal length in pixels (default: the image's larger side)."),
+    intrinsics: Path | None = typer.Option(None, help="Calibration file with starting intrinsics per camera."),
+    distortion: str = typer.Option("k1k2", help="none, k1, k1k2 or k1k2p1p2 (radial + tangential)."),
+    plot: Path | None = typer.Option(None, help="Write a PNG of cameras, points and errors."),
+) -> None:
+    """Self-calibrate all cameras from an LED waved through the volume (up to a similarity; then `align`)."""
+    from flytrack_host.calibration.selfcal import self_calibrate
+
+    obs = load_points(points)
+    intr = load_calibration(intrinsics) if intrinsics else None
+    res = self_calibrate(obs, focal_px=focal or None, intrinsics=intr, distortion=distortion)
+    save_calibration(res.cameras, out)
+    console.print(f"self-calibration of {obs.n_cameras} cameras from {len(res.point_frames)} frames in "
+                  f"{sum(res.timings.values()):.1f} s; noise estimate {res.sigma_px:.3f} px", highlight=False)
+    _print_report(res.cameras, obs, res.residuals, res.inlier, res.points, plot)
+    for w in res.warnings:
+        console.print(f"warning: {w}", highlight=False)
+    console.print(f"written {out} (frame and scale arbitrary: run `flytrack calibrate align`)", highlight=False)
+
+
+@app.command("dlt")
+@_clean_errors
+def dlt_cmd(
+    pairs: Path = typer.Argument(..., help="CSV camera,x,y,z,u,v: known 3D points (metres) and their pixels."),
+    size: list[str] = typer.Option(..., help="Image size per camera as NAME=WIDTHxHEIGHT (repeat)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration to write."),
+) -> None:
+    """Cameras from 6 or more known 2D/3D pairs each (direct linear transform, no distortion)."""
+    sizes = {}
+    for s in size:
+        name, _, wh = s.partition("=")
+        sizes[name] = _parse_size(wh)
+    rows = _read_rows(pairs, ["camera", "x", "y", "z", "u", "v"])
+    by_cam: dict[str, list[list[float]]] = {}
+    for r in rows:
+        by_cam.setdefault(r["camera"], []).append(_floats(r, ["x", "y", "z", "u", "v"], pairs))
+    cams = {}
+    for name, vals in by_cam.items():
+        if name not in sizes:
+            raise InputError(f"camera {name!r} has no --size {name}=WIDTHxHEIGHT.")
+        a = np.asarray(vals)
+        try:
+            cam, e = dlt_camera(name, a[:, :3], a[:, 3:], *sizes[name])
+        except DLTError as exc:
+            raise DLTError(f"camera {name}: {exc}") from None
+        cams[name] = cam
+        console.print(f"{name}: {len(a)} pairs, mean reprojection error {e:.3f} px, centre "
+                      f"{np.array2string(cam.center, precision=4)}", highlight=False)
+    save_calibration(cams, out)
+    console.print(f"written {out}", highlight=False)
+
+
+@app.command("align")
+@_clean_errors
+def align_cmd(
+    calibration: Path = typer.Argument(..., help="Calibration to align (from selfcal)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Aligned calibration to write."),
+    centres: Path | None = typer.Option(None, help="CSV camera,x,y,z: measured camera centres in metres."),
+    marks: Path | None = typer.Option(None, help="CSV mark,camera,u,v: pixels of known marks (with --world)."),
+    world: Path | None = typer.Option(None, help="CSV mark,x,y,z: world coordinates of the marks (metres)."),
+) -> None:
+    """Move, rotate and scale a calibration onto world coordinates (metres, z up) by a similarity."""
+    cams = load_calibration(calibration)
+    src, dst = [], []
+    if centres is not None:
+        for r in _read_rows(centres, ["camera", "x", "y", "z"]):
+            if r["camera"] not in cams:
+                raise InputError(f"{centres}: camera {r['camera']!r} is not in {calibration}.")
+            src.append(cams[r["camera"]].center)
+            dst.append(_floats(r, ["x", "y", "z"], centres))
+    if marks is not None or world is not None:
+        if marks is None or world is None:
+            raise InputError("--marks and --world go together: pixels of the marks and their world coordinates.")
+        wpos = {r["mark"]: _floats(r, ["x", "y", "z"], world) for r in _read_rows(world, ["mark", "x", "y", "z"])}
+        seen: dict[str, list[tuple[Camera, np.ndarray]]] = {}
+        for r in _read_rows(marks, ["mark", "camera", "u", "v"]):
+            if r["camera"] not in cams:
+                raise InputError(f"{marks}: camera {r['camera']!r} is not in {calibration}.")
+            c = cams[r["camera"]]
+            seen.setdefault(r["mark"], []).append((c, c.undistort(_floats(r, ["u", "v"], marks))[0]))
+        for m, views in seen.items():
+            if m not in wpos or len(views) < 2:
+                continue
+            src.append(triangulate([v[0] for v in views], [v[1] for v in views]))
+            dst.append(wpos[m])
+    if not src:
+        raise InputError("nothing to align to: give --centres, or --marks with --world.")
+    sim = umeyama(np.asarray(src), np.asarray(dst))
+    resid = np.linalg.norm(sim.apply(np.asarray(src)) - np.asarray(dst), axis=1)
+    aligned = align_cameras(cams, sim)
+    save_calibration(aligned, out)
+    console.print(f"similarity: scale {sim.s:.6g}; {len(src)} pairs; residual mean {resid.mean():.4g} m, "
+                  f"max {resid.max():.4g} m", highlight=False)
+    console.print(f"written {out}", highlight=False)
+
+
+@app.command("intrinsics")
+@_clean_errors
+def intrinsics_cmd(
+    name: str = typer.Argument(..., help="Camera name."),
+    images: list[Path] = typer.Argument(..., help="Images of a checkerboard."),
+    corners: str = typer.Option(..., help="Inner corners as COLSxROWS, e.g. 9x6."),
+    square: float = typer.Option(..., help="Square size in metres."),
+    out: Path = typer.Option(..., "--out", "-o", help="Intrinsics file to write (.json/.xml/.toml)."),
+) -> None:
+    """Intrinsics of one camera from checkerboard images (OpenCV): a starting point for selfcal."""
+    from flytrack_host.calibration.intrinsics import checkerboard_intrinsics
+
+    cam, rms, n = checkerboard_intrinsics(name, [str(p) for p in images], _parse_size(corners), square)
+    save_calibration({name: cam}, out)
+    console.print(f"{name}: board found in {n} images, RMS {rms:.3f} px, f {cam.K[0, 0]:.1f} px, "
+                  f"dist {np.array2string(cam.dist, precision=4)}; written {out}", highlight=False)
+
+
+@app.command("collect")
+@_clean_errors
+def collect_cmd(
+    out: Path = typer.Option(..., "--out", "-o", help="Points file to write (.csv or .npz)."),
+    camera: list[str] = typer.Option(..., help="NAME=WIDTHxHEIGHT per camera, in camera_index order (repeat)."),
+    port: int = typer.Option(5100, help="UDP port the edge extractors send FEATURES to."),
+    seconds: float = typer.Option(120.0, help="How long to collect (Ctrl-C stops early and keeps the data)."),
+) -> None:
+    """Record single-LED detections from the live rig while you wave the LED (counts and coverage shown)."""
+    from flytrack_host.calibration.collect import Collector, collect_udp
+
+    names, sizes = [], []
+    for c in camera:
+        name, _, wh = c.partition("=")
+        names.append(name)
+        sizes.append(_parse_size(wh))
+    col = Collector(names, sizes)
+
+    def progress(c: Collector) -> None:
+        cov = c.coverage()
+        console.print("  ".join(f"{n}: {k} pts {100 * v:.0f}%" for n, k, v in zip(names, c.counts(), cov,
+                                                                                   strict=True)), highlight=False)
+
+    collect_udp(col, port, seconds, progress=progress)
+    save_points(col.observations(), out)
+    console.print(f"{len(col.frames)} detections written to {out} ({col.rejected_multi} frames with several "
+                  f"points and {col.bad_datagrams} bad datagrams skipped)", highlight=False)
+
+
+@app.command("report")
+@_clean_errors
+def report_cmd(
+    calibration: Path = typer.Argument(..., help="Calibration file."),
+    points: Path = typer.Argument(..., help="Points file seen by these cameras."),
+    plot: Path | None = typer.Option(None, help="Write a PNG of cameras, points and errors."),
+) -> None:
+    """Reprojection errors of a calibration on a points file, per camera, with advice."""
+    from flytrack_host.calibration.selfcal import robust_points
+
+    cams = load_calibration(calibration)
+    obs = load_points(points)
+    missing = [n for n in obs.camera_names if n not in cams]
+    if missing:
+        raise InputError(f"camera(s) {', '.join(missing)} of {points} are not in {calibration}.")
+    clist = [cams[n] for n in obs.camera_names]
+    X, inlier, res = robust_points(clist, obs)
+    _print_report({n: cams[n] for n in obs.camera_names}, obs, res, inlier, X, plot)
+
+
+@app.command("convert")
+@_clean_errors
+def convert_cmd(
+    src: Path = typer.Argument(..., help="Any calibration file (flydra XML, pymvg JSON, OpenCV YAML, anipose)."),
+    dst: Path = typer.Argument(..., help="Output: .xml (flydra), .json (pymvg) or .toml (anipose)."),
+) -> None:
+    """Convert a calibration between formats."""
+    cams = load_calibration(src)
+    save_calibration(cams, dst)
+    console.print(f"{len(cams)} cameras written to {dst}", highlight=False)
