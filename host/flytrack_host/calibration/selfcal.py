@@ -81,6 +81,15 @@ def check_observations(obs: Observations, min_points: int = MIN_POINTS_PER_CAMER
         raise SelfCalError(f"too few points in camera(s) {', '.join(few)}: at least {min_points} are needed, "
                            "a few hundred spread over the whole image are better. Wave the LED longer "
                            "through the part of the volume these cameras see.")
+    line_like = 0
+    for c in range(obs.n_cameras):
+        uv = obs.uv[obs.cam == c]
+        sv = np.linalg.svd(uv - np.median(uv, axis=0), compute_uv=False)
+        line_like += bool(sv[1] < 0.03 * sv[0])
+    if line_like == obs.n_cameras:
+        raise SelfCalError("the LED positions are collinear (every camera sees them on one line): "
+                           "self-calibration needs points that fill a volume. Wave the LED up and down as well "
+                           "as across, through the whole tracking volume.")
     _, inv = obs.point_index()
     nviews = np.bincount(inv)
     if int(np.sum(nviews >= 2)) < min_points:
