@@ -76,11 +76,14 @@ class FlightParams:
     pitch_std_rad: float = 0.15
     pitch_tau_s: float = 0.4
     pitch_max_rad: float = 0.7
-    land_rate_hz: float = 0.04  # landings per second of flight, per animal
+    land_rate_hz: float = 0.08  # landings per second of flight, per animal
     min_flight_s: float = 1.5  # no landing this soon after a take-off
     landed_s: tuple[float, float] = (0.4, 1.5)
     encounter_rate_hz: float = 0.15  # per animal: turning towards another animal
     encounter_s: tuple[float, float] = (0.4, 0.9)
+    # So that every run of a few seconds shows each behaviour at least once: animal 0 lands at a
+    # quarter of the run (and takes off again), and at half the run two animals fly at each other.
+    scripted_events: bool = True
     body_length_m: float = 0.0025  # Drosophila: about 2.5 mm
     body_width_m: float = 0.0011
     rest_height_m: float = 0.0006  # centre of a landed body above its surface
@@ -211,13 +214,36 @@ def simulate_flight(
 
     record(0)
     sq = math.sqrt(dt)
+    t_now = 0.0
+    land_at = 0.25 * seconds if p.scripted_events and seconds >= 3.0 else math.inf
+    meet_at = 0.5 * seconds if p.scripted_events and seconds >= 3.0 and n >= 2 else math.inf
     for k in range(1, n_frames):
         for _ in range(sub):
+            t_now += dt
+            if t_now >= land_at:
+                land_at = math.inf
+                i = next((a for a in range(n) if mode[a] == FLYING), None)
+                if i is not None:
+                    _choose_landing(i, pos, arena, rng, land_target, land_normal, p)
+                    mode[i] = APPROACH
+                    pursuit_of[i] = -1
+            if t_now >= meet_at:
+                pair = _closest_flying_pair(pos, mode)
+                # No two animals in the air: try again a little later (until 80 % of the run).
+                meet_at = t_now + 0.2 if pair is None and t_now + 0.2 < 0.8 * seconds else math.inf
+                if pair is not None:
+                    a, b = pair
+                    pursuit_of[a], pursuit_of[b] = b, a
+                    pursuit_left[a] = pursuit_left[b] = 3.0
+                    speed[a] = max(speed[a], p.speed_mean)
+                    speed[b] = max(speed[b], p.speed_mean)
+                    counts["encounters"] += 1
             flying = mode != LANDED
             # Speed: each animal wanders around its own preferred speed.
             speed += np.where(
                 flying,
-                (pref_speed - speed) * dt / p.speed_tau_s
+                (np.where(pursuit_of >= 0, np.maximum(pref_speed, 1.4 * p.speed_mean), pref_speed) - speed)
+                * dt / p.speed_tau_s
                 + p.speed_std * 0.65 * math.sqrt(2 / p.speed_tau_s) * sq * rng.standard_normal(n),
                 0.0,
             )
@@ -279,7 +305,6 @@ def simulate_flight(
                     goal = rng.uniform(inner_lo, inner_hi)
                     want = math.atan2(goal[1] - pos[i, 1], goal[0] - pos[i, 0])
                     start_saccade(i, float(_wrap(np.array(want - yaw[i]))))
-                    pursuit_of[i] = -1
                     counts["wall_saccades"] += 1
                 elif sacc_left[i] <= 0 and rng.random() < p.saccade_rate_hz * dt:
                     ang = rng.uniform(*p.saccade_angle_rad) * rng.choice((-1.0, 1.0))
@@ -295,7 +320,7 @@ def simulate_flight(
                 if pursuit_of[i] >= 0:
                     pursuit_left[i] -= dt
                     j = pursuit_of[i]
-                    if pursuit_left[i] <= 0 or mode[j] == LANDED:
+                    if pursuit_left[i] <= 0 or mode[j] == LANDED or np.linalg.norm(pos[j] - pos[i]) < 0.01:
                         pursuit_of[i] = -1
                     elif sacc_left[i] <= 0:
                         to = pos[j] - pos[i]
@@ -309,7 +334,7 @@ def simulate_flight(
                         pursuit_of[i] = int(rng.choice(others))
                         pursuit_left[i] = rng.uniform(*p.encounter_s)
                         counts["encounters"] += 1
-                if flight_time[i] > p.min_flight_s and rng.random() < p.land_rate_hz * dt:
+                if pursuit_of[i] < 0 and flight_time[i] > p.min_flight_s and rng.random() < p.land_rate_hz * dt:
                     _choose_landing(i, pos, arena, rng, land_target, land_normal, p)
                     mode[i] = APPROACH
                     pursuit_of[i] = -1
@@ -346,6 +371,18 @@ def simulate_flight(
     return gt
 
 
+def _closest_flying_pair(pos: F64, mode: NDArray[np.int_]) -> tuple[int, int] | None:
+    idx = [i for i in range(len(mode)) if mode[i] == FLYING]
+    best: tuple[float, int, int] | None = None
+    for x in idx:
+        for y in idx:
+            if x < y:
+                d = float(np.linalg.norm(pos[x] - pos[y]))
+                if best is None or d < best[0]:
+                    best = (d, x, y)
+    return None if best is None else (best[1], best[2])
+
+
 def _choose_landing(
     i: int,
     pos: F64,
@@ -355,10 +392,10 @@ def _choose_landing(
     land_normal: F64,
     p: FlightParams,
 ) -> None:
-    """Pick a landing spot on the floor or a long wall near the animal, clear of the edges."""
+    """Pick a landing spot on the floor, the ceiling or a long wall near the animal, clear of the edges."""
     lo, hi = arena.lo, arena.hi
-    # Candidate surfaces: floor, and the two long walls (y = lo, y = hi).
-    dists = {"floor": pos[i, 2] - lo[2], "y_lo": pos[i, 1] - lo[1], "y_hi": hi[1] - pos[i, 1]}
+    dists = {"floor": pos[i, 2] - lo[2], "ceiling": hi[2] - pos[i, 2], "y_lo": pos[i, 1] - lo[1],
+             "y_hi": hi[1] - pos[i, 1]}
     surface = min(dists, key=dists.get) if rng.random() < 0.7 else str(rng.choice(list(dists)))
     edge = 0.02
     spot = np.clip(pos[i] + rng.normal(0.0, 0.03, 3), lo + edge, hi - edge)
@@ -366,6 +403,9 @@ def _choose_landing(
     if surface == "floor":
         spot[2] = lo[2] + p.rest_height_m
         normal[2] = 1.0
+    elif surface == "ceiling":
+        spot[2] = hi[2] - p.rest_height_m
+        normal[2] = -1.0
     elif surface == "y_lo":
         spot[1] = lo[1] + p.rest_height_m
         normal[1] = 1.0

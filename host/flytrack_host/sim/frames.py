@@ -16,7 +16,9 @@ import fcntl
 import math
 import multiprocessing as mp
 import os
+import queue
 import stat
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -85,7 +87,7 @@ class FrameFeedStats:
     handoff_time: np.ndarray  # (n_frames,) host time (s) the last camera's frame was handed over, NaN if not
     edge_time: np.ndarray  # (n_frames,) host time the trigger edge was read
     render_s: float  # CPU seconds spent rendering
-    write_s: float  # seconds spent writing frames to the edges
+    write_s: float  # seconds spent handing frames to the cameras' links
     bad_lines: int = 0  # edge-stream lines that could not be read
     priority_raised: bool = False
 
@@ -183,6 +185,47 @@ def raise_priority(pid: int = 0) -> bool:
         return False
 
 
+class _CameraLink:
+    """One camera's connection to its edge: a queue of frames and a thread writing them to the edge's
+    stdin. A slow edge then delays only its own frames (as a camera's frame buffer would), not the
+    other cameras nor the trigger; past `depth` queued frames the camera waits (back-pressure)."""
+
+    def __init__(self, fd: int, frame_format: str, cam: Camera, fps: float, depth: int = 64):
+        self.fd = fd
+        self.y4m = frame_format == "y4m"
+        self.closed = False
+        self.q: queue.Queue[np.ndarray | None] = queue.Queue(depth)
+        grow_pipe(fd)
+        if self.y4m:
+            self._write(_y4m_header(cam.width, cam.height, fps))
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _write(self, data: bytes | memoryview) -> None:
+        if self.closed:
+            return
+        try:
+            _write_all(self.fd, memoryview(data).cast("B"))
+        except OSError:
+            self.closed = True  # the edge died; the host will see a dead camera
+
+    def _run(self) -> None:
+        while True:
+            img = self.q.get()
+            if img is None:
+                return
+            if self.y4m:
+                self._write(b"FRAME\n")
+            self._write(memoryview(img))
+
+    def put(self, img: np.ndarray) -> None:
+        self.q.put(img)
+
+    def finish(self, timeout: float = 30.0) -> None:
+        self.q.put(None)
+        self.thread.join(timeout)
+
+
 def _write_all(fd: int, buf: memoryview) -> None:
     while buf:
         n = os.write(fd, buf)
@@ -209,14 +252,8 @@ def _feed(
 ) -> None:
     counters[6] = raise_priority()
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
-    for fd in edge_fds:
-        grow_pipe(fd)
-    if frame_format == "y4m":
-        for fd, c in zip(edge_fds, cameras, strict=True):
-            _write_all(fd, memoryview(_y4m_header(c.width, c.height, gt.fps)))
-    y4m_frame = b"FRAME\n"
-    closed = [False] * len(edge_fds)
-    render_s = write_s = 0.0
+    links = [_CameraLink(fd, frame_format, c, gt.fps) for fd, c in zip(edge_fds, cameras, strict=True)]
+    render_s = put_s = 0.0
     buf = b""
     parser = EdgeLineParser()
     no_pos = np.zeros((0, 3))
@@ -224,7 +261,7 @@ def _feed(
     def render(n: int) -> list[np.ndarray]:
         # Before the animals are released the edges learn their background.
         pos, axis = (gt.pos[n], gt.axis[n]) if n >= warmup else (no_pos, no_pos)
-        return [r.render(gt.t[n], pos, axis, gt.body_length_m, gt.body_width_m) for r in renderers]
+        return [r.render(gt.t[n], pos, axis, gt.body_length_m, gt.body_width_m).copy() for r in renderers]
 
     ahead_n = 0
     imgs = render(0)
@@ -259,24 +296,17 @@ def _feed(
                         done = True
                         break
                     edge_t[n] = t_edge
-                    # The frames of pulse n were rendered ahead (the flight is known in advance),
-                    # so a pulse costs only the hand-over: as with real cameras, every edge gets
-                    # frame n at (nearly) one time, right after the pulse.
+                    # The frames of pulse n were rendered ahead (the flight is known in advance), so a
+                    # pulse costs only handing them to the cameras' links: every camera's frame n is
+                    # available at (nearly) one time, right after the pulse, as with real cameras.
                     if ahead_n != n:
                         t0 = time.perf_counter()
                         imgs = render(n)
                         render_s += time.perf_counter() - t0
                     t1 = time.perf_counter()
-                    for i, (img, fd) in enumerate(zip(imgs, edge_fds, strict=True)):
-                        if closed[i]:
-                            continue
-                        try:
-                            if frame_format == "y4m":
-                                _write_all(fd, memoryview(y4m_frame))
-                            _write_all(fd, memoryview(img).cast("B"))
-                        except OSError:
-                            closed[i] = True  # that edge died; the host will see a dead camera
-                    write_s += time.perf_counter() - t1
+                    for link, img in zip(links, imgs, strict=True):
+                        link.put(img)
+                    put_s += time.perf_counter() - t1
                     handoff[n] = time.time()
                     counters[1] += 1
                     # Render the next frame now, while waiting for its pulse.
@@ -286,7 +316,9 @@ def _feed(
                         imgs = render(ahead_n)
                         render_s += time.perf_counter() - t0
                     counters[2] = render_s
-                    counters[3] = write_s
+                    counters[3] = put_s
+        for link in links:  # every frame handed out reaches its edge before the pipes close
+            link.finish()
     finally:
         for fd in edge_fds:
             with contextlib.suppress(OSError):

@@ -103,6 +103,7 @@ class DemoReport:
     exposure_lateness: dict[str, float]  # hand-over vs an ideal clock: how faithful the simulated timing was
     clock_model: dict[str, float]
     sim_priority_raised: bool
+    world: dict[str, Any]  # what the flight model did: saccades, landings, close passes
     live_frames: int
     render_realtime_factor: float
     host_kept_up: bool
@@ -396,8 +397,10 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     for r in results:
         if 0 <= r.frame < gt.n_frames:
             res_t[r.frame] = r.t_result
-    # Per-frame timing, for whoever wants to look closer than the summary.
+    # Per-frame timing and the ground truth, for whoever wants to look closer than the summary.
     np.savez(out / "frame_timing.npz", trigger_edge=fs.edge_time, handoff=fs.handoff_time, estimate=res_t)
+    np.savez(out / "ground_truth.npz", t=gt.t, pos=gt.pos, vel=gt.vel, axis=gt.axis, landed=gt.landed,
+             fps=gt.fps, warmup_frames=warmup)
     period = 1.0 / cfg.fps
     in_time = int(np.sum(lat_a < period)) if lat_a.size else 0
     recv = host_summary.get("receiver", {}).get("cameras", {})
@@ -433,6 +436,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         exposure_lateness=_lateness(fs.handoff_time, trig.actual_fps),
         clock_model=trig.clock_summary(),
         sim_priority_raised=bool(fs.priority_raised),
+        world=_world(gt, cfg.close_distance_m),
         live_frames=live_frames,
         render_realtime_factor=float(rt),
         host_kept_up=bool(in_time >= 0.99 * min(frames_triggered, gt.n_frames)),
@@ -445,6 +449,19 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         notes=[n for n in notes if n],
         host_summary=_jsonable(host_summary),
     )
+
+
+def _world(gt: GroundTruth, close_m: float) -> dict[str, Any]:
+    hs = gt.horizontal_speed()[~gt.landed]
+    d = gt.pair_distances() if gt.n_animals > 1 else None
+    return {
+        **{k: v for k, v in gt.meta.items() if k != "step_s"},
+        "horizontal_speed_mean_m_s": float(hs.mean()) if hs.size else float("nan"),
+        "horizontal_speed_std_m_s": float(hs.std()) if hs.size else float("nan"),
+        "landed_fraction": float(gt.landed.mean()),
+        "closest_pass_m": float(d.min()) if d is not None else float("nan"),
+        "animal_frames_in_close_pass": int(gt.close_frames(close_m).sum()),
+    }
 
 
 def _lateness(handoff: np.ndarray, fps: float) -> dict[str, float]:
