@@ -6,6 +6,11 @@
 One tracking thread owns the socket: it waits for datagrams until the next bundle deadline, hands
 frames to the synchroniser, runs the tracker on each closed bundle and sends the live datagram at
 once. Recording rows are queued to the recorder's own thread, so disk writes never hold it up.
+
+With a trigger box (`trigger_session.TriggerSession`, as `flytrack run` does) the pipeline is built
+with the trigger's exact rate (`fps=`), its clock (`clock=`) and `hold_until_synchronized=True`:
+frames are then recorded but not tracked until `resynchronize()` has re-armed the frame-0 tie,
+which the session calls once the cameras went quiet and just before it starts the trigger.
 """
 
 from __future__ import annotations
@@ -138,11 +143,13 @@ class HostPipeline:
         rig_text: str | None = None,
         calibration_path: Path | None = None,
         params: TrackingParams | None = None,
+        fps: float | None = None,
+        hold_until_synchronized: bool = False,
     ):
         self.rig = rig
         self.cameras = dict(cameras) if cameras else {}
         self.params = params or rig.tracking
-        self.fps = rig.trigger.fps
+        self.fps = float(fps) if fps is not None else rig.trigger.fps  # fps: the trigger's exact rate
         self.period = 1.0 / self.fps
         self.clock: FrameClock = clock if clock is not None else FixedRateClock(self.fps)
         self.tracker_factory = tracker_factory
@@ -175,6 +182,15 @@ class HostPipeline:
         self._error: BaseException | None = None
         self._summary: dict[str, Any] | None = None
         self._lock = threading.Lock()
+        # Frame-0 tie on request of the trigger session (done by the tracking thread, which owns sync).
+        self.last_frame_recv = 0.0  # host time the last camera frame arrived (quiet-camera check)
+        self.resyncs = 0
+        self.status_sources: list[Callable[[], str]] = []  # extra status-line parts (the trigger's)
+        self._armed = threading.Event()
+        if not hold_until_synchronized:
+            self._armed.set()
+        self._resync_request = threading.Event()
+        self._resync_done = threading.Event()
 
     # --- control ------------------------------------------------------------------------------
     def start(self) -> None:
@@ -243,6 +259,32 @@ class HostPipeline:
         if self.recorder is not None:
             self.recorder.log(message, source, t)
 
+    def resynchronize(self, timeout_s: float = 2.0) -> None:
+        """Re-arm the frame-0 tie: pending bundles are tracked, the synchroniser forgets its camera
+        mappings (the next first frame of each camera is trigger frame 0) and the tracker restarts if
+        it tracked anything. Call with the trigger stopped and the cameras quiet, just before START.
+        Thread-safe: the tracking thread does it and this call waits until it is done."""
+        if self._thread is None or not self._thread.is_alive():
+            self._do_resync()
+            return
+        self._resync_done.clear()
+        self._resync_request.set()
+        if not self._resync_done.wait(timeout_s):
+            raise RuntimeError(f"tracking thread did not re-synchronise within {timeout_s} s")
+
+    def _do_resync(self) -> None:
+        self._resync_request.clear()
+        if self.sync is not None:
+            self._handle(self.sync.flush())
+            self.sync.synchronize()
+        if self.tracker is not None and (self.frames_tracked or self.resyncs):
+            self.tracker_resets += 1
+            self._make_tracker()
+        self.resyncs += 1
+        self._armed.set()
+        self.log("frame-0 tie armed: each camera's next first frame is trigger frame 0", "sync")
+        self._resync_done.set()
+
     def record_clock_sample(self, start_time: float, framecount: int, fraction: float, stop_time: float) -> None:
         """Record one trigger clock sample (host time before/after the query, frame count, fraction)."""
         if self.recorder is not None:
@@ -292,11 +334,18 @@ class HostPipeline:
         assert self.receiver is not None and self.sync is not None
         try:
             while not self._stop.is_set():
+                if self._resync_request.is_set():
+                    self._do_resync()
                 d = self.sync.next_deadline()
                 now = time.time()
                 timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
                 for item in self.receiver.receive(timeout):
                     if isinstance(item, CameraFrame):
+                        self.last_frame_recv = item.recv_time
+                        if not self._armed.is_set():
+                            # The trigger has not started yet: these frames belong to no trigger frame.
+                            self._handle([UntrackedFrame(item, -1, "before_trigger_start")])
+                            continue
                         self._handle(self.sync.add(item, item.recv_time))
                     elif isinstance(item, StatusReport):
                         self._status(item)
@@ -387,6 +436,11 @@ class HostPipeline:
         s = self.latency.summary()
         if "total_p50_ms" in s:
             parts.append(f"latency P50 {s['total_p50_ms']:.1f} P99 {s['total_p99_ms']:.1f} ms")
+        for src in self.status_sources:
+            try:
+                parts.append(src())
+            except Exception as exc:  # a status line must never take the run down
+                parts.append(f"status error {exc!r}")
         return " | ".join(parts)
 
     def summary(self, recording_h5: Path | None = None) -> dict[str, Any]:
@@ -445,8 +499,16 @@ def run_command(
     recording: Path | None = typer.Option(None, help="Recording folder (default: in the rig's recording folder)."),
     no_record: bool = typer.Option(False, "--no-record", help="Do not record."),
     dead_timeout_s: float = typer.Option(0.5, help="A camera silent this long is marked dead."),
+    no_trigger: bool = typer.Option(
+        False, "--no-trigger",
+        help="Do not open the trigger: fixed-rate clock anchored at the first frame (no trigger latency).",
+    ),
+    trigger_port: str | None = typer.Option(None, help="Serial port of the trigger instead of the rig's trigger.port."),
+    trigger_reset_wait: float | None = typer.Option(
+        None, help="Seconds to wait after opening the trigger port (default 2 for a board, 0 for a pty)."),
 ) -> None:
-    """Run the host live: receive, synchronise, track, serve live estimates and record until Ctrl-C."""
+    """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
+    until Ctrl-C."""
     import signal
 
     from rich.console import Console
@@ -465,13 +527,39 @@ def run_command(
     except Exception as exc:
         console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    session = None
+    if not no_trigger:
+        from flytrack_host.trigger.common import TriggerError
+        from flytrack_host.trigger_session import TriggerSession
+
+        session = TriggerSession(rig.trigger, port=trigger_port, reset_wait_s=trigger_reset_wait)
+        try:
+            session.open()  # before anything is recorded: a trigger problem leaves no empty recording
+        except TriggerError as exc:
+            err = Console(stderr=True)
+            err.print(f"[red]error[/red] trigger ({rig.trigger.kind}): {exc}", highlight=False, soft_wrap=True)
+            raise typer.Exit(code=2) from None
     pipe = HostPipeline(rig, cameras, bind=bind, record=not no_record, recording_path=recording,
-                        rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s)
+                        rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
+                        clock=session.clock if session else None, fps=session.fps if session else None,
+                        hold_until_synchronized=session is not None)
     try:
         pipe.start()
     except OSError as exc:
+        if session is not None:
+            session.close()
         console.print(f"[red]error[/red] cannot listen on {bind or rig.host.listen}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    if session is not None:
+        session.attach(pipe)
+        try:
+            session.start(pipe)
+        except (TriggerError, OSError) as exc:
+            session.close()
+            pipe.stop()
+            Console(stderr=True).print(f"[red]error[/red] trigger did not start: {exc}", highlight=False,
+                                       soft_wrap=True)
+            raise typer.Exit(code=2) from None
     host, port = pipe.address
     # Plain first line, so scripts (and tests) can find the port and the recording.
     print(f"listening on {host}:{port}; recording to {pipe.recording_path if pipe.record else '-'}", flush=True)
@@ -494,8 +582,17 @@ def run_command(
     except KeyboardInterrupt:
         pass
     finally:
+        if session is not None:
+            session.stop()  # the cameras stop with the trigger; pending frames are tracked by pipe.stop()
         summary = pipe.stop()
     console.print(pipe.status_line(), highlight=False)
     console.print(summary["latency_text"], highlight=False)
+    if session is not None:
+        t = session.summary()
+        m = t["clock_model"]
+        resid = f"{m['residual_us']:.1f} us over {m['n_samples']:.0f} samples" if m else "no fit"
+        console.print(f"trigger: {t['fps']:.6f} fps; clock residual {resid}; {t['clock_samples']} clock samples, "
+                      f"{t['clock_errors']} errors, lost {t['lost']}, device restarts {t['device_restarts']}",
+                      highlight=False)
     if summary["recording"]:
         console.print(f"recording: {summary['recording']}", highlight=False)
