@@ -194,6 +194,7 @@ class _CameraLink:
         self.fd = fd
         self.y4m = frame_format == "y4m"
         self.closed = False
+        self.written = 0
         self.q: queue.Queue[np.ndarray | None] = queue.Queue(depth)
         grow_pipe(fd)
         if self.y4m:
@@ -217,6 +218,7 @@ class _CameraLink:
             if self.y4m:
                 self._write(b"FRAME\n")
             self._write(memoryview(img))
+            self.written += 1
 
     def put(self, img: np.ndarray) -> None:
         self.q.put(img)
@@ -309,6 +311,13 @@ def _feed(
                     put_s += time.perf_counter() - t1
                     handoff[n] = time.time()
                     counters[1] += 1
+                    # Let the links write before rendering ahead (this process's GIL would delay
+                    # them), but never wait long for a slow edge.
+                    deadline = time.perf_counter() + 0.5 / gt.fps
+                    while time.perf_counter() < deadline and any(
+                        lk.written < counters[1] and not lk.closed for lk in links
+                    ):
+                        time.sleep(5e-5)
                     # Render the next frame now, while waiting for its pulse.
                     ahead_n = n + 1
                     if ahead_n < gt.n_frames:

@@ -35,15 +35,18 @@ def _broken(frames: np.ndarray, xs: np.ndarray) -> np.ndarray:
     return out
 
 
-def plot_tracks(gt: GroundTruth, hyps: Sequence[FrameTracks], path: Path, title: str = "") -> Path:
+def plot_tracks(gt: GroundTruth, hyps: Sequence[FrameTracks], path: Path, title: str = "",
+                latencies_ms: Sequence[float] | None = None) -> Path:
     tracks = _tracks_by_id(hyps)
     fig = plt.figure(figsize=(12, 8.5), constrained_layout=True)
     gs = fig.add_gridspec(3, 2, width_ratios=[1.6, 1.0])
     ax_top = fig.add_subplot(gs[0, 0])
     ax_side = fig.add_subplot(gs[1, 0], sharex=ax_top)
     ax_t = [fig.add_subplot(gs[i, 1]) for i in range(3)]
-    ax_info = fig.add_subplot(gs[2, 0])
+    sub = gs[2, 0].subgridspec(1, 2, width_ratios=[1.0, 1.2])
+    ax_info = fig.add_subplot(sub[0, 0])
     ax_info.axis("off")
+    ax_lat = fig.add_subplot(sub[0, 1])
     lo, hi = gt.arena.lo, gt.arena.hi
     t = gt.t
     for a in range(gt.n_animals):
@@ -77,6 +80,18 @@ def plot_tracks(gt: GroundTruth, hyps: Sequence[FrameTracks], path: Path, title:
     if len(tracks) <= 12:
         ax_top.legend(loc="upper right", fontsize=7, ncols=min(4, max(1, len(tracks))))
     ax_info.text(0.0, 1.0, title, va="top", ha="left", family="monospace", fontsize=8)
+    lat = np.asarray(latencies_ms if latencies_ms is not None else [], dtype=float)
+    lat = lat[np.isfinite(lat)]
+    if lat.size:
+        hi_ms = max(1.0, float(np.percentile(lat, 99.5)) * 1.2)
+        ax_lat.hist(np.clip(lat, 0, hi_ms), bins=60, range=(0, hi_ms), color="0.35")
+        p50 = float(np.median(lat))
+        ax_lat.axvline(p50, color="C3", lw=1)
+        ax_lat.set_title(f"latency, frames to 3D estimate (P50 {p50:.2f} ms)", fontsize=9)
+        ax_lat.set_xlabel("ms")
+        ax_lat.set_ylabel("frames")
+    else:
+        ax_lat.axis("off")
     fig.suptitle("FlyTrack simulated rig: tracks (colour) over ground truth (grey)")
     path = Path(path)
     fig.savefig(path, dpi=110)

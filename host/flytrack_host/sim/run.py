@@ -413,10 +413,10 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     busy = fs.render_s + fs.write_s
     rt = rendered_s / busy if busy > 0 else float("inf")
     braidz = _export_braidz(recording, out, notes)
-    title = (f"{cfg.cameras} cameras, {cfg.animals} animals, {cfg.fps:g} fps, {cfg.seconds:g} s, seed {cfg.seed}\n"
-             f"RMSE {scores.rmse_mm:.2f} mm  MOTA {scores.mota:.3f}  IDF1 {scores.idf1:.3f}  "
-             f"ID switches {scores.id_switches}  tracks {scores.tracks_found}")
-    fig = plot_tracks(gt, hyps, out / "tracks.png", title=title)
+    title = (f"{cfg.cameras} cameras, {cfg.animals} animals\n{cfg.fps:g} fps, {cfg.seconds:g} s, seed {cfg.seed}\n\n"
+             f"RMSE {scores.rmse_mm:.2f} mm\nMOTA {scores.mota:.3f}\nIDF1 {scores.idf1:.3f}\n"
+             f"ID switches {scores.id_switches}\ntracks {scores.tracks_found}")
+    fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
     frames_triggered = max(fs.edges, fs.frames_rendered)
     return DemoReport(
         config={k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()
