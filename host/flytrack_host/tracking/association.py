@@ -42,6 +42,8 @@ class PointSet:
     eccentricity: F64  # NaN when unknown
     starts: NDArray[np.intp]  # (C + 1,) points of slot c are [starts[c], starts[c + 1])
     rays: F64  # (N, 3) world ray directions through (u_ideal, v_ideal), not normalised
+    uv: F64  # (N, 2) (u, v) together
+    orientation_ok: NDArray[np.bool_]  # (N,) angle known and the point elongated enough to use it
 
     @property
     def n(self) -> int:
@@ -77,7 +79,10 @@ def ray_mahalanobis(mean: F64, cov_pos: F64, origins: F64, dirs: F64) -> F64:
     Minimising (o + s d - m)^T A (o + s d - m) over s (A = inverse covariance) gives
     d^2 = w^T A w - (d^T A w)^2 / (d^T A d) with w = m - o (seed 000, below eq. 3.12).
     """
-    A = inv3(cov_pos)  # (T, 3, 3), covariances are kept positive definite
+    try:
+        A = np.linalg.inv(cov_pos)  # (T, 3, 3), covariances are kept positive definite
+    except np.linalg.LinAlgError:
+        A = inv3(cov_pos)  # a singular one gives inf/NaN distances, which the gates refuse
     w = mean[None, :, :] - origins[:, None, :]  # (N, T, 3)
     Aw = (A[None] @ w[..., None])[..., 0]
     Ad = (A[None] @ dirs[:, None, :, None])[..., 0]  # (N, T, 3)
@@ -131,14 +136,14 @@ def associate(
     padded = np.full((n_cameras, m_max, T), np.inf)
     padded[slot, rank] = cost
     j = np.argmin(padded, axis=1)  # (C, T)
-    best = np.take_along_axis(padded, j[:, None, :], axis=1)[:, 0, :]
+    best = padded.min(axis=1)  # the value at j
     found = np.isfinite(best)
     assign = np.where(found, points.starts[:-1, None] + j, -1)
 
     conflicts = merges = 0
     if params.exclusive_points:
         chosen = assign[found]
-        if chosen.size > 1 and np.bincount(chosen, minlength=points.n).max() > 1:
+        if T > 1 and chosen.size > 1 and np.bincount(chosen, minlength=points.n).max() > 1:
             for c in range(n_cameras):
                 row = assign[c][assign[c] >= 0]
                 if row.size > 1 and np.unique(row).size < row.size:

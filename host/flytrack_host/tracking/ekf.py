@@ -82,8 +82,11 @@ def joseph_update(
                 K[k] = np.nan  # rejected below
     x_post = x + (K @ y[..., None])[..., 0]
     I_KH = _I6 - K @ H
-    P_post = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-    P_post = 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
+    KRKt = (K @ R) @ np.swapaxes(K, -1, -2)
+    P_post = (I_KH @ P) @ np.swapaxes(I_KH, -1, -2)
+    P_post += KRKt
+    P_post += np.swapaxes(P_post, -1, -2).copy()
+    P_post *= 0.5
     accepted = _usable(x_post, P_post)
     if not accepted.all():
         x_post[~accepted] = x[~accepted]
@@ -93,13 +96,14 @@ def joseph_update(
 
 def _usable(x: F64, P: F64) -> NDArray[np.bool_]:
     """Which (x, P) pairs are finite with P positive definite (Cholesky succeeds)."""
-    ok = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
-    if ok.all():
+    if np.isfinite(x).all() and np.isfinite(P).all():  # the usual case, in as few calls as possible
         try:
             np.linalg.cholesky(P)
-            return ok
+            return np.ones(x.shape[0], dtype=bool)
         except np.linalg.LinAlgError:
-            pass
+            ok = np.ones(x.shape[0], dtype=bool)
+    else:
+        ok = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
     for k in np.flatnonzero(ok):
         try:
             np.linalg.cholesky(P[k])

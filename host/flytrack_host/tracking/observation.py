@@ -44,55 +44,64 @@ class CameraArray:
         self.P = np.stack([c.P for c in cams])  # (C, 3, 4) ideal-pixel projection matrices
         self.width = np.array([c.width for c in cams], dtype=np.float64)
         self.height = np.array([c.height for c in cams], dtype=np.float64)
+        # Per-camera constants of project_jacobian, shaped to broadcast against (C, T, ...) arrays, so
+        # that a frame spends its NumPy calls on the targets and not on rebuilding these.
+        C = self.n
+        self._t3 = self.t[:, None, :]  # (C, 1, 3)
+        self._R2 = self.R[:, None, :2, :]  # (C, 1, 2, 3) first two rows of R
+        self._Rz = self.R[:, None, 2:3, :]  # (C, 1, 1, 3) third row of R
+        Kp = np.zeros((C, 1, 2, 2))  # [[fx, skew], [0, fy]]
+        Kp[:, 0, 0, 0], Kp[:, 0, 0, 1], Kp[:, 0, 1, 1] = self.fx[:, 0], self.skew[:, 0], self.fy[:, 0]
+        self._Kp = Kp
+        self._KpT = np.ascontiguousarray(np.swapaxes(Kp, -1, -2))
+        self._cxy = np.stack([self.cx, self.cy], axis=-1)  # (C, 1, 2)
+        self._k2x2, self._k3x3 = 2.0 * self.k2, 3.0 * self.k3
+        pv = np.stack([self.p1, self.p2], axis=-1)  # (C, 1, 2): (p1, p2)
+        ps = pv[..., ::-1]  # (p2, p1)
+        self._p2v = 2.0 * pv
+        self._ps = np.ascontiguousarray(ps)
+        self._p2v_col = (2.0 * pv)[..., None]  # (C, 1, 2, 1)
+        self._p2s_col = (2.0 * ps)[..., None]
+        self._p4s = 4.0 * ps
+        # Rays: world direction of undistorted pixel (u, v) is B @ (u, v, 1) with B = R^T K^-1.
+        self._ray_B = np.stack([c.R.T @ np.linalg.inv(c.K) for c in cams])  # (C, 3, 3)
 
     def project_jacobian(self, X: F64) -> tuple[F64, F64, NDArray[np.bool_]]:
         """Targets X (T, 3) -> distorted pixels uv (C, T, 2), Jacobians J (C, T, 2, 3) and a mask
         (C, T) of pairs where the target is in front of the camera (elsewhere uv and J are junk)."""
-        Xc = X @ self.RT + self.t[:, None, :]  # (C, T, 3)
+        # Written on (x, y) pairs rather than scalars: the per-frame cost is the count of NumPy calls.
+        Xc = X @ self.RT + self._t3  # (C, T, 3)
         z = Xc[..., 2]
         front = z > 1e-9
         zi = 1.0 / np.where(front, z, 1.0)
-        x = Xc[..., 0] * zi
-        y = Xc[..., 1] * zi
-        k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
-        xy = x * y
-        xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
-        # Jacobian of the distortion, d(xd, yd) / d(x, y).
-        a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
-        b = 2.0 * xy * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-        c = 2.0 * xy * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-        d = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
-        # M = Kp @ Dd with Kp = [[fx, skew], [0, fy]].
-        m00 = self.fx * a + self.skew * c
-        m01 = self.fx * b + self.skew * d
-        m10 = self.fy * c
-        m11 = self.fy * d
-        # A = M @ d(x, y)/d(Xc) with d(x, y)/d(Xc) = [[1/z, 0, -x/z], [0, 1/z, -y/z]].
-        A = np.empty(z.shape + (2, 3))
-        A[..., 0, 0] = m00 * zi
-        A[..., 0, 1] = m01 * zi
-        A[..., 0, 2] = -(m00 * x + m01 * y) * zi
-        A[..., 1, 0] = m10 * zi
-        A[..., 1, 1] = m11 * zi
-        A[..., 1, 2] = -(m10 * x + m11 * y) * zi
-        J = A @ self.R[:, None, :, :]  # chain rule through Xc = R X + t
-        uv = np.empty(z.shape + (2,))
-        uv[..., 0] = self.fx * xd + self.skew * yd + self.cx
-        uv[..., 1] = self.fy * yd + self.cy
+        q = Xc[..., :2] * zi[..., None]  # normalised (x, y), (C, T, 2)
+        qq = q * q
+        r2 = qq[..., 0] + qq[..., 1]
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        dradial = self.k1 + r2 * (self._k2x2 + self._k3x3 * r2)  # d radial / d r2
+        xy = (q[..., 0] * q[..., 1])[..., None]
+        qs = q[..., ::-1]  # (y, x)
+        # Tangential part: (2 p1 x y + p2 (r2 + 2 x^2), 2 p2 x y + p1 (r2 + 2 y^2)).
+        qd = q * radial[..., None] + self._p2v * xy + self._ps * (r2[..., None] + 2.0 * qq)
+        uv = (qd[..., None, :] @ self._KpT)[..., 0, :] + self._cxy
+        # Distortion Jacobian d(xd, yd)/d(x, y) = radial I + 2 radial' q q^T + 2 p qs^T + 2 ps q^T
+        # + 4 diag(ps * q), with p = (p1, p2), ps = (p2, p1), qs = (y, x).
+        Dd = (2.0 * dradial)[..., None, None] * (q[..., :, None] * q[..., None, :])
+        Dd += self._p2v_col * qs[..., None, :]
+        Dd += self._p2s_col * q[..., None, :]
+        Dd.reshape(Dd.shape[:-2] + (4,))[..., ::3] += radial[..., None] + self._p4s * q
+        # Chain rule: d(x, y)/dX = (R[:2] - q R[2]) / z, pixels = Kp (xd, yd) + c.
+        G = self._R2 - q[..., :, None] * self._Rz  # (C, T, 2, 3)
+        J = (self._Kp @ Dd) @ G
+        J *= zi[..., None, None]
         return uv, J, front
 
     def ray_directions(self, slots: NDArray[np.intp], u_ideal: F64, v_ideal: F64) -> F64:
         """World directions (N, 3), not normalised, of the rays through undistorted pixels
-        (u_ideal, v_ideal) of the cameras in `slots`; each ray starts at `centers[slots]`."""
-        fx, fy = self.fx[slots, 0], self.fy[slots, 0]
-        yn = (v_ideal - self.cy[slots, 0]) / fy
-        xn = (u_ideal - self.cx[slots, 0] - self.skew[slots, 0] * yn) / fx
-        d_cam = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
-        return (self.RT[slots] @ d_cam[..., None])[..., 0]
+        (u_ideal, v_ideal) of the cameras in `slots`; each ray starts at `centers[slots]`.
+        The direction is R^T K^-1 (u, v, 1): the camera-frame ray with unit depth."""
+        B = self._ray_B[slots]  # (N, 3, 3)
+        return B[:, :, 0] * u_ideal[:, None] + B[:, :, 1] * v_ideal[:, None] + B[:, :, 2]
 
     def project_ideal(self, slots: NDArray[np.intp], X: F64) -> tuple[F64, NDArray[np.bool_]]:
         """Undistorted pixels (N, 2) of points X (N, 3) in cameras `slots`, and an in-front mask."""

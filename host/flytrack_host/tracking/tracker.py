@@ -27,12 +27,15 @@ from flytrack_host.tracking.association import PointSet, associate
 from flytrack_host.tracking.birth import Birth, find_births
 from flytrack_host.tracking.ekf import cv_process_noise, cv_transition, joseph_update, predict
 from flytrack_host.tracking.observation import CameraArray
-from flytrack_host.tracking.orientation import axes_from_normals, plane_normals
+from flytrack_host.tracking.orientation import axes_from_normals
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.types import Association, Estimate, FrameBundle, FrameResult
 
 F64 = NDArray[np.float64]
 _REQUIRED_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "orientation", "eccentricity")
+
+# Words of a protocol point (11 x 4 bytes) holding, in order, the fields of _REQUIRED_FIELDS.
+_WORDS = np.array([0, 1, 2, 3, 4, 6, 7])
 
 STAT_KEYS = (
     "frames",  # bundles processed
@@ -73,6 +76,8 @@ class Tracker:
         self._R_cache: dict[int, F64] = {}
         self._death_var = p.death_position_std_m**2
         self._ok_dtypes: set[np.dtype] = set()
+        self._slot_edges = np.arange(self.cams.n + 1)
+        self._aranges = np.arange(256)
         # Targets, stacked. obj_id is -1 while tentative.
         self._x = np.empty((0, 6))
         self._P = np.empty((0, 6, 6))
@@ -187,36 +192,45 @@ class Tracker:
         if not parts:
             e = np.empty(0)
             ei = np.empty(0, dtype=np.intp)
-            return PointSet(ei, ei, e, e, e, e, e, e, e, np.zeros(C + 1, dtype=np.intp), np.empty((0, 3)))
-        parts.sort(key=lambda sa: sa[0])
-        counts = np.array([len(a) for _, a in parts])
-        slots = np.array([s for s, _ in parts], dtype=np.intp)
-        slot = np.repeat(slots, counts)
-        offsets = np.repeat(np.cumsum(counts) - counts, counts)
-        index = np.arange(slot.size) - offsets
+            return PointSet(ei, ei, e, e, e, e, e, e, e, np.zeros(C + 1, dtype=np.intp), np.empty((0, 3)),
+                            np.empty((0, 2)), np.empty(0, dtype=bool))
+        if len(parts) > 1 and any(parts[k][0] > parts[k + 1][0] for k in range(len(parts) - 1)):
+            parts.sort(key=lambda sa: sa[0])
+        counts = [len(a) for _, a in parts]
+        slot = np.repeat(np.array([s for s, _ in parts], dtype=np.intp), counts)
+        starts = np.searchsorted(slot, self._slot_edges).astype(np.intp)
+        index = self._arange(slot.size) - starts[slot]
         if all(a.dtype == POINT_DTYPE and a.flags.c_contiguous for _, a in parts):
             # Fast path: a protocol point is 11 little-endian 4-byte words (f4 but for the u2 pair at
-            # word 8), so a point array is an (n, 11) float32 table; concatenating those avoids NumPy's
-            # slow structured-dtype concatenation. Columns 0-7 are the fields used here, in order.
-            tab = np.concatenate([a.view("<f4").reshape(-1, 11)[:, :8] for _, a in parts]).astype(np.float64)
-            u, v, ui, vi, area, _, ori, ecc = tab.T
+            # word 8), so the cameras' bytes joined are one (n, 11) float32 table, read with one call
+            # instead of NumPy's slow structured-dtype concatenation. Words 0-7 are the fields used here,
+            # in order; the table is kept as contiguous float64 rows, one per field.
+            raw = parts[0][1].data if len(parts) == 1 else b"".join([a.data for _, a in parts])
+            tab = np.frombuffer(raw, "<f4").reshape(-1, 11).T[_WORDS].astype(np.float64)
         else:
             cat = parts[0][1] if len(parts) == 1 else np.concatenate([a[list(_REQUIRED_FIELDS)] for _, a in parts])
-            u, v, ui, vi, area, ori, ecc = (cat[f].astype(np.float64) for f in _REQUIRED_FIELDS)
-        finite = np.isfinite(u) & np.isfinite(v) & np.isfinite(ui) & np.isfinite(vi) & np.isfinite(area)
-        n_bad = slot.size - int(finite.sum())
+            tab = np.stack([cat[f].astype(np.float64) for f in _REQUIRED_FIELDS])
+        # tab rows: u, v, u_ideal, v_ideal, area, orientation, eccentricity.
+        finite = np.isfinite(tab[:5]).all(axis=0)
+        n_bad = slot.size - int(np.count_nonzero(finite))
         if n_bad:
             self.stats["nonfinite_points"] += n_bad
-            slot, index, u, v, ui, vi = slot[finite], index[finite], u[finite], v[finite], ui[finite], vi[finite]
-            area, ori, ecc = area[finite], ori[finite], ecc[finite]
-        inf_ori = np.isinf(ori) | np.isinf(ecc)
-        if inf_ori.any():
+            slot, index, tab = slot[finite], index[finite], tab[:, finite]
+            starts = np.searchsorted(slot, self._slot_edges).astype(np.intp)
+        if np.isinf(tab[5:7]).any():
+            inf_ori = np.isinf(tab[5:7]).any(axis=0)
             self.stats["nonfinite_orientation"] += int(inf_ori.sum())
-            ori = np.where(inf_ori, np.nan, ori)
+            tab[5, inf_ori] = np.nan
+        u, v, ui, vi, area, ori, ecc = tab
         self.stats["points"] += int(slot.size)
-        starts = np.searchsorted(slot, np.arange(C + 1)).astype(np.intp)
         rays = self.cams.ray_directions(slot, ui, vi)
-        return PointSet(slot, index, u, v, ui, vi, area, ori, ecc, starts, rays)
+        ori_ok = np.isfinite(ori) & (ecc >= self.params.min_eccentricity_for_orientation)  # NaN: False
+        return PointSet(slot, index, u, v, ui, vi, area, ori, ecc, starts, rays, tab[:2].T, ori_ok)
+
+    def _arange(self, n: int) -> NDArray[np.intp]:
+        if n > self._aranges.size:
+            self._aranges = np.arange(2 * n)
+        return self._aranges[:n]
 
     def _check_dtype(self, ci: int, arr: np.ndarray) -> None:
         dt = getattr(arr, "dtype", None)
@@ -262,32 +276,34 @@ class Tracker:
         """Stack each target's observations over the cameras that have any, zero-padding the rest
         (a zero row of H with zero innovation carries no information), and run the Joseph update."""
         has = sel >= 0
-        cams_used = np.flatnonzero(has.any(axis=1))
-        sel, has, uv, J = sel[cams_used], has[cams_used], uv[cams_used], J[cams_used]
+        used = has.any(axis=1)
+        if not used.all():
+            sel, has, uv, J = sel[used], has[used], uv[used], J[used]
         Cu, Tu = sel.shape
-        rows = np.where(has, sel, 0)
-        z = np.where(has[..., None], np.stack([pts.u[rows], pts.v[rows]], axis=-1), uv)  # (Cu, Tu, 2)
+        m = 2 * Cu
+        obs = pts.uv[np.where(has, sel, 0)]  # (Cu, Tu, 2)
+        z = np.where(has[..., None], obs, uv).transpose(1, 0, 2).reshape(Tu, m)
         H = np.zeros((Tu, Cu, 2, 6))
         H[..., :3] = np.where(has[..., None, None], J, 0.0).transpose(1, 0, 2, 3)
-        m = 2 * Cu
-        return joseph_update(
-            x, P, z.transpose(1, 0, 2).reshape(Tu, m), uv.transpose(1, 0, 2).reshape(Tu, m),
-            H.reshape(Tu, m, 6), self._R(m),
-        )
+        return joseph_update(x, P, z, uv.transpose(1, 0, 2).reshape(Tu, m), H.reshape(Tu, m, 6), self._R(m))
 
     def _orient(self, upd: NDArray[np.intp], sel: NDArray[np.intp], J: F64, pts: PointSet) -> None:
-        rows = np.where(sel >= 0, sel, 0)
-        theta = pts.orientation[rows]
-        ecc = pts.eccentricity[rows]
-        with np.errstate(invalid="ignore"):
-            use = (sel >= 0) & np.isfinite(theta) & (ecc >= self.params.min_eccentricity_for_orientation)
-        enough = use.sum(axis=0) >= 2
+        has = sel >= 0
+        rows = np.where(has, sel, 0)
+        use = has & pts.orientation_ok[rows]
+        enough = np.count_nonzero(use, axis=0) >= 2
         if not enough.any():
             self._axis[upd] = np.nan
             return
-        normals = plane_normals(J, np.where(use, theta, 0.0))  # (C, Tu, 3)
-        normals = np.where(use[..., None], normals, 0.0).transpose(1, 0, 2)
-        axes, ok = axes_from_normals(normals[enough], self.params.orientation_min_plane_angle_deg)
+        if not enough.all():
+            use, rows, J = use[:, enough], rows[:, enough], J[:, enough]
+        # Unit plane normals (orientation.plane_normals), zeroed where a camera does not contribute.
+        theta = np.where(use, pts.orientation[rows], 0.0)  # unknown angles are NaN
+        a_perp = np.stack([-np.sin(theta), np.cos(theta)], axis=-1)  # (C, Te, 2)
+        n = (a_perp[..., None, :] @ J)[..., 0, :]  # J^T a_perp, (C, Te, 3)
+        norm = np.sqrt(np.einsum("cti,cti->ct", n, n))
+        n *= (use / np.where(norm > 0, norm, 1.0))[..., None]
+        axes, ok = axes_from_normals(n.transpose(1, 0, 2), self.params.orientation_min_plane_angle_deg)
         idx = upd[enough]
         prev = self._axis[idx]
         # The sign is unobservable: keep it continuous, or along the velocity for a first estimate.
