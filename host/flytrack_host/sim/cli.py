@@ -37,6 +37,10 @@ def summary_table(r: DemoReport) -> Table:
     t.add_row("latency P50", f"{_f(lat['p50_ms'])} ms", "frames to the edges -> 3D")
     t.add_row("latency P99", f"{_f(lat['p99_ms'])} ms", "(simulated exposure and")
     t.add_row("latency max", f"{_f(lat['max_ms'])} ms", " transfer left out)")
+    if r.latency_parts_p50_ms:
+        names = {"to_edge": "to edge", "extraction": "extract", "udp_to_host": "udp", "sync_and_track": "host"}
+        t.add_row("latency parts P50", "", ", ".join(f"{names.get(k, k)} {v:.2f}"
+                                                     for k, v in r.latency_parts_p50_ms.items()))
     hl = r.latency_host
     if hl:
         nan = float("nan")

@@ -92,6 +92,7 @@ class DemoReport:
     trigger_note: str
     scores: TrackingScores
     latency: dict[str, float]  # hand-over to 3D estimate (exposure and transfer are simulated)
+    latency_parts_p50_ms: dict[str, float]
     latency_host: dict[str, float]  # the host's own figure: trigger time (clock model) -> estimate
     frames_triggered: int
     frames_rendered: int
@@ -425,6 +426,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         trigger_note=trig.note,
         scores=scores,
         latency=latency_summary(lat_a),
+        latency_parts_p50_ms=numbering["parts_p50_ms"],
         latency_host=latency_host,
         frames_triggered=min(frames_triggered, gt.n_frames),
         frames_rendered=fs.frames_rendered,
@@ -481,7 +483,7 @@ def _frame_numbering(recording: str | None, handoff: np.ndarray) -> dict[str, An
     Every edge got every pulse's frame in order from the first, so camera frame c is trigger frame c.
     Returns the count of camera frames numbered otherwise, and per host trigger frame the hand-over
     time of the latest camera frame it was built from."""
-    out: dict[str, Any] = {"misnumbered": 0, "camera_frames": 0, "bundle_handoff": {}}
+    out: dict[str, Any] = {"misnumbered": 0, "camera_frames": 0, "bundle_handoff": {}, "parts_p50_ms": {}}
     if not recording or not Path(recording).exists():
         return out
     import h5py
@@ -492,6 +494,7 @@ def _frame_numbering(recording: str | None, handoff: np.ndarray) -> dict[str, An
         if "data2d_distorted" not in f:
             return out
         d = f["data2d_distorted"][:]
+        lat = f["latency"][:] if "latency" in f else None
     if len(d) == 0:
         return out
     key = d["camera_index"].astype(np.int64) * (1 << 40) + d["camera_frame"].astype(np.int64)
@@ -509,6 +512,21 @@ def _frame_numbering(recording: str | None, handoff: np.ndarray) -> dict[str, An
         if math.isfinite(b) and b > bh.get(a, -math.inf):
             bh[a] = b
     out["bundle_handoff"] = bh
+    # Where the time goes (medians, ms): frame to the edge's read, extraction, UDP to the host's
+    # receiver, then synchronisation and tracking in the host.
+    ho = handoff[np.clip(u["camera_frame"].astype(np.int64), 0, handoff.size - 1)]
+    parts = {
+        "to_edge": u["edge_recv_ns"] / 1e9 - ho,
+        "extraction": (u["edge_done_ns"].astype(np.int64) - u["edge_recv_ns"].astype(np.int64)) / 1e9,
+        "udp_to_host": u["cam_received_timestamp"] - u["edge_done_ns"] / 1e9,
+    }
+    if lat is not None and len(lat):
+        parts["sync_and_track"] = lat["estimate_time"] - lat["last_arrival"]
+    for k, v in parts.items():
+        v = np.asarray(v, dtype=float)
+        v = v[np.isfinite(v)]
+        if v.size:
+            out["parts_p50_ms"][k] = float(np.median(v) * 1e3)
     return out
 
 
