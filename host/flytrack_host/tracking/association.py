@@ -44,6 +44,8 @@ class PointSet:
     rays: F64  # (N, 3) world ray directions through (u_ideal, v_ideal), not normalised
     uv: F64  # (N, 2) (u, v) together
     orientation_ok: NDArray[np.bool_]  # (N,) angle known and the point elongated enough to use it
+    rank: NDArray[np.intp]  # (N,) position of the point among its camera's rows of this set
+    max_per_camera: int  # the most points any camera has in this set
 
     @property
     def n(self) -> int:
@@ -116,14 +118,16 @@ def associate(
     if T == 0 or points.n == 0:
         return AssociationResult(assign, best, 0, 0)
     slot = points.slot
-    pu = pred_uv[slot]  # (N, T, 2)
-    du = points.u[:, None] - pu[..., 0]
-    dv = points.v[:, None] - pu[..., 1]
-    d2d_sq = du * du + dv * dv
-    ok = front[slot] & (d2d_sq < params.gate_px**2)
-    ratio = points.area[:, None] / target_area[None, :]
+    d = points.uv[:, None, :] - pred_uv[slot]  # (N, T, 2)
+    d2d_sq = np.einsum("ntk,ntk->nt", d, d)
+    ok = front[slot]
+    ok &= d2d_sq < params.gate_px**2
+    ratio = points.area[:, None] / target_area
     r = params.area_gate_ratio
-    ok &= (ratio < r) & (ratio > 1.0 / r) & (points.area[:, None] > params.min_area_px)
+    ok &= ratio < r
+    ok &= ratio > 1.0 / r
+    if params.min_area_px > 0:  # at 0, ratio > 1 / r > 0 already implies area > 0 (or no target area)
+        ok &= points.area[:, None] > params.min_area_px
     if not ok.any():
         return AssociationResult(assign, best, 0, 0)
     dm = ray_mahalanobis(mean, cov_pos, centers[slot], points.rays)
@@ -131,10 +135,8 @@ def associate(
     cost = np.where(ok, dm, np.inf)
 
     # Pad to (camera, point-in-camera, target) so one argmin picks each camera's nearest neighbour.
-    rank = np.arange(points.n) - points.starts[slot]
-    m_max = int(np.max(np.diff(points.starts)))
-    padded = np.full((n_cameras, m_max, T), np.inf)
-    padded[slot, rank] = cost
+    padded = np.full((n_cameras, points.max_per_camera, T), np.inf)
+    padded[slot, points.rank] = cost
     j = np.argmin(padded, axis=1)  # (C, T)
     best = padded.min(axis=1)  # the value at j
     found = np.isfinite(best)

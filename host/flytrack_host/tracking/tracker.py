@@ -193,7 +193,7 @@ class Tracker:
             e = np.empty(0)
             ei = np.empty(0, dtype=np.intp)
             return PointSet(ei, ei, e, e, e, e, e, e, e, np.zeros(C + 1, dtype=np.intp), np.empty((0, 3)),
-                            np.empty((0, 2)), np.empty(0, dtype=bool))
+                            np.empty((0, 2)), np.empty(0, dtype=bool), ei, 0)
         if len(parts) > 1 and any(parts[k][0] > parts[k + 1][0] for k in range(len(parts) - 1)):
             parts.sort(key=lambda sa: sa[0])
         counts = [len(a) for _, a in parts]
@@ -217,6 +217,10 @@ class Tracker:
             self.stats["nonfinite_points"] += n_bad
             slot, index, tab = slot[finite], index[finite], tab[:, finite]
             starts = np.searchsorted(slot, self._slot_edges).astype(np.intp)
+            rank = self._arange(slot.size) - starts[slot]
+            max_per_camera = int(np.diff(starts).max())
+        else:
+            rank, max_per_camera = index, max(counts)
         if np.isinf(tab[5:7]).any():
             inf_ori = np.isinf(tab[5:7]).any(axis=0)
             self.stats["nonfinite_orientation"] += int(inf_ori.sum())
@@ -225,7 +229,8 @@ class Tracker:
         self.stats["points"] += int(slot.size)
         rays = self.cams.ray_directions(slot, ui, vi)
         ori_ok = np.isfinite(ori) & (ecc >= self.params.min_eccentricity_for_orientation)  # NaN: False
-        return PointSet(slot, index, u, v, ui, vi, area, ori, ecc, starts, rays, tab[:2].T, ori_ok)
+        return PointSet(slot, index, u, v, ui, vi, area, ori, ecc, starts, rays, tab[:2].T, ori_ok,
+                        rank, max_per_camera)
 
     def _arange(self, n: int) -> NDArray[np.intp]:
         if n > self._aranges.size:
