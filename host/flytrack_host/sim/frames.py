@@ -17,6 +17,7 @@ import math
 import multiprocessing as mp
 import os
 import queue
+import select
 import stat
 import threading
 import time
@@ -111,8 +112,8 @@ class FrameFeeder:
         ctx = mp.get_context("fork")
         self._handoff = ctx.RawArray("d", [math.nan] * gt.n_frames)
         self._edge_t = ctx.RawArray("d", [math.nan] * gt.n_frames)
-        # edges, rendered, render_s, write_s, done, bad lines, priority raised
-        self._counters = ctx.RawArray("d", 7)
+        # edges, rendered, render_s, write_s, done, bad lines, priority raised, pre-roll frames
+        self._counters = ctx.RawArray("d", 8)
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
             target=_feed,
@@ -127,6 +128,15 @@ class FrameFeeder:
         """Where trigger edges come from: a path (file or FIFO, followed as it grows), or a file
         descriptor number inherited by the child (create it before the feeder)."""
         self._conn.send(source)
+
+    def preroll(self, frames: int) -> None:
+        """Hand every edge `frames` frames without animals now, before the trigger starts (the child
+        must already be following its edge stream)."""
+        self._conn.send(("preroll", int(frames)))
+
+    @property
+    def preroll_frames(self) -> int:
+        return int(self._counters[7])
 
     @property
     def priority_raised(self) -> bool:
@@ -275,15 +285,32 @@ def _feed(
             return
         stream = os.fdopen(source, "rb", buffering=0) if isinstance(source, int) else open(source, "rb", buffering=0)
         with stream:
+            fd = stream.fileno()
+            is_fifo = isinstance(source, int) or stat.S_ISFIFO(os.fstat(fd).st_mode)
             done = False
             while not done:
-                chunk = stream.read(65536)
+                ready, _, _ = select.select([fd, conn], [], [], 0.5)
+                if conn in ready:  # a command from the parent
+                    msg = conn.recv()
+                    if msg is None:
+                        break
+                    if isinstance(msg, tuple) and msg[0] == "preroll":
+                        # Cameras running before the trigger starts (as when a lab arms a run): the
+                        # edges take their background and the host sees them go quiet afterwards.
+                        for _ in range(int(msg[1])):
+                            blank = [r.render(0.0, no_pos, no_pos, gt.body_length_m, gt.body_width_m).copy()
+                                     for r in renderers]
+                            for link, img in zip(links, blank, strict=True):
+                                link.put(img)
+                            counters[7] += 1
+                    continue
+                if fd not in ready:
+                    continue
+                chunk = os.read(fd, 65536)
                 if not chunk:
-                    if isinstance(source, int) or stat.S_ISFIFO(os.fstat(stream.fileno()).st_mode):
+                    if is_fifo:
                         break  # writer closed
                     time.sleep(0.0005)  # a regular file: follow it as it grows
-                    if conn.poll() and conn.recv() is None:
-                        break
                     continue
                 buf += chunk
                 *lines, buf = buf.split(b"\n")

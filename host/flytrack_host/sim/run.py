@@ -102,7 +102,7 @@ class DemoReport:
     packets_late: int
     frames_misnumbered: int  # camera frames the host's synchroniser gave a wrong trigger frame
     exposure_lateness: dict[str, float]  # hand-over vs an ideal clock: how faithful the simulated timing was
-    clock_model: dict[str, float]
+    clock_model: dict[str, Any]  # the host's trigger session summary (rate, clock model fit, samples)
     sim_priority_raised: bool
     world: dict[str, Any]  # what the flight model did: saccades, landings, close passes
     live_frames: int
@@ -243,11 +243,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     port = _free_udp_port()
     live_port = _free_udp_port()
     render_params = cfg.render or RenderParams(noise_sigma=cfg.noise)
-    warmup = max(3, int(round(0.05 * cfg.fps)))
+    # The edges take their background from pre-roll frames sent before the trigger starts, so the
+    # animals are in the picture from trigger frame 0.
+    preroll = 3
+    warmup = 0
     trig = DemoTrigger(cfg.trigger, cfg.fps, out, firmware=cfg.firmware)
     notes.append(trig.note)
 
-    edges = feeder = host = live = None
+    edges = feeder = host = live = session = None
+    trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
     live_frames = [0]
     rig_path = out / "rig.toml"
@@ -260,31 +264,41 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         edges.check_started()
         feeder.set_source(str(trig.fifo))
 
-        # 3. Trigger, rig file, host, live subscriber; then the trigger starts: frame 0.
+        # 3. Trigger box, rig file, then the host as `flytrack run` does it: trigger session open
+        #    (stop-and-reset, exact rate), pipeline, session start (quiet cameras, frame-0 tie, START).
         trig.launch()
-        clock = trig.connect()
         rig = rig_config(
-            cams, trig.actual_fps, listen=f"127.0.0.1:{port}", trigger_kind=trig.kind, trigger_port=trig.port,
+            cams, cfg.fps, listen=f"127.0.0.1:{port}", trigger_kind=trig.kind, trigger_port=trig.port,
             calibration=calib_path.name if calib_path else None, recording_folder="recordings",
             live_subscribers=[f"127.0.0.1:{live_port}"], name="simulated-rig",
         )
         write_rig(rig, rig_path)
         from flytrack_host.pipeline import HostPipeline
         from flytrack_host.rig import load_rig
+        from flytrack_host.trigger_session import TriggerSession
 
         rig = load_rig(rig_path)  # exactly what a user's host would read
         cameras_for_host = _host_cameras(rig, cams, calib_path)
+        session = TriggerSession(rig.trigger)
+        fps = session.open()
 
         def on_result(r: Any) -> None:
             ids = np.fromiter((e.obj_id for e in r.estimates), dtype=np.int64, count=len(r.estimates))
             pos = np.array([e.state[:3] for e in r.estimates], dtype=np.float64).reshape(-1, 3)
             results.append(HostResult(int(r.trigger_frame), time.time(), ids, pos))
 
-        host = HostPipeline(rig, cameras_for_host, clock=clock, on_result=on_result,
-                            rig_text=rig_path.read_text(), recording_path=out / "recording.flytrack")
+        host = HostPipeline(rig, cameras_for_host, clock=session.clock, fps=fps, hold_until_synchronized=True,
+                            on_result=on_result, rig_text=rig_path.read_text(),
+                            recording_path=out / "recording.flytrack")
         host.start()
+        session.attach(host)
         live = _LiveCounter(live_port, live_frames)
-        trig.start()
+        trig.follow_software(session.software)
+        feeder.preroll(preroll)
+        t_wait = time.monotonic() + 5.0
+        while host.last_frame_recv == 0.0 and time.monotonic() < t_wait:
+            time.sleep(0.01)
+        session.start(host)  # waits until the cameras are quiet, arms the frame-0 tie, STARTs
 
         # 4. Run until every frame was rendered, with a progress bar.
         budget = cfg.seconds * 4 + 30
@@ -300,10 +314,12 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         if feeder.alive():
             notes.append(f"the run did not finish within {budget:.0f} s; stopped early")
             feeder.stop()
-        trig.stop()
-        edges.wait(5.0)
+        edges.wait(5.0)  # the feeder closed their stdin: they finish their frames and exit
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
     finally:
+        if session is not None:
+            session.stop()  # the trigger stops, then the host tracks what is pending
+            trigger_summary = session.summary()
         host_summary = host.stop() if host is not None else {}
         if live is not None:
             live.stop()
@@ -315,7 +331,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     fs = feeder.stats()
     return _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
-                   notes, wall0, cams, warmup)
+                   notes, wall0, cams, warmup, trigger_summary, preroll)
 
 
 def _write_calibration(cams: list[Camera], path: Path, notes: list[str]) -> Path | None:
@@ -373,7 +389,8 @@ def _scored_mask(gt: GroundTruth, cams: list[Camera]) -> np.ndarray:
 
 def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path | None, trig: Any, fs: Any,
             results: list[HostResult], host_summary: dict[str, Any], live_frames: int, out: Path,
-            notes: list[str], wall0: float, cams: list[Camera], warmup: int) -> DemoReport:
+            notes: list[str], wall0: float, cams: list[Camera], warmup: int,
+            trigger_summary: dict[str, Any], preroll: int) -> DemoReport:
     from flytrack_host.sim.plot import plot_tracks
 
     hyps = [FrameTracks(r.frame, r.ids, r.pos) for r in results if 0 <= r.frame < gt.n_frames]
@@ -382,7 +399,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
                           match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
     recording = host_summary.get("recording")
-    numbering = _frame_numbering(recording, fs.handoff_time)
+    numbering = _frame_numbering(recording, fs.handoff_time, preroll)
     if numbering["misnumbered"]:
         notes.append(f"the host's synchroniser gave {numbering['misnumbered']} of {numbering['camera_frames']} "
                      "camera frames a wrong trigger frame number (scores use the host's numbers)")
@@ -435,8 +452,8 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         packets_lost=lost,
         packets_late=late,
         frames_misnumbered=numbering["misnumbered"],
-        exposure_lateness=_lateness(fs.handoff_time, trig.actual_fps),
-        clock_model=trig.clock_summary(),
+        exposure_lateness=_lateness(fs.handoff_time, float(trigger_summary.get("fps", cfg.fps))),
+        clock_model=_jsonable(trigger_summary),
         sim_priority_raised=bool(fs.priority_raised),
         world=_world(gt, cfg.close_distance_m),
         live_frames=live_frames,
@@ -477,10 +494,11 @@ def _lateness(handoff: np.ndarray, fps: float) -> dict[str, float]:
     return latency_summary(lag - lag.min())
 
 
-def _frame_numbering(recording: str | None, handoff: np.ndarray) -> dict[str, Any]:
+def _frame_numbering(recording: str | None, handoff: np.ndarray, preroll: int = 0) -> dict[str, Any]:
     """Check the host's frame numbering against the truth, from the recording's 2D rows.
 
-    Every edge got every pulse's frame in order from the first, so camera frame c is trigger frame c.
+    Every edge got `preroll` frames before the trigger started, then every pulse's frame in order from
+    the first, so camera frame c is trigger frame c - preroll.
     Returns the count of camera frames numbered otherwise, and per host trigger frame the hand-over
     time of the latest camera frame it was built from."""
     out: dict[str, Any] = {"misnumbered": 0, "camera_frames": 0, "bundle_handoff": {}, "parts_p50_ms": {}}
@@ -495,8 +513,10 @@ def _frame_numbering(recording: str | None, handoff: np.ndarray) -> dict[str, An
             return out
         d = f["data2d_distorted"][:]
         lat = f["latency"][:] if "latency" in f else None
+    d = d[d["camera_frame"] >= preroll]
     if len(d) == 0:
         return out
+    d["camera_frame"] -= preroll
     key = d["camera_index"].astype(np.int64) * (1 << 40) + d["camera_frame"].astype(np.int64)
     _, first = np.unique(key, return_index=True)
     u = d[first]  # one row per camera frame

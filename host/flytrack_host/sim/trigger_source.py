@@ -1,8 +1,9 @@
 """The demo's frame clock: the real trigger firmware in simavr, or the software stand-in.
 
-Either way the host drives it as a lab's host drives a board: `TriggerDevice` on its serial port
-(a pty), rate set, clock sampled into the `ClockModel` the synchroniser uses, START. The simulated
-cameras learn of each trigger pulse through a FIFO of edge lines that the frame feeder follows:
+The host drives either exactly as `flytrack run` drives a lab's box: through the host's
+`TriggerSession` (handshake, stop-and-reset, exact rate, quiet cameras, frame-0 tie, START, clock
+thread feeding the synchroniser's clock). This module only provides the box and tells the simulated
+cameras when each pulse happens, through a FIFO of edge lines the frame feeder follows:
 - simavr: the harness writes every edge of the trigger pin, from the simulated Timer1 hardware;
 - software: a bridge thread here watches the stand-in's frame counter and writes one line a frame
   (the stand-in has no pin; its frames come from the host's monotonic clock).
@@ -17,8 +18,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from flytrack_host.trigger.clock_model import ClockModel
-
 
 class TriggerUnavailable(RuntimeError):
     pass
@@ -26,8 +25,6 @@ class TriggerUnavailable(RuntimeError):
 
 class DemoTrigger:
     """A started-on-demand trigger for the demo; see module docstring for the order of calls."""
-
-    kind = "flytrack"  # the rig file's trigger kind: both speak the FlyTrack serial protocol
 
     def __init__(self, mode: str, fps: float, out: Path, firmware: Path | None = None):
         self.fps = fps
@@ -40,9 +37,7 @@ class DemoTrigger:
         self.firmware = firmware
         self.sim: Any = None
         self.soft: Any = None
-        self.device: Any = None
         self.port = ""
-        self.actual_fps = fps
         self._bridge: threading.Thread | None = None
         self._bridge_stop = threading.Event()
         self.bridge_frames = 0
@@ -63,70 +58,47 @@ class DemoTrigger:
             raise TriggerUnavailable(f"simavr trigger requested but {why}")
         return "software", f"{why}: fell back to the software trigger (same serial protocol)"
 
+    @property
+    def kind(self) -> str:
+        """The rig file's trigger kind."""
+        return "flytrack" if self.mode == "simavr" else "software"
+
     # --- lifetime ---------------------------------------------------------------------------------
     def launch(self) -> str:
-        """Start the trigger process or stand-in (call after the frame feeder is following the FIFO);
-        returns the serial port path."""
+        """Start the simulated box (call after the frame feeder is following the FIFO); returns the
+        serial port for the rig file ("software" for the stand-in, which the host opens itself)."""
         if self.mode == "simavr":
+            from flytrack_host.sim.frames import raise_priority
             from flytrack_host.trigger.simulator import SimulatedTrigger
 
             self.sim = SimulatedTrigger(elf=self.firmware, realtime=True, edge_log=self.fifo)
             self.port = self.sim.pty
-            from flytrack_host.sim.frames import raise_priority
-
             self.priority_raised = raise_priority(self.sim.proc.pid)
         else:
-            from flytrack_host.trigger.software import SoftwareTrigger
-
-            self.soft = SoftwareTrigger(name="flytrack-demo")
-            self.port = self.soft.port
+            self.port = "software"
         return self.port
 
-    def connect(self) -> ClockModel:
-        """Open the device as a host would: handshake, stop and zero, set the rate; returns the clock
-        model the synchroniser maps frames with (fitted once the clock thread has samples)."""
-        from flytrack_host.trigger.device import TriggerDevice
-
-        self.device = TriggerDevice(self.port, reset_wait_s=0.0)
-        self.device.stop_reset()
-        self.actual_fps = self.device.set_rate(self.fps)
-        return self.device.model
-
-    def start(self) -> None:
-        self.device.start()
-        self.device.start_clock_thread(0.1)
-        if self.mode == "software":
-            self._bridge = threading.Thread(target=self._software_edges, name="sim-trigger-edges", daemon=True)
-            self._bridge.start()
+    def follow_software(self, soft: Any) -> None:
+        """Software mode: write a frame line for each pulse of the host's SoftwareTrigger `soft`
+        (start before the trigger starts; the first pulse is frame 0)."""
+        if self.mode != "software" or soft is None:
+            return
+        self.soft = soft
+        self._bridge = threading.Thread(target=self._software_edges, name="sim-trigger-edges", daemon=True)
+        self._bridge.start()
 
     def stop(self) -> None:
-        if self.device is not None:
-            with contextlib.suppress(Exception):
-                self.device.stop()
         self._bridge_stop.set()
         if self._bridge is not None:
             self._bridge.join(2.0)
 
     def close(self) -> None:
         self.stop()
-        if self.device is not None:
-            with contextlib.suppress(Exception):
-                self.device.close()
         if self.sim is not None:
             self.sim.stop()
-        if self.soft is not None:
-            self.soft.close()
-        if self.mode == "simavr" and self.sim is None:
-            _unblock_fifo_reader(self.fifo)  # the feeder may still wait for a writer
+        _unblock_fifo_reader(self.fifo)  # in case the feeder still waits for a writer
         with contextlib.suppress(FileNotFoundError):
             self.fifo.unlink()
-
-    def clock_summary(self) -> dict[str, float]:
-        if self.device is None:
-            return {}
-        with contextlib.suppress(Exception):
-            return dict(self.device.model.summary())
-        return {}
 
     # --- the software trigger's frame edges -----------------------------------------------------
     def _software_edges(self) -> None:

@@ -1,5 +1,6 @@
 import os
 import threading
+import time
 
 import numpy as np
 
@@ -42,6 +43,8 @@ def test_feeder_renders_one_frame_per_edge_for_every_camera():
         t.start()
     feeder.set_source(src_r)
     os.close(src_r)
+    feeder.preroll(2)  # frames before the trigger starts (no animals)
+    time.sleep(0.3)
     os.write(src_w, b"# header\n" + b"".join(f"{i * 10} trigger 1\n{i * 10 + 5} trigger 0\n".encode()
                                              for i in range(12)))
     os.close(src_w)
@@ -50,8 +53,9 @@ def test_feeder_renders_one_frame_per_edge_for_every_camera():
         t.join(5)
     st = feeder.stats()
     assert st.frames_rendered == 10 and st.edges == 11  # the 11th edge is past the ground truth: stop
+    assert feeder.preroll_frames == 2
     assert np.all(np.isfinite(st.handoff_time)) and np.all(np.diff(st.handoff_time) >= 0)
     for o in outs:
-        assert len(o[0]) == 10 * 160 * 120
-        frames = np.frombuffer(o[0], np.uint8).reshape(10, 120, 160)
+        assert len(o[0]) == 12 * 160 * 120
+        frames = np.frombuffer(o[0], np.uint8).reshape(12, 120, 160)
         assert 100 < frames.mean() < 200

@@ -26,6 +26,9 @@ def test_software_trigger_edges_follow_its_frame_counter(tmp_path):
     import threading
     import time
 
+    from flytrack_host.trigger.device import TriggerDevice
+    from flytrack_host.trigger.software import SoftwareTrigger
+
     t = DemoTrigger("software", 200.0, tmp_path)
     lines: list[bytes] = []
 
@@ -35,14 +38,21 @@ def test_software_trigger_edges_follow_its_frame_counter(tmp_path):
 
     reader = threading.Thread(target=read)
     reader.start()
+    soft = SoftwareTrigger()
+    dev = TriggerDevice(soft.port, reset_wait_s=0.0)
     try:
-        t.launch()
-        t.connect()
-        t.start()
+        assert t.launch() == "software" and t.kind == "software"
+        dev.stop_reset()
+        dev.set_rate(200.0)
+        t.follow_software(soft)
+        time.sleep(0.05)  # stopped: no pulses, no lines
+        dev.start()
         time.sleep(0.5)
-        t.stop()
+        dev.stop()
     finally:
         t.close()
+        dev.close()
+        soft.close()
         reader.join(5)
     frames = [int(x) for x in lines]
     assert frames == list(range(len(frames)))
