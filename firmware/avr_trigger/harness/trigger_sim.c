@@ -22,6 +22,16 @@
  * - --event-period N injects a square wave on the event input pin (INT0), first rising edge at
  *   --event-phase, high for --event-high cycles, to test the event timestamps.
  *
+ * - An interrupt's entry costs 4 cycles, as on the chip (simavr 1.6 charges none).
+ * - --irq-log adds the entry and exit of every interrupt to the edge log as comment lines
+ *   "# irq <vector> enter|exit <cycle> pc=<addr>" (to see what delays an event timestamp).
+ *
+ * simavr 1.6 does not model GTCCR.TSM (timer synchronisation mode: the prescaler is held while
+ * TSM is set, so the timers configured meanwhile start together when it is cleared). The harness
+ * does: while TSM is set, clock-select writes to TCCR1B/TCCR3B are held back (the rest of the
+ * register is written) and applied in the same cycle when TSM is cleared. The 32U4 firmware uses
+ * it to run Timer3 in lock-step with Timer1.
+ *
  * One fix to simavr 1.6's model, so that the firmware runs as on the chip: in the PWM modes the
  * ATmega's OCR1x registers are double-buffered and a written value takes effect at the next BOTTOM
  * (datasheet, "16-bit Timer/Counter1"); simavr 1.6 ignores OCR1x writes in fast PWM mode until the
@@ -64,7 +74,8 @@ typedef struct {
 
 static const board_t boards[] = {
     {"atmega328p", {{'B', 1}, {'B', 2}, {'D', 4}, {'D', 5}, {'D', 6}, {'D', 2}}},
-    {"atmega32u4", {{'B', 5}, {'B', 6}, {'D', 4}, {'C', 6}, {'D', 7}, {'D', 0}}},
+    /* 32U4 event input: ICP3 (PC7, D13), Timer3's input-capture pin */
+    {"atmega32u4", {{'B', 5}, {'B', 6}, {'D', 4}, {'C', 6}, {'D', 7}, {'C', 7}}},
 };
 
 static avr_t *g_avr;
@@ -81,9 +92,98 @@ static struct {
     void *param;
 } g_ocr_orig[AVR_TIMER_COMP_COUNT];
 
+/* GTCCR.TSM model */
+#define REG_GTCCR 0x43
+#define REG_TCCR1B 0x81
+#define REG_TCCR3B 0x91
+#define TSM_BIT 7
+static int g_tsm;
+static struct {
+    avr_io_write_t c;
+    void *param;
+    int pending;
+    uint8_t value;
+} g_tccrb[2]; /* 0: TCCR1B, 1: TCCR3B */
+static avr_io_write_t g_gtccr_orig;
+static void *g_gtccr_param;
+
+static void tccrb_write(struct avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param) {
+    int i = (int)(intptr_t)param;
+    if (g_tsm && (v & 7)) {
+        g_tccrb[i].pending = 1;
+        g_tccrb[i].value = v;
+        v &= (uint8_t)~7;
+    } else {
+        g_tccrb[i].pending = 0;
+    }
+    g_tccrb[i].c(avr, addr, v, g_tccrb[i].param);
+}
+
+static void gtccr_write(struct avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param) {
+    (void)param;
+    if (g_gtccr_orig)
+        g_gtccr_orig(avr, addr, v, g_gtccr_param);
+    else
+        avr->data[addr] = v;
+    if (v & (1 << TSM_BIT)) {
+        g_tsm = 1;
+        return;
+    }
+    g_tsm = 0; /* released: the held timers start now, in the same cycle */
+    avr->data[addr] = v;
+    for (int i = 0; i < 2; i++)
+        if (g_tccrb[i].pending) {
+            g_tccrb[i].pending = 0;
+            g_tccrb[i].c(avr, i ? REG_TCCR3B : REG_TCCR1B, g_tccrb[i].value, g_tccrb[i].param);
+        }
+}
+
+static void tsm_model_install(void) {
+    static const avr_io_addr_t regs[2] = {REG_TCCR1B, REG_TCCR3B};
+    for (int i = 0; i < 2; i++) {
+        int io = AVR_DATA_TO_IO(regs[i]);
+        if (!g_avr->io[io].w.c)
+            return; /* no such timer on this core */
+    }
+    for (int i = 0; i < 2; i++) {
+        int io = AVR_DATA_TO_IO(regs[i]);
+        g_tccrb[i].c = g_avr->io[io].w.c;
+        g_tccrb[i].param = g_avr->io[io].w.param;
+        g_avr->io[io].w.c = tccrb_write;
+        g_avr->io[io].w.param = (void *)(intptr_t)i;
+    }
+    int io = AVR_DATA_TO_IO(REG_GTCCR);
+    g_gtccr_orig = g_avr->io[io].w.c;
+    g_gtccr_param = g_avr->io[io].w.param;
+    g_avr->io[io].w.c = gtccr_write;
+    g_avr->io[io].w.param = NULL;
+}
+
 /* event input injection */
 static avr_irq_t *g_event_irq;
 static uint64_t g_ev_period, g_ev_phase, g_ev_high;
+
+/* Interrupt entry. simavr 1.6 jumps to the vector in zero cycles; the AVR takes 4 (datasheet,
+ * "Interrupt Response Time": PC pushed, I cleared, then the vector's jmp). The 4 cycles are added
+ * here, so that an interrupt-timed value (the 328P event timestamp) lags as on the chip.
+ * --irq-log: entries/exits as comment lines in the edge log (latency diagnosis). */
+static int g_irq_log;
+static void irq_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+    int v = (int)(intptr_t)param;
+    (void)irq;
+    if (value)
+        g_avr->cycle += 4;
+    if (!g_irq_log)
+        return;
+    if (g_log && value) {
+        /* the interrupted code's address, just pushed (high byte at SP+1) */
+        uint16_t sp = (uint16_t)(g_avr->data[R_SPL] | (g_avr->data[R_SPH] << 8));
+        unsigned ret = ((unsigned)g_avr->data[sp + 1] << 8 | g_avr->data[sp + 2]) * 2u;
+        fprintf(g_log, "# irq %d enter %llu from=0x%x\n", v, (unsigned long long)g_avr->cycle, ret);
+    } else if (g_log) {
+        fprintf(g_log, "# irq %d exit %llu\n", v, (unsigned long long)g_avr->cycle);
+    }
+}
 
 static void on_signal(int s) {
     (void)s;
@@ -272,6 +372,7 @@ int main(int argc, char **argv) {
         {"max-seconds", required_argument, 0, 's'},  {"max-cycles", required_argument, 0, 'c'},
         {"event-period", required_argument, 0, 'P'}, {"event-phase", required_argument, 0, 'H'},
         {"event-high", required_argument, 0, 'W'},   {"help", no_argument, 0, 'h'},
+        {"irq-log", no_argument, 0, 'I'},
         {0, 0, 0, 0}};
     int o;
     while ((o = getopt_long(argc, argv, "", opts, NULL)) != -1) {
@@ -287,6 +388,7 @@ int main(int argc, char **argv) {
         case 'P': g_ev_period = strtoull(optarg, NULL, 10); break;
         case 'H': g_ev_phase = strtoull(optarg, NULL, 10); break;
         case 'W': g_ev_high = strtoull(optarg, NULL, 10); break;
+        case 'I': g_irq_log = 1; break;
         default: usage(argv[0]); return o == 'h' ? 0 : 2;
         }
     }
@@ -346,6 +448,8 @@ int main(int argc, char **argv) {
         }
     }
     avr_irq_register_notify(g_t1->overflow.irq + AVR_INT_IRQ_PENDING, tov_hook, NULL);
+    if (find_timer(g_avr, '3'))
+        tsm_model_install();
 
     if (edges) {
         g_log = fopen(edges, "w");
@@ -357,6 +461,10 @@ int main(int argc, char **argv) {
         fprintf(g_log, "# flytrack-trigger-sim 1 mcu=%s f_cpu=%lu\n# cycle signal level\n", mcu,
                 freq);
     }
+    for (int v = 0; v < g_avr->interrupts.vector_count; v++)
+            if (g_avr->interrupts.vector[v])
+                avr_irq_register_notify(g_avr->interrupts.vector[v]->irq + AVR_INT_IRQ_RUNNING, irq_hook,
+                                        (void *)(intptr_t)g_avr->interrupts.vector[v]->vector);
     for (int s = 0; s < SIG_COUNT; s++) {
         g_level[s] = 0;
         avr_irq_t *irq =

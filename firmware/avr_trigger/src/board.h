@@ -3,10 +3,13 @@
  * Both MCUs use Timer1 in fast PWM mode 14 (TOP = ICR1), as the strawlab triggerbox does:
  *   OC1A -> frame trigger (hardware compare output, zero jitter)
  *   OC1B -> pulse channel 0 (hardware compare output: high-speed camera trigger)
- *   INT0 -> event input (photodiode, button), timestamped in its interrupt
+ *   event input (photodiode, button): ATmega32U4 ICP3 (Timer3 input capture, lock-step with
+ *   Timer1: exact); ATmega328P INT0, timestamped first thing in its interrupt (fixed latency,
+ *   compensated)
  *   three plain GPIOs -> stimulus lines 1..3
  * With ICR1 as TOP the Timer1 input-capture unit is unavailable (datasheet: ICP1 is disconnected
- * when ICR1 defines TOP), hence the event input on INT0.
+ * when ICR1 defines TOP), hence Timer3's unit on the 32U4 and INT0 on the 328P (no other 16-bit
+ * timer).
  */
 #ifndef FT_BOARD_H
 #define FT_BOARD_H
@@ -25,6 +28,7 @@
 #define EVT_PINR PIND
 #define EVT_PORT PORTD
 #define EVT_BIT PD2 /* D2 = INT0 */
+#define FT_EVT_ICP 0
 #define OUT1_DDR DDRD
 #define OUT1_PORT PORTD
 #define OUT1_BIT PD4 /* D4 */
@@ -58,9 +62,10 @@
 #define PULSE_DDR DDRB
 #define PULSE_PORT PORTB
 #define PULSE_BIT PB6 /* D10 */
-#define EVT_PINR PIND
-#define EVT_PORT PORTD
-#define EVT_BIT PD0 /* D3 = INT0 */
+#define EVT_PINR PINC
+#define EVT_PORT PORTC
+#define EVT_BIT PC7 /* D13 = ICP3 (the Leonardo's LED pin: the LED loads it, see hardware/README.md) */
+#define FT_EVT_ICP 1
 #define OUT1_DDR DDRD
 #define OUT1_PORT PORTD
 #define OUT1_BIT PD4 /* D4 */

@@ -12,6 +12,16 @@ enum { FT_TIMER_OK = 0, FT_TIMER_BAD_ARG, FT_TIMER_BUSY };
 #define FT_MIN_PERIOD_CYCLES 1600u
 #define FT_MIN_TOP 15u
 
+/* ATmega328P (INT0): CPU cycles from an edge on the event pin to the TCNT1 read in the INT0 stub,
+ * when the CPU is free to take the interrupt at once: the interrupt response (4: PC pushed, I
+ * cleared) + the vector's jmp (3) + push r24 (2); lds TCNT1L then samples the counter. (The
+ * chip's input synchroniser adds about a cycle more, under a tick at /8: not compensated.)
+ * Subtracted from every timestamp (rounded to ticks). Value checked against simavr's cycle
+ * counts in tests/firmware (event timestamp error). */
+#ifndef FT_EVT_LATENCY_CYCLES
+#define FT_EVT_LATENCY_CYCLES 9u
+#endif
+
 typedef struct {
     uint8_t channel;
     uint8_t edge; /* 0 falling, 1 rising */
