@@ -156,8 +156,13 @@ class FrameFeeder:
     def join(self, timeout: float | None = None) -> None:
         self._proc.join(timeout)
 
+    @property
+    def done(self) -> bool:
+        """Every frame was handed to the edges (their stdin is closed)."""
+        return bool(self._counters[4])
+
     def finish(self) -> None:
-        """Tell a child following a regular file that no more edges will come."""
+        """Tell the child that no more edges will come (it stops reading the edge stream)."""
         with contextlib.suppress(OSError, BrokenPipeError):
             self._conn.send(None)
 
@@ -353,10 +358,22 @@ def _feed(
                         render_s += time.perf_counter() - t0
                     counters[2] = render_s
                     counters[3] = put_s
-        for link in links:  # every frame handed out reaches its edge before the pipes close
-            link.finish()
+            for link in links:  # every frame handed out reaches its edge, then the edges see EOF
+                link.finish()
+            for fd in edge_fds:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            counters[4] = 1
+            # The trigger runs on until the host stops it: keep reading its edges (a writer with no
+            # reader would get SIGPIPE) until it closes or the parent says so.
+            while True:
+                ready, _, _ = select.select([fd, conn], [], [], 0.5)
+                if conn in ready and conn.recv() is None:
+                    break
+                if fd in ready and not os.read(fd, 65536) and is_fifo:
+                    break
     finally:
-        for fd in edge_fds:
+        for efd in edge_fds:
             with contextlib.suppress(OSError):
-                os.close(fd)
+                os.close(efd)
         counters[4] = 1

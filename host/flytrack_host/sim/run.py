@@ -275,12 +275,17 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         write_rig(rig, rig_path)
         from flytrack_host.pipeline import HostPipeline
         from flytrack_host.rig import load_rig
+        from flytrack_host.trigger.common import TriggerError
         from flytrack_host.trigger_session import TriggerSession
 
         rig = load_rig(rig_path)  # exactly what a user's host would read
         cameras_for_host = _host_cameras(rig, cams, calib_path)
         session = TriggerSession(rig.trigger)
-        fps = session.open()
+        try:
+            fps = session.open()
+        except TriggerError as exc:
+            session = None
+            raise DemoError(f"the trigger ({trig.kind_label}) did not open: {exc}") from None
 
         def on_result(r: Any) -> None:
             ids = np.fromiter((e.obj_id for e in r.estimates), dtype=np.int64, count=len(r.estimates))
@@ -306,19 +311,22 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         with Progress(TextColumn("[bold]simulated rig[/bold]"), BarColumn(), TextColumn("{task.description}"),
                       TimeRemainingColumn(), console=console, disable=not cfg.progress, transient=True) as prog:
             task = prog.add_task("", total=gt.n_frames)
-            while feeder.alive() and time.monotonic() < t_end:
+            while not feeder.done and feeder.alive() and time.monotonic() < t_end:
                 time.sleep(0.1)
                 prog.update(task, completed=feeder.frames_rendered,
                             description=f"frames {feeder.frames_rendered}/{gt.n_frames}  tracked {len(results)}")
             prog.update(task, completed=feeder.frames_rendered)
-        if feeder.alive():
+        if not feeder.done:
             notes.append(f"the run did not finish within {budget:.0f} s; stopped early")
-            feeder.stop()
+        session.stop()  # the trigger stops (the cameras with it); the host then tracks what is pending
+        trigger_summary = session.summary()
+        session = None
+        feeder.finish()
         edges.wait(5.0)  # the feeder closed their stdin: they finish their frames and exit
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
     finally:
         if session is not None:
-            session.stop()  # the trigger stops, then the host tracks what is pending
+            session.stop()
             trigger_summary = session.summary()
         host_summary = host.stop() if host is not None else {}
         if live is not None:
