@@ -1,11 +1,11 @@
 /* flytrack_trigger_sim: runs the unchanged trigger firmware .elf in simavr.
  *
- * - The firmware's UART is connected to a pseudo-terminal. The pty's slave path is printed on stdout
- *   as "PTY /dev/pts/N" (and written to --pty-file). simavr's own uart_pty part is not used: in 1.6
- *   its thread spins when a client closes the port (read() = -1 taken as a length) so the process
- *   can never be stopped, it shares the /tmp/simavr-uart0 link between all simavrs on the machine,
- *   and it moves bytes from a second thread. Here the main loop moves the bytes (non-blocking
- *   master fd; the harness keeps the slave open so clients may come and go).
+ * - The firmware's UART is connected to a pseudo-terminal. The pty's slave path is printed on
+ * stdout as "PTY /dev/pts/N" (and written to --pty-file). simavr's own uart_pty part is not used:
+ * in 1.6 its thread spins when a client closes the port (read() = -1 taken as a length) so the
+ * process can never be stopped, it shares the /tmp/simavr-uart0 link between all simavrs on the
+ * machine, and it moves bytes from a second thread. Here the main loop moves the bytes
+ * (non-blocking master fd; the harness keeps the slave open so clients may come and go).
  * - Every edge of the trigger, pulse and stimulus outputs (and of the injected event input) is
  *   written to the edge log, one line per edge, line-buffered (the path may be a FIFO):
  *
@@ -59,8 +59,8 @@
 #include <termios.h>
 
 enum { SIG_TRIGGER = 0, SIG_PULSE0, SIG_OUT1, SIG_OUT2, SIG_OUT3, SIG_EVENT, SIG_COUNT };
-static const char *const sig_names[SIG_COUNT] = {"trigger", "pulse0", "out1", "out2", "out3",
-                                                 "event_in"};
+static const char *const sig_names[SIG_COUNT] = {"trigger", "pulse0", "out1",
+                                                 "out2",    "out3",   "event_in"};
 
 typedef struct {
     char port;
@@ -365,31 +365,62 @@ int main(int argc, char **argv) {
     double max_seconds = 0;
     unsigned long long max_cycles = 0;
     int realtime = 0;
-    static const struct option opts[] = {
-        {"elf", required_argument, 0, 'e'},          {"mcu", required_argument, 0, 'm'},
-        {"freq", required_argument, 0, 'f'},         {"edges", required_argument, 0, 'o'},
-        {"pty-file", required_argument, 0, 'p'},     {"realtime", no_argument, 0, 'r'},
-        {"max-seconds", required_argument, 0, 's'},  {"max-cycles", required_argument, 0, 'c'},
-        {"event-period", required_argument, 0, 'P'}, {"event-phase", required_argument, 0, 'H'},
-        {"event-high", required_argument, 0, 'W'},   {"help", no_argument, 0, 'h'},
-        {"irq-log", no_argument, 0, 'I'},
-        {0, 0, 0, 0}};
+    static const struct option opts[] = {{"elf", required_argument, 0, 'e'},
+                                         {"mcu", required_argument, 0, 'm'},
+                                         {"freq", required_argument, 0, 'f'},
+                                         {"edges", required_argument, 0, 'o'},
+                                         {"pty-file", required_argument, 0, 'p'},
+                                         {"realtime", no_argument, 0, 'r'},
+                                         {"max-seconds", required_argument, 0, 's'},
+                                         {"max-cycles", required_argument, 0, 'c'},
+                                         {"event-period", required_argument, 0, 'P'},
+                                         {"event-phase", required_argument, 0, 'H'},
+                                         {"event-high", required_argument, 0, 'W'},
+                                         {"help", no_argument, 0, 'h'},
+                                         {"irq-log", no_argument, 0, 'I'},
+                                         {0, 0, 0, 0}};
     int o;
     while ((o = getopt_long(argc, argv, "", opts, NULL)) != -1) {
         switch (o) {
-        case 'e': elf = optarg; break;
-        case 'm': mcu = optarg; break;
-        case 'f': freq = strtoul(optarg, NULL, 10); break;
-        case 'o': edges = optarg; break;
-        case 'p': pty_file = optarg; break;
-        case 'r': realtime = 1; break;
-        case 's': max_seconds = strtod(optarg, NULL); break;
-        case 'c': max_cycles = strtoull(optarg, NULL, 10); break;
-        case 'P': g_ev_period = strtoull(optarg, NULL, 10); break;
-        case 'H': g_ev_phase = strtoull(optarg, NULL, 10); break;
-        case 'W': g_ev_high = strtoull(optarg, NULL, 10); break;
-        case 'I': g_irq_log = 1; break;
-        default: usage(argv[0]); return o == 'h' ? 0 : 2;
+        case 'e':
+            elf = optarg;
+            break;
+        case 'm':
+            mcu = optarg;
+            break;
+        case 'f':
+            freq = strtoul(optarg, NULL, 10);
+            break;
+        case 'o':
+            edges = optarg;
+            break;
+        case 'p':
+            pty_file = optarg;
+            break;
+        case 'r':
+            realtime = 1;
+            break;
+        case 's':
+            max_seconds = strtod(optarg, NULL);
+            break;
+        case 'c':
+            max_cycles = strtoull(optarg, NULL, 10);
+            break;
+        case 'P':
+            g_ev_period = strtoull(optarg, NULL, 10);
+            break;
+        case 'H':
+            g_ev_phase = strtoull(optarg, NULL, 10);
+            break;
+        case 'W':
+            g_ev_high = strtoull(optarg, NULL, 10);
+            break;
+        case 'I':
+            g_irq_log = 1;
+            break;
+        default:
+            usage(argv[0]);
+            return o == 'h' ? 0 : 2;
         }
     }
     if (!elf) {
@@ -462,9 +493,10 @@ int main(int argc, char **argv) {
                 freq);
     }
     for (int v = 0; v < g_avr->interrupts.vector_count; v++)
-            if (g_avr->interrupts.vector[v])
-                avr_irq_register_notify(g_avr->interrupts.vector[v]->irq + AVR_INT_IRQ_RUNNING, irq_hook,
-                                        (void *)(intptr_t)g_avr->interrupts.vector[v]->vector);
+        if (g_avr->interrupts.vector[v])
+            avr_irq_register_notify(g_avr->interrupts.vector[v]->irq + AVR_INT_IRQ_RUNNING,
+                                    irq_hook,
+                                    (void *)(intptr_t)g_avr->interrupts.vector[v]->vector);
     for (int s = 0; s < SIG_COUNT; s++) {
         g_level[s] = 0;
         avr_irq_t *irq =
@@ -538,8 +570,7 @@ int main(int argc, char **argv) {
             double ahead = (double)g_avr->cycle / (double)freq - (now_s() - t0);
             if (ahead > 20e-6 && g_rx_done == g_rx_len) {
                 struct pollfd pfd = {g_master, POLLIN, 0};
-                struct timespec ts = {(time_t)ahead,
-                                      (long)((ahead - (double)(time_t)ahead) * 1e9)};
+                struct timespec ts = {(time_t)ahead, (long)((ahead - (double)(time_t)ahead) * 1e9)};
                 ppoll(&pfd, 1, &ts, NULL);
             }
         }

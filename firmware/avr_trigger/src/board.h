@@ -21,6 +21,7 @@
 /* Arduino Nano / Uno */
 #define TRIG_DDR DDRB
 #define TRIG_PORT PORTB
+#define TRIG_PINR PINB
 #define TRIG_BIT PB1 /* D9 */
 #define PULSE_DDR DDRB
 #define PULSE_PORT PORTB
@@ -58,13 +59,15 @@
 /* Arduino Leonardo / Micro */
 #define TRIG_DDR DDRB
 #define TRIG_PORT PORTB
+#define TRIG_PINR PINB
 #define TRIG_BIT PB5 /* D9 */
 #define PULSE_DDR DDRB
 #define PULSE_PORT PORTB
 #define PULSE_BIT PB6 /* D10 */
 #define EVT_PINR PINC
 #define EVT_PORT PORTC
-#define EVT_BIT PC7 /* D13 = ICP3 (the Leonardo's LED pin: the LED loads it, see hardware/README.md) */
+#define EVT_BIT                                                                                    \
+    PC7 /* D13 = ICP3 (the Leonardo's LED pin: the LED loads it, see hardware/README.md) */
 #define FT_EVT_ICP 1
 #define OUT1_DDR DDRD
 #define OUT1_PORT PORTD

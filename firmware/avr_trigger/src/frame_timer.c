@@ -1,9 +1,9 @@
 /* Frame timer on Timer1, fast PWM mode 14 (TOP = ICR1).
  *
  * Frame trigger: OC1A is set by the hardware when the counter passes from TOP to 0 (BOTTOM) and
- * cleared at the OCR1A match, so every rising edge is exactly (TOP + 1) * prescaler CPU cycles after
- * the previous one, whatever the software does. Frame n (0-based) begins at the n+1-th BOTTOM after
- * START; `s_frames` counts those (TIMER1_OVF, flag set at TOP on the chip).
+ * cleared at the OCR1A match, so every rising edge is exactly (TOP + 1) * prescaler CPU cycles
+ * after the previous one, whatever the software does. Frame n (0-based) begins at the n+1-th BOTTOM
+ * after START; `s_frames` counts those (TIMER1_OVF, flag set at TOP on the chip).
  *
  * The trigger output is connected (COM1A) only in the first OCR1A-match interrupt after START, so
  * the first rising edge is the first real BOTTOM, on the chip and in the simulator alike.
@@ -43,10 +43,10 @@ enum { PULSE_IDLE = 0, PULSE_WAITING, PULSE_ARMED };
 static volatile uint32_t s_frames;
 #define OVF_BUSY_BIT 0
 static volatile uint8_t s_running;
-static volatile uint8_t s_trig_on;   /* OC1A connected (first OCR1A match after START passed) */
-static uint8_t s_cs = 2;             /* prescaler code == CS12:0 value */
-static uint16_t s_top = 19999;       /* 100 Hz at 16 MHz, /8 */
-static uint16_t s_trig_ocr;          /* trigger width - 1, in ticks */
+static volatile uint8_t s_trig_on; /* OC1A connected (first OCR1A match after START passed) */
+static uint8_t s_cs = 2;           /* prescaler code == CS12:0 value */
+static uint16_t s_top = 19999;     /* 100 Hz at 16 MHz, /8 */
+static uint16_t s_trig_ocr;        /* trigger width - 1, in ticks */
 
 static volatile uint8_t s_pulse_state;
 static volatile uint32_t s_pulse_frame;
@@ -174,7 +174,16 @@ void ft_timer_start(void) {
 
 void ft_timer_stop(void) {
     uint8_t sreg = SREG;
-    cli();
+    /* Never cut a trigger pulse short: a runt pulse can start a half exposure on some cameras and
+     * would not have the width the cameras were set up for. A pulse lasts at most half a frame and
+     * its falling edge is set by the hardware, so wait for it with interrupts on (the wait is
+     * at most ~130 us at the default width); the next rising edge is then half a frame away. */
+    for (;;) {
+        cli();
+        if (!s_running || !(TRIG_PINR & _BV(TRIG_BIT)))
+            break;
+        SREG = sreg;
+    }
     if (s_running) {
         uint16_t t;
         TCCR1B = _BV(WGM13) | _BV(WGM12);
@@ -206,10 +215,10 @@ void ft_timer_stop_reset(void) {
 }
 
 /* Caller has interrupts disabled. Reads (count, ticks) so that a wrap between the two reads cannot
- * be seen: the overflow flag is read before and after TCNT1 and the sample is retaken if it changed,
- * and a pending (not yet counted) overflow is added. TCNT1 == TOP is retaken too: on the chip the
- * flag (and the count) rises at TOP, one tick before the pulse, which would make that one tick
- * ambiguous. The wait is at most one timer tick. */
+ * be seen: the overflow flag is read before and after TCNT1 and the sample is retaken if it
+ * changed, and a pending (not yet counted) overflow is added. TCNT1 == TOP is retaken too: on the
+ * chip the flag (and the count) rises at TOP, one tick before the pulse, which would make that one
+ * tick ambiguous. The wait is at most one timer tick. */
 static void sample_locked(uint32_t *frames, uint16_t *ticks) {
     if (!s_running) {
         *frames = s_frames;
@@ -361,7 +370,7 @@ ISR(TIMER1_COMPB_vect, ISR_NOBLOCK) {
     /* Only the match inside the pulse's own frame ends it (a match of the arming frame comes
      * before the pulse began). */
     if (s_pulse_state == PULSE_ARMED && f == s_pulse_frame + 1) {
-        TCCR1A &= (uint8_t)~(_BV(COM1B1) | _BV(COM1B0));
+        TCCR1A &= (uint8_t) ~(_BV(COM1B1) | _BV(COM1B0));
         TIMSK1 &= (uint8_t)~_BV(OCIE1B);
         OCR1B = 0; /* idle value below the trigger match: arming never sees OC1B high */
         s_pulse_state = PULSE_IDLE;

@@ -1,4 +1,5 @@
-/* FlyTrack trigger firmware: the serial link of protocol/SPEC.md section 3 on top of the frame timer.
+/* FlyTrack trigger firmware: the serial link of protocol/SPEC.md section 3 on top of the frame
+ * timer.
  *
  * The main loop feeds received bytes to the COBS receiver, answers each request, and sends queued
  * input events. Bad frames get an ERROR reply when they can be attributed (a header was decoded)
