@@ -91,6 +91,10 @@ def selfcal_cmd(
     focal: float = typer.Option(0.0, help="Approximate focal length in pixels (default: the image's larger side)."),
     intrinsics: Path | None = typer.Option(None, help="Calibration file with starting intrinsics per camera."),
     distortion: str = typer.Option("k1k2", help="none, k1, k1k2 or k1k2p1p2 (radial + tangential)."),
+    init: str = typer.Option("factorization", "--init",
+                             help="Start of the bundle adjustment: factorization (Svoboda: projective factorisation "
+                                  "+ Euclidean upgrade, 3+ cameras) or pairwise (essential matrices + PnP from the "
+                                  "focal length guess)."),
     plot: Path | None = typer.Option(None, help="Write a PNG of cameras, points and errors."),
 ) -> None:
     """Self-calibrate all cameras from an LED waved through the volume (up to a similarity; then `align`)."""
@@ -98,10 +102,11 @@ def selfcal_cmd(
 
     obs = load_points(points)
     intr = load_calibration(intrinsics) if intrinsics else None
-    res = self_calibrate(obs, focal_px=focal or None, intrinsics=intr, distortion=distortion)
+    res = self_calibrate(obs, focal_px=focal or None, intrinsics=intr, distortion=distortion, init=init)
     save_calibration(res.cameras, out)
     console.print(f"self-calibration of {obs.n_cameras} cameras from {len(res.point_frames)} frames in "
-                  f"{sum(res.timings.values()):.1f} s; noise estimate {res.sigma_px:.3f} px", highlight=False)
+                  f"{sum(res.timings.values()):.1f} s ({res.init_method} start); noise estimate "
+                  f"{res.sigma_px:.3f} px", highlight=False)
     _print_report(res.cameras, obs, res.residuals, res.inlier, res.points, plot)
     for w in res.warnings:
         console.print(f"warning: {w}", highlight=False)

@@ -1,22 +1,29 @@
 """Multi-camera self-calibration from one bright point (an LED) waved through the volume.
 
-What this implements (honestly): not Svoboda's projective factorisation + Euclidean upgrade, but the
-robust alternative the issue allows, as incremental structure-from-motion does it:
+The default initialisation ("factorization") is the method of Svoboda et al. (as flydra uses it):
 
-1. Pairwise outlier rejection: for every camera pair with enough common frames, RANSAC on the essential
-   matrix (cv2.findEssentialMat) in normalised coordinates from approximate intrinsics; an observation is
-   dropped when most of the pairs it takes part in reject it.
-2. Initialisation: the pair with the most inliers gives relative pose (cv2.recoverPose) and the first
-   points; every other camera is added by RANSAC PnP (cv2.solvePnPRansac) on the points seen so far, in
-   the order of how many of them it sees, and new points are triangulated as cameras join. Missing views
-   are simply absent observations (no filling is needed).
-3. Bundle adjustment (`bundle.py`) of all cameras (pose, focal length, principal point, radial and
-   optionally tangential distortion) and all points: first with a robust loss, then rejection of
-   observations beyond ~4.5 sigma, then again with a Huber loss tuned to the measured noise.
+1. Pairwise outlier rejection: for every camera pair with enough common frames, RANSAC on the
+   fundamental matrix (cv2.findFundamentalMat, pixels); an observation is dropped when most of the pairs
+   it takes part in reject it. No intrinsics are needed.
+2. Projective factorisation (`factorization.py`, Sturm-Triggs with iterative depths and rank-4 filling
+   of the missing views) of the frames seen by 3 or more cameras, then removal of the entries it cannot
+   explain and a second factorisation.
+3. Euclidean upgrade (`metric_upgrade.py`) through the absolute dual quadric, assuming zero skew, square
+   pixels and a principal point near the image centre; every other frame is then triangulated.
+
+The alternative ("pairwise", `--init pairwise`) starts from approximate intrinsics instead: essential
+matrix RANSAC per pair, relative pose of the best pair (cv2.recoverPose), then every other camera by RANSAC
+PnP (cv2.solvePnPRansac) on the points seen so far, triangulating new points as cameras join.
+
+Either start is refined by bundle adjustment (`bundle.py`) of all cameras (pose, focal length, principal
+point, radial and optionally tangential distortion) and all points: first with a robust loss, then
+rejection of observations beyond ~4.5 sigma, then again with a Huber loss tuned to the measured noise.
 
 The result is exact up to a similarity (rotation, translation, scale): `align.py` fixes it to the world.
-Approximate intrinsics are needed to start: a focal length guess in pixels (the lens focal length
-divided by the pixel pitch), or an intrinsics file, or by default the image's larger side (~53 deg).
+A focal length guess in pixels (lens focal length / pixel pitch, or an intrinsics file; by default the
+image's larger side, ~53 deg) is needed by "pairwise"; "factorization" uses it only to normalise pixels
+and as a weak prior (the upgrade finds the focal lengths). Lens distortion is ignored until the bundle
+adjustment unless an intrinsics file gives it (its pixels are then undistorted first).
 """
 
 from __future__ import annotations
@@ -30,16 +37,19 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from flytrack_host.calibration.align import Similarity
 from flytrack_host.calibration.bundle import DISTORTION_MODELS, bundle_adjust
 from flytrack_host.calibration.observations import Observations
 from flytrack_host.camera import Camera
 
-__all__ = ["SelfCalError", "SelfCalResult", "self_calibrate", "initial_cameras", "triangulate_frames",
+__all__ = ["INIT_METHODS", "SelfCalError", "SelfCalResult", "self_calibrate", "initial_cameras",
+           "factorization_cameras", "triangulate_frames",
            "check_observations"]
 
 F64 = NDArray[np.float64]
 MIN_POINTS_PER_CAMERA = 30
 MIN_PAIR_POINTS = 15
+INIT_METHODS = ("factorization", "pairwise")
 
 
 class SelfCalError(ValueError):
@@ -61,6 +71,7 @@ class SelfCalResult:
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     sigma_px: float = float("nan")
+    init_method: str = "factorization"  # which initialisation gave the start (see INIT_METHODS)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -193,9 +204,12 @@ def _guess_cameras(obs: Observations, focal_px: float | Mapping[str, float] | No
     return cams
 
 
-def _pairwise_outliers(obs: Observations, inv: NDArray[np.int64], xy: F64, fpx: F64, thresh_px: float,
+def _pairwise_outliers(obs: Observations, inv: NDArray[np.int64], xy: F64, fpx: F64 | None, thresh_px: float,
                        rng_seed: int) -> tuple[NDArray[np.bool_], dict[tuple[int, int], int]]:
-    """Essential-matrix RANSAC per camera pair; returns (observation is an outlier, inliers per pair)."""
+    """Epipolar RANSAC per camera pair; returns (observation is an outlier, inliers per pair).
+
+    With focal lengths fpx, xy are normalised coordinates and the essential matrix is fitted; with
+    fpx None, xy are pixels and the fundamental matrix is fitted (no intrinsics needed)."""
     n_frames = int(inv.max()) + 1
     C = obs.n_cameras
     lookup = np.full((C, n_frames), -1, dtype=np.int64)
@@ -209,9 +223,12 @@ def _pairwise_outliers(obs: Observations, inv: NDArray[np.int64], xy: F64, fpx: 
         if len(both) < MIN_PAIR_POINTS:
             continue
         oi, oj = lookup[i, both], lookup[j, both]
-        thr = thresh_px / np.sqrt(fpx[i] * fpx[j])
-        E, mask = cv2.findEssentialMat(xy[oi], xy[oj], np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=thr,
-                                       maxIters=2000)
+        if fpx is None:
+            E, mask = cv2.findFundamentalMat(xy[oi], xy[oj], cv2.FM_RANSAC, thresh_px, 0.999, 2000)
+        else:
+            thr = thresh_px / np.sqrt(fpx[i] * fpx[j])
+            E, mask = cv2.findEssentialMat(xy[oi], xy[oj], np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=thr,
+                                           maxIters=2000)
         if E is None or mask is None:
             continue
         m = mask.ravel().astype(bool)
@@ -239,9 +256,7 @@ def initial_cameras(obs: Observations, focal_px: float | Mapping[str, float] | N
         xy[sel] = _normalised(cam, obs.uv[sel])
     fpx = np.array([c.K[0, 0] for c in cams])
     if ransac_px is None:
-        # Generous: the initial model ignores the (unknown) lens distortion, which can bend epipolar
-        # geometry by several pixels at the image edges; the bundle adjustment does the fine rejection.
-        ransac_px = max(4.0, 0.006 * max(max(s) for s in obs.sizes))
+        ransac_px = _default_ransac_px(obs)
     outlier, pair_inliers = _pairwise_outliers(obs, inv, xy, fpx, ransac_px, seed)
     good = ~outlier
     if not pair_inliers:
@@ -314,18 +329,139 @@ def initial_cameras(obs: Observations, focal_px: float | Mapping[str, float] | N
     return cams, X, good, warns, (i0, j0)
 
 
+def _default_ransac_px(obs: Observations) -> float:
+    # Generous: the initial model ignores the (unknown) lens distortion, which can bend epipolar geometry by
+    # several pixels at the image edges; the bundle adjustment does the fine rejection.
+    return max(4.0, 0.006 * max(max(s) for s in obs.sizes))
+
+
+def factorization_cameras(obs: Observations, focal_px: float | Mapping[str, float] | None = None,
+                          intrinsics: Mapping[str, Camera] | None = None, ransac_px: float | None = None,
+                          seed: int = 0, max_points: int = 1000,
+                          ) -> tuple[list[Camera], F64, NDArray[np.bool_], list[str], tuple[int, int]]:
+    """Svoboda-style start: fundamental-matrix RANSAC, projective factorisation, Euclidean upgrade.
+
+    Same return values as `initial_cameras`: cameras, points (all frames), usable observations, warnings,
+    and the gauge pair (the first camera is made the identity, the distance to the second 1)."""
+    from flytrack_host.calibration.factorization import FactorizationError, projective_factorization
+    from flytrack_host.calibration.metric_upgrade import MetricUpgradeError, metric_upgrade
+
+    warns: list[str] = []
+    C = obs.n_cameras
+    if C < 3:
+        raise SelfCalError(f"the factorisation initialisation needs 3 or more cameras (there are {C}): with 2 the "
+                           "focal lengths cannot be found. Use --init pairwise with a focal length guess.")
+    cams = _guess_cameras(obs, focal_px, intrinsics)
+    frames, inv = obs.point_index()
+    n_pts = len(frames)
+    px = obs.uv.copy()  # pixels for the projective stage: undistorted when an intrinsics file gives a lens model
+    for c, cam in enumerate(cams):
+        if cam.has_distortion:
+            sel = obs.cam == c
+            px[sel] = cam.undistort(obs.uv[sel])
+    if ransac_px is None:
+        ransac_px = _default_ransac_px(obs)
+    outlier, pair_inliers = _pairwise_outliers(obs, inv, px, None, ransac_px, seed)
+    good = ~outlier
+    if not pair_inliers:
+        raise SelfCalError(f"no pair of cameras shares {MIN_PAIR_POINTS} or more frames with the LED. The "
+                           "cameras must overlap: wave the LED where several cameras see it at once.")
+    lookup = np.full((C, n_pts), -1, dtype=np.int64)
+    lookup[obs.cam[good], inv[good]] = np.flatnonzero(good)
+    cand = np.flatnonzero(np.sum(lookup >= 0, axis=0) >= 3)  # frames seen by 3+ cameras fix the cameras best
+    few = [obs.camera_names[c] for c in range(C) if np.sum(lookup[c, cand] >= 0) < 12]
+    if few:
+        raise SelfCalError(f"camera(s) {', '.join(few)} share too few LED frames with two other cameras at once to "
+                           "be placed. Wave the LED where these cameras and at least two others see it.")
+    rng = np.random.default_rng(seed)
+    if len(cand) > max_points:
+        cand = np.sort(rng.choice(cand, size=max_points, replace=False))
+    sub = lookup[:, cand]
+    seen = sub >= 0
+    uv = np.zeros((C, len(cand), 2))
+    uv[seen] = px[sub[seen]]
+    try:
+        rec = projective_factorization(uv, seen)
+        # Entries the rank-4 model cannot explain (outliers the pairwise test let through) go; then again.
+        err = np.linalg.norm(rec.project() - uv, axis=2)
+        robust = 1.4826 * float(np.median(err[seen]))
+        seen &= err < max(ransac_px, 5.0 * robust)
+        keep = seen.sum(axis=0) >= 2
+        uv, seen, cand = uv[:, keep], seen[:, keep], cand[keep]
+        rec = projective_factorization(uv, seen)
+    except FactorizationError as exc:
+        raise SelfCalError(f"projective factorisation failed: {exc}. Wave the LED longer where 3 or more cameras "
+                           "see it at once.") from None
+    if rec.singular_ratio < 0.15:
+        # The scaled measurement matrix of points on a plane (or a line) has rank 3 (or less), not 4.
+        raise SelfCalError("the LED positions are planar (or collinear): self-calibration needs points that fill a "
+                           "volume. Wave the LED up and down as well as across, through the whole tracking volume.")
+    f0 = [c.K[0, 0] for c in cams]
+    try:
+        mr = metric_upgrade(rec.P, rec.X, obs.sizes, f0, seen)
+    except MetricUpgradeError as exc:
+        raise SelfCalError(f"Euclidean upgrade failed: {exc}") from None
+    if mr.in_front < 0.9:
+        raise SelfCalError(f"the Euclidean upgrade puts {100 * (1 - mr.in_front):.0f} % of the LED points behind the "
+                           "cameras that see them: the factorisation is unreliable. Try --init pairwise with a "
+                           "focal length guess, or give an intrinsics file.")
+    for c, cam in enumerate(cams):
+        try:
+            m = Camera.from_P(cam.name, mr.P[c], cam.width, cam.height)
+        except ValueError as exc:
+            raise SelfCalError(f"Euclidean upgrade gave no valid camera {cam.name}: {exc}") from None
+        f = float(np.sqrt(m.K[0, 0] * m.K[1, 1]))  # the model has zero skew and square pixels
+        cx, cy = m.K[0, 2], m.K[1, 2]
+        if not (0 <= cx < cam.width and 0 <= cy < cam.height):
+            warns.append(f"camera {cam.name}: the upgrade put its principal point outside the image; started from "
+                         "the image centre instead.")
+            cx, cy = (cam.width - 1) / 2.0, (cam.height - 1) / 2.0
+        cam.K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+        cam.R, cam.t = m.R, m.t
+    # Gauge as the pairwise start has it: the best-overlapping pair, first camera at the origin, unit baseline.
+    (i0, j0), _ = max(pair_inliers.items(), key=lambda kv: kv[1])
+    base = float(np.linalg.norm(cams[j0].center - cams[i0].center))
+    sim = Similarity(1.0 / base, cams[i0].R.copy(), cams[i0].t / base)
+    cams = [sim.apply_camera(c) for c in cams]
+    xy = np.empty_like(obs.uv)
+    for c, cam in enumerate(cams):
+        sel = obs.cam == c
+        xy[sel] = _normalised(cam, obs.uv[sel])
+    Ps: list[F64 | None] = [np.hstack([c.R, c.t[:, None]]) for c in cams]
+    cam_idx = obs.cam.astype(np.intp)
+    X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
+    degenerate = _degeneracy(X[np.all(np.isfinite(X), axis=1)])
+    if degenerate:
+        raise SelfCalError(f"the LED positions are {degenerate}: self-calibration needs points that fill a volume. "
+                           "Wave the LED up and down as well as across, through the whole tracking volume.")
+    thr_norm = ransac_px / float(np.median([c.K[0, 0] for c in cams]))
+    err = _reproj_norm(Ps, X, cam_idx, inv, xy)
+    good &= np.isfinite(err) & (err < 3 * thr_norm)
+    X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
+    if int(np.sum(outlier)) > 0.2 * len(outlier):
+        warns.append(f"{int(np.sum(outlier))} of {len(outlier)} detections ({100 * np.mean(outlier):.0f} %) "
+                     "disagree with the epipolar geometry: check for reflections or a second bright spot.")
+    return cams, X, good, warns, (i0, j0)
+
+
 # ------------------------------------------------------------------------------------------------
 # the whole pipeline
 # ------------------------------------------------------------------------------------------------
 def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | None = None,
                    intrinsics: Mapping[str, Camera] | None = None, distortion: str = "k1k2",
                    ransac_px: float | None = None, max_nfev: int = 60, seed: int = 0,
-                   max_ba_points: int = 1500, final_ftol: float = 1e-5) -> SelfCalResult:
+                   max_ba_points: int = 1500, final_ftol: float = 1e-5, init: str = "factorization",
+                   ) -> SelfCalResult:
+    """Calibrate all cameras of obs (up to a similarity). init: "factorization" (Svoboda: projective
+    factorisation + Euclidean upgrade) or "pairwise" (essential matrices + PnP from approximate intrinsics)."""
     if distortion not in DISTORTION_MODELS:
         raise SelfCalError(f"distortion model {distortion!r} unknown; choose one of {', '.join(DISTORTION_MODELS)}.")
+    if init not in INIT_METHODS:
+        raise SelfCalError(f"initialisation {init!r} unknown; choose one of {', '.join(INIT_METHODS)}.")
     check_observations(obs)
     t0 = time.perf_counter()
-    cams, X, good, warns, gauge = initial_cameras(obs, focal_px, intrinsics, ransac_px, seed)
+    start = factorization_cameras if init == "factorization" else initial_cameras
+    cams, X, good, warns, gauge = start(obs, focal_px, intrinsics, ransac_px, seed)
     t1 = time.perf_counter()
     frames, inv = obs.point_index()
     init_cams = {c.name: Camera(c.name, c.width, c.height, c.K.copy(), c.R.copy(), c.t.copy(), c.dist.copy())
@@ -369,7 +505,7 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
         cameras={c.name: c for c in cams}, points=X_cur, point_frames=frames, obs=obs, inlier=inlier,
         obs_point=inv.copy(), residuals=all_res, initial_cameras=init_cams, initial_points=init_X,
         initial_obs_mask=init_mask, timings={"init_s": t1 - t0, "bundle_s": t2 - t1}, warnings=warns,
-        sigma_px=sigma)
+        sigma_px=sigma, init_method=init)
     return result
 
 

@@ -18,12 +18,14 @@ from flytrack_host.calibration.selfcal import SelfCalError, self_calibrate
 from flytrack_host.calibration.synthetic import make_rig, observe, synthetic_rig
 
 
-@pytest.mark.parametrize(("n_cams", "seed", "focal_error"), [(4, 0, 1.1), (6, 1, 0.9)])
-def test_selfcal_reaches_noise_floor_and_true_centres(n_cams: int, seed: int, focal_error: float) -> None:
+@pytest.mark.parametrize(("n_cams", "seed", "focal_error", "init"),
+                         [(4, 0, 1.1, "factorization"), (6, 1, 0.9, "factorization"), (4, 2, 1.1, "pairwise")])
+def test_selfcal_reaches_noise_floor_and_true_centres(n_cams: int, seed: int, focal_error: float, init: str) -> None:
     # 3000 LED frames, 0.5 px noise, 30 % missing views, 2 % gross outliers, radial distortion.
     rig = synthetic_rig(n_cams, n_points=3000, seed=seed)
     focal = {k: c.K[0, 0] * focal_error for k, c in rig.cameras.items()}
-    res = self_calibrate(rig.obs, focal_px=focal, seed=seed)
+    res = self_calibrate(rig.obs, focal_px=focal, seed=seed, init=init)
+    assert res.init_method == init
     truth_inliers = ~rig.outlier
     floor = reprojection_error(rig.cameras, rig.obs, truth_inliers)  # the true cameras' own error
     ours = reprojection_error(res.cameras, rig.obs, truth_inliers)
@@ -127,6 +129,15 @@ def test_cli_bad_inputs_give_one_paragraph(tmp_path: Path) -> None:
     bad_csv.write_text("# camera a 10 10\nframe,camera,u,v\n1,b,2,3\n")
     r = _run_cli("selfcal", str(bad_csv), "-o", str(tmp_path / "c.xml"))
     assert r.returncode == 2 and "not declared" in r.stderr
+    save_points(synthetic_rig(3, n_points=200).obs, pts)
+    r = _run_cli("selfcal", str(pts), "-o", str(tmp_path / "c.xml"), "--init", "svd")
+    assert r.returncode == 2 and "initialisation 'svd' unknown" in r.stderr
+
+
+def test_factorization_needs_three_cameras() -> None:
+    rig = synthetic_rig(2, n_points=400)
+    with pytest.raises(SelfCalError, match="3 or more cameras"):
+        self_calibrate(rig.obs)
 
 
 def test_cli_selfcal_align_convert(tmp_path: Path) -> None:
@@ -139,6 +150,7 @@ def test_cli_selfcal_align_convert(tmp_path: Path) -> None:
     r = _run_cli("selfcal", str(pts), "-o", str(tmp_path / "raw.xml"), "--focal", "1000",
                  "--plot", str(tmp_path / "p.png"))
     assert r.returncode == 0, r.stderr
+    assert "(factorization start)" in r.stdout
     assert "mean reprojection error" in r.stdout and (tmp_path / "p.png").stat().st_size > 10000
     r = _run_cli("align", str(tmp_path / "raw.xml"), "--centres", str(centres), "-o", str(tmp_path / "w.json"))
     assert r.returncode == 0, r.stderr
