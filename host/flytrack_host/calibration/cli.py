@@ -211,18 +211,41 @@ def intrinsics_cmd(
 @_clean_errors
 def collect_cmd(
     out: Path = typer.Option(..., "--out", "-o", help="Points file to write (.csv or .npz)."),
-    camera: list[str] = typer.Option(..., help="NAME=WIDTHxHEIGHT per camera, in camera_index order (repeat)."),
+    camera: list[str] = typer.Option([], help="NAME=WIDTHxHEIGHT per camera, in camera_index order (repeat); with "
+                                              "--recording only needed when it holds no calibration."),
+    recording: Path | None = typer.Option(None, help="Take the detections from a FlyTrack recording (folder or "
+                                                     "recording.h5) instead of the live rig."),
     port: int = typer.Option(5100, help="UDP port the edge extractors send FEATURES to."),
     seconds: float = typer.Option(120.0, help="How long to collect (Ctrl-C stops early and keeps the data)."),
 ) -> None:
-    """Record single-LED detections from the live rig while you wave the LED (counts and coverage shown)."""
-    from flytrack_host.calibration.collect import Collector, collect_udp
+    """Record single-LED detections from the live rig while you wave the LED (counts and coverage shown),
+    or take them from a recording."""
+    from flytrack_host.calibration.collect import Collector, collect_udp, points_from_recording
 
     names, sizes = [], []
     for c in camera:
         name, _, wh = c.partition("=")
+        if not name or not wh:
+            raise InputError(f"--camera {c!r} is not NAME=WIDTHxHEIGHT (e.g. cam1=1280x1024).")
         names.append(name)
         sizes.append(_parse_size(wh))
+    if recording is not None:
+        try:
+            got = points_from_recording(recording, dict(zip(names, sizes, strict=True)))
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+        obs = got.obs
+        if not len(obs.frame):
+            raise InputError(f"{recording}: no camera frame with exactly one point mapped to a trigger frame; "
+                             "nothing to calibrate from (was the LED the only light in view?).")
+        save_points(obs, out)
+        counts = ", ".join(f"{n}: {k}" for n, k in zip(obs.camera_names, obs.counts(), strict=True))
+        console.print(f"{len(obs.frame)} detections ({counts}) written to {out}; skipped {got.frames_multi} camera "
+                      f"frames with several points, {got.frames_unmapped} without a trigger frame, "
+                      f"{got.rows_rejected} rejected rows", highlight=False)
+        return
+    if not names:
+        raise InputError("give --camera NAME=WIDTHxHEIGHT for each camera (or --recording PATH).")
     col = Collector(names, sizes)
 
     def progress(c: Collector) -> None:

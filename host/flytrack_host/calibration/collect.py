@@ -1,22 +1,25 @@
-"""Collection of LED detections from the live rig: FEATURES datagrams over UDP -> calibration points.
+"""Collection of LED detections -> calibration points: live (FEATURES datagrams over UDP) or from a recording.
 
 A frame of a camera is kept only when that camera reports exactly one feature point (the LED): zero
 means it did not see it, two or more mean a reflection or another light, which would poison the
-calibration. The trigger frame number (or the camera frame when the trigger is unknown) links views.
+calibration. Live, the trigger frame number (or the camera frame when the trigger is unknown) links views;
+in a recording, only frames mapped to the trigger count are used (others cannot be matched across cameras).
 """
 
 from __future__ import annotations
 
 import socket
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from flytrack_host.calibration.observations import Observations
 
-__all__ = ["Collector", "collect_udp"]
+__all__ = ["Collector", "RecordingPoints", "collect_udp", "points_from_recording"]
 
 
 @dataclass
@@ -103,3 +106,82 @@ def collect_udp(collector: Collector, port: int, duration_s: float, host: str = 
     finally:
         sock.close()
     return collector
+
+
+@dataclass
+class RecordingPoints:
+    obs: Observations
+    frames_multi: int  # camera frames with 2 or more points (skipped)
+    frames_unmapped: int  # camera frames with no trigger frame number (skipped)
+    rows_rejected: int  # rows the recorder marked rejected (duplicates, future-dated; skipped)
+
+
+def _recorded_sizes(rec: object) -> dict[str, tuple[int, int]]:
+    """Image sizes of the calibration stored in a recording (none when there is none or it is unreadable)."""
+    from flytrack_host.calibration.formats import CalibrationFormatError, load_calibration
+
+    cal = rec.calibration  # type: ignore[attr-defined]
+    if cal is None:
+        return {}
+    name, data = cal
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / name
+        p.write_bytes(data)
+        try:
+            cams = load_calibration(p)
+        except (CalibrationFormatError, ValueError, OSError):
+            return {}
+    return {k: (c.width, c.height) for k, c in cams.items()}
+
+
+def points_from_recording(path: str | Path, sizes: Mapping[str, tuple[int, int]] | None = None) -> RecordingPoints:
+    """Single-LED detections of a FlyTrack recording (raw folder or recording.h5) as calibration points.
+
+    Camera names come from the recording's cam_info table (the calibration name when set), image sizes
+    from `sizes` or else from the calibration stored in the recording. Raises ValueError (with what to do)
+    when the recording cannot be read or a camera's image size is unknown."""
+    from flytrack_host.recording import RecordingError, load_recording
+    from flytrack_host.recording.schema import FLAG_REJECTED
+
+    try:
+        rec = load_recording(path)
+    except (RecordingError, OSError) as exc:
+        raise ValueError(f"cannot read the recording: {exc}") from None
+    rows = rec.table("data2d_distorted")
+    if not len(rows):
+        raise ValueError(f"{path}: the recording has no 2D points (data2d_distorted is empty).")
+    names: dict[int, str] = {}
+    for r in rec.table("cam_info"):
+        cid = r["calibration_id"].decode(errors="replace")
+        names[int(r["camera_index"])] = cid or r["name"].decode(errors="replace")
+    for ci in np.unique(rows["camera_index"]):
+        names.setdefault(int(ci), f"cam{int(ci)}")
+    known = dict(_recorded_sizes(rec))
+    known.update(sizes or {})
+    order = sorted(names)
+    missing = [names[i] for i in order if names[i] not in known]
+    if missing:
+        raise ValueError(f"image size unknown for camera(s) {', '.join(missing)}: the recording holds no calibration "
+                         "with them. Give --camera NAME=WIDTHxHEIGHT for each.")
+    rejected = (rows["flags"] & FLAG_REJECTED) != 0
+    rows_ok = rows[~rejected]
+    # One camera frame: all rows with the same (camera, camera_frame); the LED frames have exactly one point.
+    key = rows_ok["camera_index"].astype(np.int64) << 48 | rows_ok["camera_frame"].astype(np.int64)
+    _, first, count = np.unique(key, return_index=True, return_counts=True)
+    fr = rows_ok[first]
+    has_point = np.isfinite(fr["x_dist"]) & np.isfinite(fr["y_dist"])
+    single = (count == 1) & (fr["total_points"] <= 1) & has_point
+    multi = (count > 1) | (fr["total_points"] > 1)
+    mapped = fr["trigger_frame"] >= 0
+    use = fr[single & mapped]
+    # The same trigger frame twice for one camera cannot be told apart: keep neither.
+    k2 = use["camera_index"].astype(np.int64) << 48 | use["trigger_frame"].astype(np.int64)
+    _, inv2, c2 = np.unique(k2, return_inverse=True, return_counts=True)
+    use = use[c2[inv2] == 1]
+    pos = {ci: i for i, ci in enumerate(order)}
+    cam = np.array([pos[int(c)] for c in use["camera_index"]], dtype=np.int32)
+    srt = np.lexsort((cam, use["trigger_frame"]))
+    obs = Observations(use["trigger_frame"][srt].astype(np.int64), cam[srt],
+                       np.stack([use["x_dist"], use["y_dist"]], axis=1)[srt].astype(np.float64),
+                       [names[i] for i in order], [tuple(known[names[i]]) for i in order])
+    return RecordingPoints(obs, int(np.sum(multi)), int(np.sum(single & ~mapped)), int(rejected.sum()))
