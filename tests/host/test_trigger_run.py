@@ -146,7 +146,8 @@ def check_recording(summary: dict, edges: list[FakeEdge], period: float, runs: i
         len(tracked), [len(e.sent) for e in edges], summary["untracked"], summary.get("sync"))
     # Tie: the trigger frame of every tracked camera frame is the trigger edge it answered.
     by_cam = {e.index: e.sent for e in edges}
-    wrong = [(int(r["camera_index"]), int(r["camera_frame"]), int(r["trigger_frame"]))
+    wrong = [(int(r["camera_index"]), int(r["camera_frame"]), int(r["trigger_frame"]),
+              by_cam[int(r["camera_index"])][int(r["camera_frame"])])
              for r in tracked if by_cam[int(r["camera_index"])][int(r["camera_frame"])][1] != int(r["trigger_frame"])]
     assert not wrong, (len(wrong), wrong[:10], [r["message"] for r in rec.textlog])
     assert {by_cam[int(r["camera_index"])][int(r["camera_frame"])][0] for r in tracked} == set(range(runs))
@@ -227,6 +228,8 @@ def test_firmware_trigger_ties_frames_tracks_and_survives_losing_the_trigger(tmp
         finally:
             for e in edges:
                 e.stop.set()
+            for e in edges:
+                e.join(2)
             session.stop()
             summary = pipe.stop()
         _, log_edges = simulator.read_edges(sim.edge_log)
@@ -267,6 +270,8 @@ def test_software_trigger_ties_frames_and_rearms_after_a_device_restart(tmp_path
     finally:
         for e in edges:
             e.stop.set()
+        for e in edges:
+            e.join(2)
         session.stop()
         summary = pipe.stop()
     assert session.stats.device_restarts == 1 and session.stats.rearms == 1
