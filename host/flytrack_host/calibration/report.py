@@ -10,7 +10,7 @@ import numpy as np
 from flytrack_host.calibration.observations import Observations
 from flytrack_host.camera import Camera
 
-__all__ = ["CameraStats", "Report", "make_report", "plot_report"]
+__all__ = ["CameraStats", "Report", "make_report", "plot_report", "set_equal_3d"]
 
 
 @dataclass
@@ -79,6 +79,21 @@ def make_report(cameras: dict[str, Camera], obs: Observations, residuals: np.nda
     return Report(stats, overall, warns)
 
 
+def set_equal_3d(ax: object, pts: np.ndarray) -> tuple[float, float, float]:
+    """Give a 3D axes the same scale on x, y and z (a cube around pts), so the rig is not distorted.
+
+    Returns the (equal) half-widths that were set."""
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
+    mid = (lo + hi) / 2
+    half = max(float(np.max(hi - lo)) / 2, 1e-9) * 1.05
+    ax.set_xlim(mid[0] - half, mid[0] + half)  # type: ignore[attr-defined]
+    ax.set_ylim(mid[1] - half, mid[1] + half)  # type: ignore[attr-defined]
+    ax.set_zlim(mid[2] - half, mid[2] + half)  # type: ignore[attr-defined]
+    ax.set_box_aspect((1, 1, 1))  # type: ignore[attr-defined]
+    return half, half, half
+
+
 def plot_report(cameras: dict[str, Camera], points: np.ndarray, obs: Observations, residuals: np.ndarray,
                 inlier: np.ndarray, path: str | Path) -> None:
     """Cameras and LED points in 3D, and reprojection error per camera, as one PNG."""
@@ -100,6 +115,7 @@ def plot_report(cameras: dict[str, Camera], points: np.ndarray, obs: Observation
         ax.scatter(*c, color="C3", s=30)
         ax.plot([c[0], c[0] + axis[0]], [c[1], c[1] + axis[1]], [c[2], c[2] + axis[2]], color="C3")
         ax.text(c[0], c[1], c[2], f" {name}", fontsize=8)
+    set_equal_3d(ax, np.vstack([P.reshape(-1, 3)] + [c.center[None] for c in cameras.values()]))
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_zlabel("z")

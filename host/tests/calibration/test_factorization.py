@@ -1,4 +1,4 @@
-"""Projective factorisation and Euclidean upgrade on exact data: projective, then metric, cameras."""
+"""Projective factorisation and Euclidean upgrade on exact data: projective, then metric, cameras; plot axes."""
 
 from __future__ import annotations
 
@@ -98,3 +98,20 @@ def test_factorization_and_upgrade_bad_input() -> None:
     rec = projective_factorization(uv[:2], seen[:2])
     with pytest.raises(MetricUpgradeError, match="at least 3 cameras"):
         metric_upgrade(rec.P, rec.X, [(1280, 1024)] * 2, [800.0] * 2)
+
+
+def test_report_plot_has_equal_3d_axes() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from flytrack_host.calibration.report import set_equal_3d
+
+    ax = plt.figure().add_subplot(projection="3d")
+    pts = np.array([[0.0, 0.0, 0.0], [4.0, 1.0, 0.5], [np.nan, 0.0, 0.0]])
+    set_equal_3d(ax, pts)
+    spans = [np.ptp(lim) for lim in (ax.get_xlim(), ax.get_ylim(), ax.get_zlim())]
+    assert np.allclose(spans, spans[0]) and spans[0] >= 4.0
+    assert np.allclose(ax.get_box_aspect() / ax.get_box_aspect()[0], 1.0)
+    plt.close("all")
