@@ -33,8 +33,13 @@ class SoftwareTrigger:
     """Serves the trigger protocol on a pty; `port` is the path to open."""
 
     def __init__(self, name: str = "software-trigger", f_cpu: int = 16_000_000) -> None:
+        if len(name.encode("utf-8")) > 16:
+            raise ValueError(f"trigger name {name!r} is longer than 16 bytes, the size of the INFO name field")
         self.f_cpu = f_cpu
         self.name = name
+        # Guards running/_base_frames/_t_start together: a clock query racing a STOP must see
+        # either the old run or the stopped state, never a mix (which would count frames twice).
+        self._state_lock = threading.Lock()
         self.code, self.top = 2, 19999
         self.running = False
         self._base_frames = 0  # frames counted before the current run
@@ -62,6 +67,10 @@ class SoftwareTrigger:
 
     def clock(self) -> tuple[int, int]:
         """(frame_count, ticks) now, as the firmware reports them."""
+        with self._state_lock:
+            return self._clock_locked()
+
+    def _clock_locked(self) -> tuple[int, int]:
         if not self.running:
             return self._base_frames, 0
         c = self._now_cycles()
@@ -127,16 +136,18 @@ class SoftwareTrigger:
                 self.code, self.top = msg.prescaler_code, msg.top
                 self._send(tl.Rate(self.f_cpu, self.code, self.top), seq)
         elif isinstance(msg, tl.Start):
-            if not self.running:
-                self._t_start = time.monotonic()
-                self.running = True
+            with self._state_lock:
+                if not self.running:
+                    self._t_start = time.monotonic()
+                    self.running = True
             self._ack(seq, msg)
         elif isinstance(msg, (tl.Stop, tl.StopReset)):
-            if self.running:
-                self._base_frames = self.clock()[0]
-                self.running = False
-            if isinstance(msg, tl.StopReset):
-                self._base_frames = 0
+            with self._state_lock:
+                if self.running:
+                    self._base_frames = self._clock_locked()[0]
+                    self.running = False
+                if isinstance(msg, tl.StopReset):
+                    self._base_frames = 0
             self._ack(seq, msg)
         elif isinstance(msg, tl.ClockQuery):
             frames, ticks = self.clock()

@@ -75,3 +75,34 @@ def test_choose_rate_is_closest_and_reports_exact_rate() -> None:
         choose_rate(0.01, 16_000_000)
     with pytest.raises(TriggerError, match="outside"):
         choose_rate(50_000, 16_000_000)
+
+
+def test_software_trigger_rejects_a_name_the_protocol_cannot_carry() -> None:
+    with pytest.raises(ValueError, match="longer than 16 bytes"):
+        SoftwareTrigger(name="a-name-much-too-long-for-info")
+
+
+def test_stop_racing_clock_queries_never_counts_frames_twice() -> None:
+    """Clock queries from another thread while STOP is handled: the count never goes past what
+    the stopped device then reports (the race double-counted the frames of the run)."""
+    import threading
+
+    with SoftwareTrigger() as sw, TriggerDevice(sw.port, reset_wait_s=0) as dev:
+        dev.set_rate(1000.0)
+        for _ in range(5):
+            dev.start()
+            time.sleep(0.02)
+            seen: list[int] = []
+            done = threading.Event()
+
+            def poll(seen: list[int] = seen, done: threading.Event = done) -> None:
+                while not done.is_set():
+                    seen.append(sw.clock()[0])
+
+            t = threading.Thread(target=poll)
+            t.start()
+            dev.stop()
+            done.set()
+            t.join()
+            final = dev.query_clock().frame_count
+            assert max(seen) <= final
