@@ -34,11 +34,11 @@ def summary_table(r: DemoReport) -> Table:
     t.add_row("IDF1", _f(s.idf1, ".4f"), f"recall {s.recall:.3f}, precision {s.precision:.3f}")
     t.add_row("ID switches", str(s.id_switches), f"{s.id_switches_free_flight} in free flight")
     t.add_row("merges", str(s.merges), f"{s.merge_frames} animal-frames")
-    t.add_row("latency P50", f"{_f(lat['p50_ms'])} ms", "frames to the edges -> 3D")
+    t.add_row("latency P50", f"{_f(lat['p50_ms'])} ms", "frames at the edges -> 3D")
     t.add_row("latency P99", f"{_f(lat['p99_ms'])} ms", "(simulated exposure and")
     t.add_row("latency max", f"{_f(lat['max_ms'])} ms", " transfer left out)")
     if r.latency_parts_p50_ms:
-        names = {"to_edge": "to edge", "extraction": "extract", "udp_to_host": "udp", "sync_and_track": "host"}
+        names = {"edge_read": "edge read", "extraction": "extract", "udp_to_host": "udp", "sync_and_track": "host"}
         t.add_row("latency parts P50", "", ", ".join(f"{names.get(k, k)} {v:.2f}"
                                                      for k, v in r.latency_parts_p50_ms.items()))
     hl = r.latency_host

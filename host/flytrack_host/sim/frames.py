@@ -22,7 +22,7 @@ import stat
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -90,6 +90,8 @@ class FrameFeedStats:
     render_s: float  # CPU seconds spent rendering
     write_s: float  # seconds spent handing frames to the cameras' links
     bad_lines: int = 0  # edge-stream lines that could not be read
+    # (n_frames, n_cams) host time each camera's frame was completely in its edge's input pipe
+    written_time: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     priority_raised: bool = False
 
 
@@ -111,6 +113,8 @@ class FrameFeeder:
         self.n_frames = gt.n_frames
         ctx = mp.get_context("fork")
         self._handoff = ctx.RawArray("d", [math.nan] * gt.n_frames)
+        self.n_cams = len(cameras)
+        self._written = ctx.RawArray("d", [math.nan] * (gt.n_frames * self.n_cams))
         self._edge_t = ctx.RawArray("d", [math.nan] * gt.n_frames)
         # edges, rendered, render_s, write_s, done, bad lines, priority raised, pre-roll frames
         self._counters = ctx.RawArray("d", 8)
@@ -118,7 +122,7 @@ class FrameFeeder:
         self._proc = ctx.Process(
             target=_feed,
             args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format, warmup_frames,
-                  self._handoff, self._edge_t, self._counters),
+                  self._handoff, self._edge_t, self._counters, self._written),
             name="flytrack-sim-frames",
             daemon=True,
         )
@@ -176,6 +180,7 @@ class FrameFeeder:
             edges=int(self._counters[0]),
             frames_rendered=int(self._counters[1]),
             handoff_time=np.frombuffer(self._handoff, dtype=np.float64).copy(),
+            written_time=np.frombuffer(self._written, dtype=np.float64).reshape(-1, self.n_cams).copy(),
             edge_time=np.frombuffer(self._edge_t, dtype=np.float64).copy(),
             render_s=float(self._counters[2]),
             write_s=float(self._counters[3]),
@@ -205,12 +210,14 @@ class _CameraLink:
     stdin. A slow edge then delays only its own frames (as a camera's frame buffer would), not the
     other cameras nor the trigger; past `depth` queued frames the camera waits (back-pressure)."""
 
-    def __init__(self, fd: int, frame_format: str, cam: Camera, fps: float, depth: int = 64):
+    def __init__(self, fd: int, frame_format: str, cam: Camera, fps: float, written_t, index: int, n_cams: int,
+                 depth: int = 64):
         self.fd = fd
+        self.written_t, self.index, self.n_cams = written_t, index, n_cams
         self.y4m = frame_format == "y4m"
         self.closed = False
         self.written = 0
-        self.q: queue.Queue[np.ndarray | None] = queue.Queue(depth)
+        self.q: queue.Queue[tuple[int, np.ndarray] | None] = queue.Queue(depth)
         grow_pipe(fd)
         if self.y4m:
             self._write(_y4m_header(cam.width, cam.height, fps))
@@ -227,16 +234,20 @@ class _CameraLink:
 
     def _run(self) -> None:
         while True:
-            img = self.q.get()
-            if img is None:
+            item = self.q.get()
+            if item is None:
                 return
+            n, img = item
             if self.y4m:
                 self._write(b"FRAME\n")
             self._write(memoryview(img))
+            if n >= 0 and not self.closed:
+                self.written_t[n * self.n_cams + self.index] = time.time()
             self.written += 1
 
-    def put(self, img: np.ndarray) -> None:
-        self.q.put(img)
+    def put(self, n: int, img: np.ndarray) -> None:
+        """Queue frame `n` (-1: a pre-roll frame)."""
+        self.q.put((n, img))
 
     def finish(self, timeout: float = 30.0) -> None:
         self.q.put(None)
@@ -266,10 +277,12 @@ def _feed(
     handoff,
     edge_t,
     counters,
+    written_t,
 ) -> None:
     counters[6] = raise_priority()
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
-    links = [_CameraLink(fd, frame_format, c, gt.fps) for fd, c in zip(edge_fds, cameras, strict=True)]
+    links = [_CameraLink(fd, frame_format, c, gt.fps, written_t, i, len(cameras))
+             for i, (fd, c) in enumerate(zip(edge_fds, cameras, strict=True))]
     render_s = put_s = 0.0
     buf = b""
     parser = EdgeLineParser()
@@ -306,7 +319,7 @@ def _feed(
                             blank = [r.render(0.0, no_pos, no_pos, gt.body_length_m, gt.body_width_m).copy()
                                      for r in renderers]
                             for link, img in zip(links, blank, strict=True):
-                                link.put(img)
+                                link.put(-1, img)
                             counters[7] += 1
                     continue
                 if fd not in ready:
@@ -339,7 +352,7 @@ def _feed(
                         render_s += time.perf_counter() - t0
                     t1 = time.perf_counter()
                     for link, img in zip(links, imgs, strict=True):
-                        link.put(img)
+                        link.put(n, img)
                     put_s += time.perf_counter() - t1
                     handoff[n] = time.time()
                     counters[1] += 1

@@ -407,7 +407,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
                           match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
     recording = host_summary.get("recording")
-    numbering = _frame_numbering(recording, fs.handoff_time, preroll)
+    numbering = _frame_numbering(recording, fs.written_time, preroll)
     if numbering["misnumbered"]:
         notes.append(f"the host's synchroniser gave {numbering['misnumbered']} of {numbering['camera_frames']} "
                      "camera frames a wrong trigger frame number (scores use the host's numbers)")
@@ -502,11 +502,13 @@ def _lateness(handoff: np.ndarray, fps: float) -> dict[str, float]:
     return latency_summary(lag - lag.min())
 
 
-def _frame_numbering(recording: str | None, handoff: np.ndarray, preroll: int = 0) -> dict[str, Any]:
+def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 0) -> dict[str, Any]:
     """Check the host's frame numbering against the truth, from the recording's 2D rows.
 
     Every edge got `preroll` frames before the trigger started, then every pulse's frame in order from
-    the first, so camera frame c is trigger frame c - preroll.
+    the first, so camera frame c is trigger frame c - preroll. `written` (frames, cameras) is when each
+    frame was completely in its edge's input: where the measured latency starts (what came before, the
+    exposure and the image transfer, is simulated).
     Returns the count of camera frames numbered otherwise, and per host trigger frame the hand-over
     time of the latest camera frame it was built from."""
     out: dict[str, Any] = {"misnumbered": 0, "camera_frames": 0, "bundle_handoff": {}, "parts_p50_ms": {}}
@@ -530,11 +532,19 @@ def _frame_numbering(recording: str | None, handoff: np.ndarray, preroll: int = 
     u = d[first]  # one row per camera frame
     out["camera_frames"] = int(len(u))
     out["misnumbered"] = int(np.sum(u["trigger_frame"] != u["camera_frame"]))
+    written = np.asarray(written, dtype=np.float64).reshape(written.shape[0], -1)
+
+    def written_at(rows: np.ndarray) -> np.ndarray:
+        cf = rows["camera_frame"].astype(np.int64)
+        cam = rows["camera_index"].astype(np.int64)
+        ok = (cf >= 0) & (cf < written.shape[0]) & (cam >= 0) & (cam < written.shape[1])
+        t = np.full(len(rows), np.nan)
+        t[ok] = written[cf[ok], cam[ok]]
+        return t
+
     tracked = u[(u["flags"] & FLAG_TRACKED) != 0]
-    cf = tracked["camera_frame"].astype(np.int64)
-    ok = (cf >= 0) & (cf < handoff.size)
-    tf, cf = tracked["trigger_frame"][ok].astype(np.int64), cf[ok]
-    t = handoff[cf]
+    tf = tracked["trigger_frame"].astype(np.int64)
+    t = written_at(tracked)
     bh: dict[int, float] = {}
     for a, b in zip(tf.tolist(), t.tolist(), strict=True):
         if math.isfinite(b) and b > bh.get(a, -math.inf):
@@ -542,9 +552,8 @@ def _frame_numbering(recording: str | None, handoff: np.ndarray, preroll: int = 
     out["bundle_handoff"] = bh
     # Where the time goes (medians, ms): frame to the edge's read, extraction, UDP to the host's
     # receiver, then synchronisation and tracking in the host.
-    ho = handoff[np.clip(u["camera_frame"].astype(np.int64), 0, handoff.size - 1)]
     parts = {
-        "to_edge": u["edge_recv_ns"] / 1e9 - ho,
+        "edge_read": u["edge_recv_ns"] / 1e9 - written_at(u),
         "extraction": (u["edge_done_ns"].astype(np.int64) - u["edge_recv_ns"].astype(np.int64)) / 1e9,
         "udp_to_host": u["cam_received_timestamp"] - u["edge_done_ns"] / 1e9,
     }

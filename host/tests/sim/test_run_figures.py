@@ -29,20 +29,22 @@ def _recording(path, shift_cam1_from: int):
 
 def test_misnumbered_frames_are_counted_and_bundles_use_their_true_frames(tmp_path):
     handoff = 100.0 + np.arange(10) * 0.01
+    written = np.stack([handoff, handoff], axis=1)  # (frames, cameras)
+    written[7, 0] += 0.0002  # camera 0's frame 7 reached its edge a little later
     rec = _recording(tmp_path / "r.h5", shift_cam1_from=6)
-    out = _frame_numbering(str(rec), handoff)
+    out = _frame_numbering(str(rec), written)
     assert out["camera_frames"] == 20
     assert out["misnumbered"] == 4  # camera 1, frames 6..9
-    # Host frame 7 was built from camera 0's frame 7 and camera 1's frame 6: latest hand-over = frame 7's.
-    assert out["bundle_handoff"][7] == pytest.approx(handoff[7])
+    # Host frame 7 was built from camera 0's frame 7 and camera 1's frame 6: the latest is camera 0's.
+    assert out["bundle_handoff"][7] == pytest.approx(handoff[7] + 0.0002)
     assert out["bundle_handoff"][10] == pytest.approx(handoff[9])
-    assert out["parts_p50_ms"]["to_edge"] == pytest.approx(1.0, abs=1e-3)
+    assert out["parts_p50_ms"]["edge_read"] == pytest.approx(1.0, abs=1e-3)
     assert out["parts_p50_ms"]["extraction"] == pytest.approx(0.1, abs=1e-3)
     assert out["parts_p50_ms"]["udp_to_host"] == pytest.approx(0.4, abs=1e-3)
 
 
 def test_no_recording_gives_empty_figures():
-    out = _frame_numbering(None, np.zeros(3))
+    out = _frame_numbering(None, np.zeros((3, 2)))
     assert out["misnumbered"] == 0 and out["bundle_handoff"] == {}
 
 
