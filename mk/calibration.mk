@@ -18,5 +18,7 @@ calib-bench-deps: setup
 	  || { echo "bench-calib: cv2 or aniposelib does not import after installing the benchmark deps" >&2; exit 1; }
 
 # FlyTrack self-calibration vs aniposelib bundle adjustment on the same synthetic rigs (4, 6, 11 cameras).
+# CALIB_INIT=factorization (default), pairwise or both: FlyTrack's initialisation (printed in the "init" column).
+CALIB_INIT ?= factorization
 bench-calib: calib-bench-deps
-	@$(PY) -m flytrack_host.calibration.bench --cameras 4 6 11 $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@$(PY) -m flytrack_host.calibration.bench --cameras 4 6 11 --init $(CALIB_INIT) $(if $(BENCH_JSON),--json $(BENCH_JSON))
