@@ -44,6 +44,8 @@ def test_every_animal_is_tracked_accurately(demo):
 def test_loopback_loses_nothing_and_the_host_publishes(demo):
     _, r = demo
     assert r.packets_lost == 0
+    assert r.camera_frames_sent == 3 * 200
+    assert r.camera_frames_received >= 0.99 * r.camera_frames_sent
     rx = r.host_summary["receiver"]
     assert sum(c["frames"] for c in rx["cameras"].values()) >= 3 * 190
     assert rx["errors_by_name"] == {}

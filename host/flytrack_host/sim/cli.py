@@ -47,6 +47,8 @@ def summary_table(r: DemoReport) -> Table:
         t.add_row("host latency P50/P99", f"{_f(hl.get('p50_ms', nan))}/{_f(hl.get('p99_ms', nan))} ms",
                   "host's trigger time -> 3D")
     t.add_row("packets lost / late", f"{r.packets_lost} / {r.packets_late}", "loopback UDP")
+    t.add_row("camera frames received", f"{r.camera_frames_received}/{r.camera_frames_sent}",
+              "by the host before it stopped")
     t.add_row("frames misnumbered", str(r.frames_misnumbered), "by the host synchroniser")
     t.add_row("frames in time", f"{r.frames_in_time}/{r.frames_triggered}",
               f"host kept up: {'yes' if r.host_kept_up else 'NO'}")

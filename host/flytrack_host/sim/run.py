@@ -101,6 +101,8 @@ class DemoReport:
     packets_lost: int
     packets_late: int
     frames_misnumbered: int  # camera frames the host's synchroniser gave a wrong trigger frame
+    camera_frames_sent: int  # frames handed to the edges (pre-roll excluded)
+    camera_frames_received: int  # FEATURES frames the host's receiver took in before it stopped
     exposure_lateness: dict[str, float]  # hand-over vs an ideal clock: how faithful the simulated timing was
     clock_model: dict[str, Any]  # the host's trigger session summary (rate, clock model fit, samples)
     sim_priority_raised: bool
@@ -460,6 +462,8 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         packets_lost=lost,
         packets_late=late,
         frames_misnumbered=numbering["misnumbered"],
+        camera_frames_sent=int(np.isfinite(fs.written_time).sum()),
+        camera_frames_received=max(0, sum(int(c.get("frames", 0)) for c in recv.values()) - preroll * cfg.cameras),
         exposure_lateness=_lateness(fs.handoff_time, float(trigger_summary.get("fps", cfg.fps))),
         clock_model=_jsonable(trigger_summary),
         sim_priority_raised=bool(fs.priority_raised),
