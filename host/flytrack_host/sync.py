@@ -8,13 +8,24 @@ camera_frame`). When the edge already fills `trigger_frame` (>= 0) that number i
 appears later, or whose counter restarts, is mapped by its arrival time through the trigger clock
 model and the arrival lag of the other cameras. Afterwards the mapping is checked on every frame:
 
-- a camera whose arrival lag departs from the others' by most of a frame period for several frames
-  in a row has drifted: reported, counted and re-mapped;
+- drift (a camera whose counter hides a missed or extra pulse: its frame rate is not the trigger's)
+  is judged on arrival times only relative to the other cameras, per trigger frame: d = arrival of
+  this camera's frame - median arrival of the others' frames of the same trigger frame. Stalls and
+  bursts (one camera's, or every camera's at once: a GIL or scheduler stall) and steps of the trigger
+  clock model never re-map a camera: a camera is re-mapped by s frames only when, over
+  `drift_frames` trigger frames, d departs from the camera's own baseline by s periods on every one
+  of them (to within 0.4 period) and its frames came in paced, not in a burst (a burst's frames
+  arrive together and their d falls by a period per frame, so they can never agree);
 - frame numbers that jump back or far ahead are suspect: such frames are not tracked (the pipeline
   still records them); when several consecutive frames agree on the new numbering it is a clock jump:
   logged and the mapping re-established;
 - a frame whose trigger time lies in the future (or far ahead of the other cameras) is future-dated
   and rejected unless it is confirmed as a jump.
+
+The frame-0 tie after `synchronize()` (cameras quiet, trigger about to start): every camera's first
+frame within `tie_window_s` of the first camera's is trigger frame 0, however late or bursty it
+arrives; a camera first seen later is a late joiner. Without `synchronize()` (cameras already
+running) the tie only spans 0.9 period.
 
 A bundle is closed (handed to the tracker) as soon as every live camera reported, or when a deadline
 (`deadline_fraction` of the frame period after its first packet) passes. Bundles close in frame
@@ -26,6 +37,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -131,8 +143,10 @@ class _Cam:
     offset: int | None = None  # trigger_frame = camera_frame - offset (when the edge gives none)
     last_cf: int | None = None
     last_tf: int | None = None
-    lag_ewma: float | None = None
-    drift_run: int = 0
+    lag_ewma: float | None = None  # arrival lag against the trigger clock (places late joiners)
+    rel_base: float | None = None  # usual arrival relative to the other cameras (drift baseline)
+    rel_window: deque = field(default_factory=deque)  # (trigger frame, d, arrival) of recent frames
+    seen_cf: deque = field(default_factory=lambda: deque(maxlen=512))  # recent camera frames accepted
     suspects: list[tuple[CameraFrame, int]] = field(default_factory=list)
     stats: CameraSyncStats = field(default_factory=CameraSyncStats)
 
@@ -158,6 +172,8 @@ class FrameSynchronizer:
         future_tolerance_s: float = 0.5,
         drift_frames: int = 10,
         late_tolerance_s: float = 0.25,
+        tie_window_s: float = 0.5,
+        drift_settle_s: float = 0.5,
         on_event: Callable[[SyncEvent], None] | None = None,
     ):
         self.period = 1.0 / fps
@@ -171,6 +187,14 @@ class FrameSynchronizer:
         self.future_frames = max(2, int(future_tolerance_s * fps))
         self.drift_frames = drift_frames
         self.late_tolerance_s = late_tolerance_s
+        self.tie_window_s = max(tie_window_s, 0.9 * self.period)
+        # A trigger frame's arrivals are compared once every live camera delivered it, or this long
+        # after the newest frame passed it (a stalled camera's frames then count where they came).
+        self.drift_settle = max(3, int(drift_settle_s * fps))
+        self._arrivals: dict[int, dict[int, float]] = {}
+        self._eval_next: int | None = None
+        self._quiet_tie = False
+        self._edge_numbered: dict[int, bool] = {}
         self.cams: dict[int, _Cam] = {i: _Cam(i, True, start_time) for i in camera_indices}
         self.pending: dict[int, _Pending] = {}
         self.last_closed = -1
@@ -186,6 +210,11 @@ class FrameSynchronizer:
         for cam in self.cams.values():
             cam.offset = cam.last_cf = cam.last_tf = None
             cam.suspects.clear()
+            cam.rel_window.clear()
+            cam.seen_cf.clear()
+        self._arrivals.clear()
+        self._eval_next = None
+        self._quiet_tie = True
         self._sync_started = None
         self.pending.clear()
         self.last_closed = -1
@@ -208,9 +237,11 @@ class FrameSynchronizer:
             cam.alive = True
             cam.stats.revivals += 1
             out.append(SyncEvent("alive", cam.index, f"camera {cam.index} is sending again"))
+        self._edge_numbered[cam.index] = frame.trigger_frame >= 0
         if cam.last_cf is not None and frame.camera_frame == cam.last_cf:
             cam.stats.duplicate += 1
-            out.append(UntrackedFrame(frame, cam.last_tf if cam.last_tf is not None else -1, "duplicate"))
+            tf = frame.trigger_frame if frame.trigger_frame >= 0 else (cam.last_tf if cam.last_tf is not None else -1)
+            out.append(UntrackedFrame(frame, tf, "duplicate"))
             return out
         tf = self._map(cam, frame, now)
         reason = self._suspect_reason(cam, frame, tf, now)
@@ -228,6 +259,7 @@ class FrameSynchronizer:
             out.append(UntrackedFrame(frame, tf, reason))
             return out
         cam.suspects.clear()
+        cam.seen_cf.append(frame.camera_frame)
         if cam.last_cf is None or frame.camera_frame > cam.last_cf:
             cam.last_cf, cam.last_tf = frame.camera_frame, tf
         self.max_accepted = max(self.max_accepted, tf)
@@ -302,16 +334,21 @@ class FrameSynchronizer:
         return ref + round((t - t_ref) / self.period)
 
     def _map(self, cam: _Cam, frame: CameraFrame, now: float) -> int:
-        if frame.trigger_frame >= 0:
+        if frame.trigger_frame >= 0:  # the edge's number wins, always
             if isinstance(self.clock, FixedRateClock) and not self.clock.anchored:
                 self.clock.anchor(frame.trigger_frame, frame.recv_time)
             return frame.trigger_frame
         if cam.offset is None:
             if self._sync_started is None:
                 self._sync_started = frame.recv_time
-            # First frames of all cameras come from the same first pulse; allow most of a period of
-            # network/scheduling spread before a camera counts as a late joiner.
-            if frame.recv_time - self._sync_started <= self.period * 0.9 and self.max_accepted < 1:
+            # First frames of all cameras come from the same first pulse. After synchronize() the
+            # cameras were quiet, so a first frame is pulse 0 however late or bursty it comes (within
+            # tie_window_s); otherwise they were running and only most of a period of spread is allowed.
+            if self._quiet_tie:
+                tie = frame.recv_time - self._sync_started <= self.tie_window_s
+            else:
+                tie = frame.recv_time - self._sync_started <= self.period * 0.9 and self.max_accepted < 1
+            if tie:
                 tf = 0  # the frame-0 tie: all cameras' first frames come from the same first pulse
                 if isinstance(self.clock, FixedRateClock) and not self.clock.anchored:
                     self.clock.anchor(0, frame.recv_time)
@@ -330,8 +367,15 @@ class FrameSynchronizer:
             return None
         d_cf = frame.camera_frame - cam.last_cf
         d_tf = tf - cam.last_tf
-        if d_cf < 0 and d_tf == d_cf and math.isfinite(t) and now - t < self.late_tolerance_s:
-            return None  # reordered or delayed in the network, numbering intact: just late
+        if d_cf < 0 and d_tf == d_cf and (
+            (math.isfinite(t) and now - t < self.late_tolerance_s)
+            or (-d_cf < (cam.seen_cf.maxlen or 0) and frame.camera_frame not in cam.seen_cf
+                and cam.seen_cf and frame.camera_frame > min(cam.seen_cf))
+        ):
+            # Reordered or held up in the network, numbering intact: just late. A frame number not
+            # seen yet, a little behind the newest, is such a frame however long it was held; a
+            # restarted counter repeats numbers already seen.
+            return None
         if d_cf < 0 or d_cf > self.max_gap or d_tf <= 0 or d_tf - d_cf > self.max_gap:
             return "discontinuity"
         return None
@@ -388,32 +432,67 @@ class FrameSynchronizer:
         return out
 
     def _check_drift(self, cam: _Cam, frame: CameraFrame, tf: int) -> list[SyncOutput]:
+        """Note the frame's arrival; compare the trigger frames that settled (see the module doc)."""
         t = self.frame_time(tf)
-        if not math.isfinite(t):
-            return []
-        lag = frame.recv_time - t
-        others = self._lag(cam.index) if len(self.cams) > 1 else None
-        if others is not None and cam.lag_ewma is not None and any(
-            c.lag_ewma is not None for c in self.cams.values() if c.index != cam.index
-        ):
-            dev = lag - others
-            if abs(dev) > 0.75 * self.period:
-                cam.drift_run += 1
-            else:
-                cam.drift_run = 0
-            if cam.drift_run >= self.drift_frames:
-                shift = round(dev / self.period)
-                cam.drift_run = 0
-                cam.stats.drift += 1
-                if frame.trigger_frame < 0 and cam.offset is not None and shift:
-                    # Arriving `shift` periods later than the others: its frames belong `shift` later.
-                    cam.offset -= shift
-                    cam.last_tf = tf + shift
-                msg = f"camera {cam.index} drifted by {shift} frames ({dev * 1e3:.1f} ms off the other cameras)"
-                return [SyncEvent("drift", cam.index, msg + ("; re-mapped" if frame.trigger_frame < 0 else ""))]
-        if cam.drift_run == 0:  # a deviating run must not pull the camera's own baseline
+        if math.isfinite(t):  # the late joiners' placement only; drift never looks at the clock
+            lag = frame.recv_time - t
             cam.lag_ewma = lag if cam.lag_ewma is None else cam.lag_ewma + 0.1 * (lag - cam.lag_ewma)
-        return []
+        if len(self.cams) < 3:
+            return []  # with two cameras, which one drifted cannot be told from arrivals
+        if self._eval_next is None:
+            self._eval_next = tf
+        if tf >= self._eval_next:
+            self._arrivals.setdefault(tf, {}).setdefault(cam.index, frame.recv_time)
+        out: list[SyncOutput] = []
+        live = [i for i, c in self.cams.items() if c.alive]
+        while self._eval_next <= self.max_accepted:
+            f = self._eval_next
+            rec = self._arrivals.get(f)
+            if self.max_accepted - f <= self.drift_settle and (rec is None or any(i not in rec for i in live)):
+                break
+            self._arrivals.pop(f, None)
+            self._eval_next = f + 1
+            if rec is None or len(rec) < 3:
+                continue
+            for i, t_i in rec.items():
+                d = t_i - statistics.median(t_o for o, t_o in rec.items() if o != i)
+                out.extend(self._drift_sample(self.cams[i], f, d, t_i))
+        return out
+
+    def _drift_sample(self, cam: _Cam, tf: int, d: float, recv: float) -> list[SyncOutput]:
+        w = cam.rel_window
+        w.append((tf, d, recv))
+        while len(w) > self.drift_frames:
+            w.popleft()
+        if cam.rel_base is not None and abs(d - cam.rel_base) < 0.25 * self.period:
+            cam.rel_base += 0.02 * (d - cam.rel_base)  # follows slow changes of the camera's latency
+        if len(w) < self.drift_frames:
+            return []
+        # Paced: a burst's frames come together; frames answering drift_frames pulses span most of it.
+        if w[-1][2] - w[0][2] < 0.5 * (w[-1][0] - w[0][0]) * self.period:
+            return []
+        ds = [x[1] for x in w]
+        if cam.rel_base is None:
+            if max(ds) - min(ds) <= 0.5 * self.period:
+                cam.rel_base = statistics.median(ds)
+            return []
+        e = [x - cam.rel_base for x in ds]
+        shift = round(statistics.median(e) / self.period)
+        if shift == 0 or any(abs(x - shift * self.period) > 0.4 * self.period for x in e):
+            return []
+        w.clear()
+        cam.stats.drift += 1
+        dev = statistics.median(e)
+        msg = (f"camera {cam.index} drifted by {shift} frames: its frames arrive {dev * 1e3:.1f} ms off the "
+               f"other cameras' over {self.drift_frames} trigger frames")
+        if cam.offset is not None and cam.last_tf is not None and self._edge_numbered.get(cam.index) is False:
+            # Arriving `shift` periods later than the others: its frames belong `shift` later.
+            cam.offset -= shift
+            cam.last_tf += shift
+            for rec in self._arrivals.values():  # its unsettled arrivals carry the old numbering
+                rec.pop(cam.index, None)
+            msg += "; re-mapped"
+        return [SyncEvent("drift", cam.index, msg)]
 
     # --- closing ------------------------------------------------------------------------------
     def _close_through(self, tf: int, why: str) -> list[SyncOutput]:
