@@ -55,6 +55,9 @@ def summary_table(r: DemoReport) -> Table:
     el = r.exposure_lateness
     t.add_row("camera lateness P99/max", f"{_f(el['p99_ms'], '.1f')}/{_f(el['max_ms'], '.1f')} ms",
               "simulated cameras vs clock")
+    if r.cpu_seconds:
+        t.add_row("CPU seconds", f"{sum(r.cpu_seconds.values()):.1f} s", ", ".join(
+            f"{k.replace('simulated ', 'sim ')} {v:.1f}" for k, v in r.cpu_seconds.items()))
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
     return t

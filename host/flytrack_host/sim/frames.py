@@ -161,6 +161,10 @@ class FrameFeeder:
         self._proc.join(timeout)
 
     @property
+    def pid(self) -> int | None:
+        return self._proc.pid
+
+    @property
     def done(self) -> bool:
         """Every frame was handed to the edges (their stdin is closed)."""
         return bool(self._counters[4])

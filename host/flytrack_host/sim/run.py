@@ -118,6 +118,7 @@ class DemoReport:
     wall_s: float
     notes: list[str] = field(default_factory=list)
     host_summary: dict[str, Any] = field(default_factory=dict)
+    cpu_seconds: dict[str, float] = field(default_factory=dict)  # per part of the simulated rig
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -252,6 +253,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     trig = DemoTrigger(cfg.trigger, cfg.fps, out, firmware=cfg.firmware)
     notes.append(trig.note)
 
+    cpu = CpuSampler()
+    cpu.add("host", os.getpid())
     edges = feeder = host = live = session = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
@@ -264,11 +267,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         feeder = FrameFeeder(gt, cams, edges.stdin_fds, render_params, cfg.seed, warmup_frames=warmup)
         edges.close_stdins()
         edges.check_started()
+        for p in edges.procs:
+            cpu.add("edges", p.pid)
+        cpu.add("simulated cameras", feeder.pid)
         feeder.set_source(str(trig.fifo))
 
         # 3. Trigger box, rig file, then the host as `flytrack run` does it: trigger session open
         #    (stop-and-reset, exact rate), pipeline, session start (quiet cameras, frame-0 tie, START).
         trig.launch()
+        cpu.add("simulated trigger", trig.sim.proc.pid if trig.sim is not None else None)
         rig = rig_config(
             cams, cfg.fps, listen=f"127.0.0.1:{port}", trigger_kind=trig.kind, trigger_port=trig.port,
             calibration=calib_path.name if calib_path else None, recording_folder="recordings",
@@ -305,6 +312,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         t_wait = time.monotonic() + 5.0
         while host.last_frame_recv == 0.0 and time.monotonic() < t_wait:
             time.sleep(0.01)
+        cpu.mark_start()
         session.start(host)  # waits until the cameras are quiet, arms the frame-0 tie, STARTs
 
         # 4. Run until every frame was rendered, with a progress bar.
@@ -315,17 +323,23 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             task = prog.add_task("", total=gt.n_frames)
             while not feeder.done and feeder.alive() and time.monotonic() < t_end:
                 time.sleep(0.1)
+                cpu.sample()
                 prog.update(task, completed=feeder.frames_rendered,
                             description=f"frames {feeder.frames_rendered}/{gt.n_frames}  tracked {len(results)}")
             prog.update(task, completed=feeder.frames_rendered)
         if not feeder.done:
             notes.append(f"the run did not finish within {budget:.0f} s; stopped early")
+        cpu.sample()
         session.stop()  # the trigger stops (the cameras with it); the host then tracks what is pending
         trigger_summary = session.summary()
         session = None
         feeder.finish()
-        edges.wait(5.0)  # the feeder closed their stdin: they finish their frames and exit
+        t_wait = time.monotonic() + 5.0
+        while time.monotonic() < t_wait and any(p.poll() is None for p in edges.procs):
+            cpu.sample()  # the feeder closed their stdin: they finish their frames and exit
+            time.sleep(0.02)
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
+        cpu.sample()
     finally:
         if session is not None:
             session.stop()
@@ -340,8 +354,10 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         trig.close()
 
     fs = feeder.stats()
-    return _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
-                   notes, wall0, cams, warmup, trigger_summary, preroll)
+    report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
+                     notes, wall0, cams, warmup, trigger_summary, preroll)
+    report.cpu_seconds = cpu.totals()
+    return report
 
 
 def _write_calibration(cams: list[Camera], path: Path, notes: list[str]) -> Path | None:
@@ -362,6 +378,45 @@ def _host_cameras(rig: Any, cams: list[Camera], calib_path: Path | None) -> dict
 
         by_name = load_calibration(calib_path)
     return {c.index: by_name[c.calib_name] for c in rig.cameras}
+
+
+def _cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds of a process, from /proc (None when it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class CpuSampler:
+    """Keeps the last CPU time seen of each part of the simulated rig, so the summary can say where the
+    machine's cores went (on a real rig the cameras, trigger and edges have their own hardware)."""
+
+    def __init__(self) -> None:
+        self.pids: dict[str, list[int]] = {}
+        self.last: dict[int, float] = {}
+        self.base: dict[int, float] = {}
+
+    def mark_start(self) -> None:
+        """CPU used from now on counts (not the set-up before the trigger starts)."""
+        self.sample()
+        self.base = dict(self.last)
+
+    def add(self, part: str, pid: int | None) -> None:
+        if pid is not None:
+            self.pids.setdefault(part, []).append(pid)
+
+    def sample(self) -> None:
+        for pids in self.pids.values():
+            for pid in pids:
+                t = _cpu_seconds(pid)
+                if t is not None:
+                    self.last[pid] = t
+
+    def totals(self) -> dict[str, float]:
+        return {part: round(sum(self.last.get(p, 0.0) - self.base.get(p, 0.0) for p in pids), 2)
+                for part, pids in self.pids.items()}
 
 
 class _LiveCounter:
