@@ -295,7 +295,7 @@ def _feed(
     def render(n: int) -> list[np.ndarray]:
         # Before the animals are released the edges learn their background.
         pos, axis = (gt.pos[n], gt.axis[n]) if n >= warmup else (no_pos, no_pos)
-        return [r.render(gt.t[n], pos, axis, gt.body_length_m, gt.body_width_m).copy() for r in renderers]
+        return [r.render(gt.t[n], pos, axis, gt.body_length_m, gt.body_width_m, fresh=True) for r in renderers]
 
     ahead_n = 0
     imgs = render(0)
@@ -320,7 +320,7 @@ def _feed(
                         # Cameras running before the trigger starts (as when a lab arms a run): the
                         # edges take their background and the host sees them go quiet afterwards.
                         for _ in range(int(msg[1])):
-                            blank = [r.render(0.0, no_pos, no_pos, gt.body_length_m, gt.body_width_m).copy()
+                            blank = [r.render(0.0, no_pos, no_pos, gt.body_length_m, gt.body_width_m, fresh=True)
                                      for r in renderers]
                             for link, img in zip(links, blank, strict=True):
                                 link.put(-1, img)

@@ -102,6 +102,7 @@ def _stamp_many(out: U8, u: np.ndarray, v: np.ndarray, s_maj: np.ndarray, s_min:
     dy = (y0[:, None] + steps[None, :] - v[:, None])[:, :, None]
     g = np.exp(-0.5 * (qa * dx * dx + qc * dy * dy + qb * dy * dx))
     f = (1.0 + (gain - 1.0)[:, None, None] * g).astype(np.float32)
+    darker = (gain <= 1.0).tolist()
     for i in range(u.size):
         xa, ya = int(x0[i]), int(y0[i])
         xs, ys = max(0, xa), max(0, ya)
@@ -110,7 +111,9 @@ def _stamp_many(out: U8, u: np.ndarray, v: np.ndarray, s_maj: np.ndarray, s_min:
             continue
         win = out[ys:ye, xs:xe]
         val = win * f[i, ys - ya : ye - ya, xs - xa : xe - xa]
-        np.clip(val + 0.5, 0, 255, out=val)
+        val += 0.5  # round on the cast below
+        if not darker[i]:  # a darker pixel cannot leave 0..255; a brighter one can
+            np.minimum(val, 255.0, out=val)
         win[...] = val
 
 
@@ -186,13 +189,14 @@ class CameraRenderer:
     # --- frames ---------------------------------------------------------------------------------
     def render(
         self, t: float, pos: NDArray[np.float64], axis: NDArray[np.float64], body_length_m: float,
-        body_width_m: float, drawn: list[DrawnBlob] | None = None,
+        body_width_m: float, drawn: list[DrawnBlob] | None = None, fresh: bool = False,
     ) -> U8:
         """The frame at time t for animals at `pos` (n,3) with unit body axes `axis` (n,3).
 
-        Returns a uint8 (height, width) array that is reused by the next call (copy it to keep it)."""
+        Returns a uint8 (height, width) array that the next call reuses, unless `fresh` (a new array,
+        for a caller that keeps frames: cheaper than copying)."""
         p = self.params
-        out = self._out
+        out = np.empty_like(self._out) if fresh else self._out
         base = self._background(self.gain(t))
         start = int(self.rng.integers(0, self._bank.size - self._n_pix))
         noise = self._bank[start : start + self._n_pix].reshape(out.shape)
@@ -215,10 +219,14 @@ class CameraRenderer:
         pts = np.concatenate([pos, pos + half, pos - half])
         uv = cam.project(pts)
         depth = cam.to_camera(pos)[:, 2]
-        visible = cam.in_view(pos, margin=2.0)
+        c, head, tail = uv[:n], uv[n : 2 * n], uv[2 * n :]
+        # In front of the camera and inside the image (as Camera.in_view, without projecting again).
+        m = 2.0
+        with np.errstate(invalid="ignore"):
+            visible = ((depth > 0) & (c[:, 0] >= -0.5 + m) & (c[:, 0] <= cam.width - 0.5 - m)
+                       & (c[:, 1] >= -0.5 + m) & (c[:, 1] <= cam.height - 0.5 - m))
         if not np.any(visible):
             return
-        c, head, tail = uv[:n], uv[n : 2 * n], uv[2 * n :]
         major = head - tail
         f = float(cam.K[0, 0])
         with np.errstate(invalid="ignore", divide="ignore"):
