@@ -51,7 +51,7 @@ def make_rig(tmp_path: Path, kind: str, port: str = "/dev/null"):
     return parse_rig({
         "name": "trigrig",
         "trigger": {"kind": kind, "port": port, "fps": FPS, "clock_query_interval_s": 0.1},
-        "host": {"listen": "127.0.0.1:7000", "sync_deadline_fraction": 2.0},
+        "host": {"listen": "127.0.0.1:7000"},  # default sync_deadline_fraction (0.5)
         "recording": {"folder": str(tmp_path / "rec"), "flush_interval_s": 0.5},
         "cameras": [{"name": f"cam{i}", "index": i, "edge": "127.0.0.1"} for i in range(3)],
     })
