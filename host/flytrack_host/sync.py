@@ -407,6 +407,8 @@ class FrameSynchronizer:
             global_jump = False
         if global_jump:
             out.extend(self._close_through(max(self.pending), "flush") if self.pending else [])
+            self._arrivals.clear()  # drift comparisons start again in the new numbering
+            self._eval_next = None
             if new_tf <= self.last_closed:
                 self.last_closed = new_tf
             self.max_accepted = new_tf
@@ -452,7 +454,10 @@ class FrameSynchronizer:
                 break
             self._arrivals.pop(f, None)
             self._eval_next = f + 1
-            if rec is None or len(rec) < 3:
+            if rec is None:  # skip straight to the next frame that has arrivals (after a jump ahead)
+                self._eval_next = max(f + 1, min(self._arrivals, default=self.max_accepted + 1))
+                continue
+            if len(rec) < 3:
                 continue
             for i, t_i in rec.items():
                 d = t_i - statistics.median(t_o for o, t_o in rec.items() if o != i)
@@ -492,6 +497,8 @@ class FrameSynchronizer:
             for rec in self._arrivals.values():  # its unsettled arrivals carry the old numbering
                 rec.pop(cam.index, None)
             msg += "; re-mapped"
+        else:  # numbered by the edge (its number wins) or not mapped yet: reported once, not renumbered
+            cam.rel_base += shift * self.period
         return [SyncEvent("drift", cam.index, msg)]
 
     # --- closing ------------------------------------------------------------------------------
