@@ -290,8 +290,8 @@ def test_reordered_packets():
     # Three consecutive frames of camera 1 held back 0.4 s in the network and delivered together.
     for k in (150, 151, 152):
         i = by[(1, k)]
-        t, f, kk = arr[i]
-        arr[i] = (t + 0.4 + 1e-6 * k, f, kk)
+        _, f, kk = arr[i]
+        arr[i] = (T0 + 152 * P + 0.4 + 1e-6 * k, f, kk)
     r = make()
     r.feed(arr)
     r.finish()
