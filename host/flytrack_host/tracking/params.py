@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -88,5 +90,14 @@ class TrackingParams(BaseModel):
         description=(
             "Body orientation is reported only when at least two of the cameras' planes meet at this "
             "angle or more (nearly parallel planes leave the line of intersection undefined), degrees."
+        ),
+    )
+    kernel: Literal["auto", "numpy", "c"] = Field(
+        "auto",
+        description=(
+            "Which implementation runs the per-frame hot path: 'c' (the compiled tracker kernel, "
+            "host/flytrack_host/tracking/kernel/), 'numpy', or 'auto': the environment variable "
+            "FLYTRACK_TRACKER_KERNEL (numpy|c) when set, else C when the library is built. Both give the "
+            "same estimates and identities."
         ),
     )

@@ -11,11 +11,16 @@ One call of `Tracker.process` per trigger frame (seed 000 section 3, Braid's def
   6. births from the points no target claimed (birth.py); a newborn is updated at once with them.
 Targets live in stacked arrays (state (T, 6), covariance (T, 6, 6), ...) so each step is a handful of
 NumPy calls whatever the number of targets and cameras; no per-point Python objects are made.
+Steps 1-5 also exist in C (kernel.py, kernel/tracker_kernel.c: one call per frame instead of ~200 NumPy
+calls); the tracker uses it when it is built (TrackingParams.kernel, FLYTRACK_TRACKER_KERNEL) and both
+paths give the same estimates and identities. Births, clashes and merges stay in NumPy/scipy in both.
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from collections.abc import Mapping
 
 import numpy as np
@@ -23,7 +28,8 @@ from numpy.typing import NDArray
 
 from flytrack_host.camera import Camera
 from flytrack_host.protocol import POINT_DTYPE
-from flytrack_host.tracking.association import PointSet, associate
+from flytrack_host.tracking import kernel as ckernel
+from flytrack_host.tracking.association import PointSet, _assign_camera_globally, _prevent_merges, associate
 from flytrack_host.tracking.birth import Birth, find_births
 from flytrack_host.tracking.ekf import cv_process_noise, cv_transition, joseph_update, predict
 from flytrack_host.tracking.observation import CameraArray
@@ -32,6 +38,9 @@ from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.types import Association, Estimate, FrameBundle, FrameResult
 
 F64 = NDArray[np.float64]
+log = logging.getLogger(__name__)
+KERNEL_ENV = "FLYTRACK_TRACKER_KERNEL"
+_logged: set[str] = set()
 _REQUIRED_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "orientation", "eccentricity")
 
 # Words of a protocol point (11 x 4 bytes) holding, in order, the fields of _REQUIRED_FIELDS.
@@ -53,6 +62,28 @@ STAT_KEYS = (
     "conflicts_resolved",  # cameras where targets clashed over a point (global assignment)
     "merges_prevented",  # targets stripped of shared points by the merge-prevention rule
 )
+
+
+def select_kernel(params: TrackingParams) -> tuple[str, str]:
+    """Which path a tracker with these params runs: ("c" | "numpy", why). TrackingParams.kernel wins,
+    then the FLYTRACK_TRACKER_KERNEL environment variable, then C when the library is built."""
+    want: str = params.kernel
+    if want == "auto":
+        env = os.environ.get(KERNEL_ENV, "").strip().lower()
+        if env not in ("", "auto", "numpy", "c"):
+            raise ValueError(f"{KERNEL_ENV} must be 'numpy' or 'c' (or unset), got {env!r}")
+        want = env or "auto"
+        how = f"{KERNEL_ENV}={env}" if env else "the library is built"
+    else:
+        how = f"TrackingParams.kernel={want!r}"
+    if want == "numpy":
+        return "numpy", how
+    reason = ckernel.unavailable_reason()
+    if reason is None:
+        return "c", how
+    if want == "c":
+        raise ckernel.KernelUnavailable(f"{how} asks for the C tracker kernel, but {reason}")
+    return "numpy", f"C kernel not available: {reason}"
 
 
 class Tracker:
@@ -85,6 +116,15 @@ class Tracker:
         self._obj_id = np.empty(0, dtype=np.int64)
         self._n_obs = np.empty(0, dtype=np.int64)
         self._axis = np.empty((0, 3))
+        self.kernel_path, why = select_kernel(params)
+        msg = f"tracker: {'C kernel' if self.kernel_path == 'c' else 'NumPy'} path ({why})"
+        if msg not in _logged:  # once per process and reason
+            _logged.add(msg)
+            log.info(msg)
+        self._kern: ckernel.TrackerKernel | None = None
+        if self.kernel_path == "c":
+            self._kern = ckernel.TrackerKernel(self.cams, params)
+            self._adopt()
 
     # --- public ---------------------------------------------------------------------------------
     @property
@@ -101,7 +141,7 @@ class Tracker:
             if steps <= 0:
                 # Time cannot run backwards in a filter: the bundle is ignored (the recorder keeps it).
                 self.stats["stale_bundles"] += 1
-                self._report(result, None, np.zeros(self.n_targets, dtype=np.intp))
+                self._report(result, None, None, np.zeros(self.n_targets, dtype=np.intp))
                 return result
             self.stats["skipped_frames"] += steps - 1
         else:
@@ -109,10 +149,13 @@ class Tracker:
         self._last_frame = frame
         self.stats["frames"] += 1
         p = self.params
+        dt = steps * self.frame_period_s
+        if self._kern is not None:
+            self._process_c(bundle, result, dt)
+            return result
 
         # 1. Predict.
         if self.n_targets:
-            dt = steps * self.frame_period_s
             self._x, self._P = predict(
                 self._x, self._P, cv_transition(dt), cv_process_noise(dt, p.motion_noise_scale)
             )
@@ -149,32 +192,88 @@ class Tracker:
         if pos_var is not None:
             dead = ~(pos_var <= self._death_var)  # NaN dies too
             if dead.any():
-                ids = self._obj_id[dead]
-                result.died.extend(int(i) for i in ids[ids >= 0])
-                self.stats["deaths"] += int((ids >= 0).sum())
-                self.stats["tentative_dropped"] += int((ids < 0).sum())
-                keep = ~dead
-                self._keep(keep)
-                assign = assign[:, keep]
-                n_cams = n_cams[keep]
+                assign, n_cams = self._deaths(result, dead, assign, n_cams)
 
         # 6. Births.
         if pts.n - int(claimed.sum()) >= p.birth_min_cameras:
-            births = find_births(self.cams, pts, ~claimed, p, self._x[:, :3] if self.n_targets else None)
-            if births:
-                self.last_births = births
-                assign, n_cams = self._add_births(births, pts, assign, n_cams)
+            assign, n_cams = self._births(pts, ~claimed, assign, n_cams)
+        self._confirm(result)
+        self._report(result, assign, pts.index, n_cams)
+        return result
 
-        # Confirmation of targets seen in enough frames.
-        new = (self._obj_id < 0) & (self._n_obs >= p.confirm_min_frames)
+    def _process_c(self, bundle: FrameBundle, result: FrameResult, dt: float) -> None:
+        """Steps 1-5 in the C kernel (one call unless a clash or flydra's merge rule needs Python)."""
+        k = self._kern
+        assert k is not None
+        p = self.params
+        s = self.stats
+        raw, n_raw = self._gather_raw(bundle, k.counts)
+        T = self.n_targets
+        st = k.frame(raw, n_raw, T, dt)
+        s["points"] += st[ckernel.ST_POINTS]
+        s["nonfinite_points"] += st[ckernel.ST_NONFINITE]
+        s["nonfinite_orientation"] += st[ckernel.ST_NONFINITE_ORI]
+        if st[ckernel.ST_RESOLVE]:
+            st = self._settle(k, T, st[ckernel.ST_POINTS])
+        s["conflicts_resolved"] += st[ckernel.ST_CONFLICTS]
+        s["rejected_updates"] += st[ckernel.ST_REJECTED]
+        assign = k.assign_view(T)
+        n_cams = k.n_cams[:T]
+        if st[ckernel.ST_DEAD]:
+            assign, n_cams = self._deaths(result, k.dead[:T].astype(bool), assign, n_cams)
+        # The kernel's prefilter found no pair of unclaimed points that could start a target: then
+        # find_births would return nothing, so it is not called.
+        if st[ckernel.ST_UNCLAIMED] >= p.birth_min_cameras and st[ckernel.ST_BIRTH_PAIRS]:
+            pts = k.pointset()
+            assign, n_cams = self._births(pts, k.claimed[: pts.n] == 0, assign, n_cams)
+        self._confirm(result)
+        self._report(result, assign, k.index, n_cams)
+
+    def _settle(self, k: ckernel.TrackerKernel, T: int, N: int) -> list[int]:
+        """The association decisions the kernel leaves to Python, with the NumPy path's functions:
+        clashes over a point (scipy's linear_sum_assignment), or flydra's merge-prevention rule."""
+        assign = k.assign_view(T)
+        best = np.full(assign.shape, np.inf)  # written by the helpers, not needed here
+        if self.params.exclusive_points:
+            cost = k.pair_view(k.cost, N, T)
+            starts = k.starts
+            for c in range(self.cams.n):
+                row = assign[c][assign[c] >= 0]
+                if row.size > 1 and np.unique(row).size < row.size:
+                    a, b = int(starts[c]), int(starts[c + 1])
+                    _assign_camera_globally(c, cost[a:b], a, assign, best)
+        else:
+            self.stats["merges_prevented"] += _prevent_merges(assign, k.pair_view(k.d2, N, T), best)
+        return k.update(T)
+
+    def _deaths(
+        self, result: FrameResult, dead: NDArray[np.bool_], assign: NDArray[np.intp], n_cams: NDArray[np.intp]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        ids = self._obj_id[dead]
+        result.died.extend(int(i) for i in ids[ids >= 0])
+        self.stats["deaths"] += int((ids >= 0).sum())
+        self.stats["tentative_dropped"] += int((ids < 0).sum())
+        keep = ~dead
+        self._keep(keep)
+        return assign[:, keep], n_cams[keep]
+
+    def _births(
+        self, pts: PointSet, free: NDArray[np.bool_], assign: NDArray[np.intp], n_cams: NDArray[np.intp]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        births = find_births(self.cams, pts, free, self.params, self._x[:, :3] if self.n_targets else None)
+        if births:
+            self.last_births = births
+            assign, n_cams = self._add_births(births, pts, assign, n_cams)
+        return assign, n_cams
+
+    def _confirm(self, result: FrameResult) -> None:
+        """Confirmation of targets seen in enough frames."""
+        new = (self._obj_id < 0) & (self._n_obs >= self.params.confirm_min_frames)
         for k in np.flatnonzero(new):
             self._obj_id[k] = self._next_obj_id
             result.born.append(self._next_obj_id)
             self._next_obj_id += 1
             self.stats["confirmed"] += 1
-
-        self._report(result, (assign, pts), n_cams)
-        return result
 
     # --- steps ----------------------------------------------------------------------------------
     def _gather(self, bundle: FrameBundle) -> PointSet:
@@ -231,6 +330,38 @@ class Tracker:
         ori_ok = np.isfinite(ori) & (ecc >= self.params.min_eccentricity_for_orientation)  # NaN: False
         return PointSet(slot, index, u, v, ui, vi, area, ori, ecc, starts, rays, tab[:2].T, ori_ok,
                         rank, max_per_camera)
+
+    def _gather_raw(self, bundle: FrameBundle, counts: NDArray[np.int64]) -> tuple[bytes | None, int]:
+        """For the C kernel: the cameras' protocol point bytes joined in slot order, and counts[slot]."""
+        slot_of = self.cams.slot_of
+        counts.fill(0)
+        parts: list[tuple[int, np.ndarray]] = []
+        n = 0
+        for ci, arr in bundle.detections.items():
+            s = slot_of.get(ci)
+            if s is None:
+                self.stats["unknown_camera_points"] += len(arr)
+                continue
+            m = len(arr)
+            if m:
+                self._check_dtype(ci, arr)
+                if arr.dtype != POINT_DTYPE or not arr.flags.c_contiguous:
+                    arr = _as_protocol(arr)
+                parts.append((s, arr))
+                counts[s] = m
+                n += m
+        if not parts:
+            return None, 0
+        if len(parts) > 1 and any(parts[k][0] > parts[k + 1][0] for k in range(len(parts) - 1)):
+            parts.sort(key=lambda sa: sa[0])
+        return b"".join([a.data for _, a in parts]), n
+
+    def _adopt(self) -> None:
+        """C path: the state arrays live in the kernel's buffers (copied in after births and deaths)."""
+        if self._kern is not None:
+            self._x, self._P, self._area, self._n_obs, self._axis = self._kern.store(
+                self._x, self._P, self._area, self._n_obs, self._axis
+            )
 
     def _arange(self, n: int) -> NDArray[np.intp]:
         if n > self._aranges.size:
@@ -326,6 +457,7 @@ class Tracker:
         self._obj_id = self._obj_id[keep]
         self._n_obs = self._n_obs[keep]
         self._axis = self._axis[keep]
+        self._adopt()
 
     def _add_births(
         self, births: list[Birth], pts: PointSet, assign: NDArray[np.intp], n_cams: NDArray[np.intp]
@@ -351,6 +483,7 @@ class Tracker:
         self._obj_id = np.concatenate([self._obj_id, np.full(B, -1, dtype=np.int64)])
         self._n_obs = np.concatenate([self._n_obs, accepted.astype(np.int64)])
         self._axis = np.concatenate([self._axis, np.full((B, 3), np.nan)])
+        self._adopt()
         sel[:, ~accepted] = -1
         if B:
             start = self.n_targets - B
@@ -360,8 +493,11 @@ class Tracker:
         return np.concatenate([assign, sel], axis=1), np.concatenate([n_cams, (sel >= 0).sum(axis=0)])
 
     def _report(
-        self, result: FrameResult, assoc: tuple[NDArray[np.intp], PointSet] | None, n_cams: NDArray[np.intp]
+        self, result: FrameResult, assign: NDArray[np.intp] | None, point_index: NDArray[np.intp] | None,
+        n_cams: NDArray[np.intp],
     ) -> None:
+        """Estimates of the confirmed targets; with assign (C, T) and the rows' indices in their
+        cameras' detection arrays, their associations too."""
         conf = np.flatnonzero(self._obj_id >= 0)
         if conf.size == 0:
             return
@@ -375,13 +511,21 @@ class Tracker:
                      orientation=axes[i] if has_axis[i] else None)
             for i in range(conf.size)
         )
-        if assoc is not None:
-            assign, pts = assoc
+        if assign is not None and point_index is not None:
             sub = assign[:, conf]
             cs, ks = np.nonzero(sub >= 0)
             if cs.size:
                 cam_index = np.asarray(self.cams.indices)[cs].tolist()
-                pidx = pts.index[sub[cs, ks]].tolist()
+                pidx = point_index[sub[cs, ks]].tolist()
                 result.associations.extend(
                     Association(ids[k], c, p) for k, c, p in zip(ks.tolist(), cam_index, pidx, strict=True)
                 )
+
+
+def _as_protocol(arr: np.ndarray) -> np.ndarray:
+    """A detection array of another structured dtype as protocol points (the fields used, as float32:
+    the wire format; the NumPy path reads them at their own precision)."""
+    out = np.zeros(len(arr), POINT_DTYPE)
+    for f in _REQUIRED_FIELDS:
+        out[f] = arr[f]
+    return out

@@ -7,26 +7,37 @@ import pytest
 
 from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.tracking.evaluation import TrackingScore, score
+from flytrack_host.tracking.kernel import unavailable_reason
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import Scenario, make_scenario
 from flytrack_host.tracking.tracker import Tracker
 from flytrack_host.tracking.types import FrameBundle, FrameResult
 
+# Every end-to-end test runs on both paths: NumPy, and the C kernel (built by `make cbuild`).
+KERNELS = pytest.mark.parametrize(
+    "kernel", ["numpy", pytest.param("c", marks=pytest.mark.skipif(
+        unavailable_reason() is not None, reason=f"C tracker kernel not built: {unavailable_reason()}"))],
+)
 
-def _track(sc: Scenario, params: TrackingParams | None = None) -> tuple[Tracker, list[FrameResult], TrackingScore]:
-    tr = Tracker(sc.cameras, params or TrackingParams(), sc.frame_period_s)
+
+def _track(sc: Scenario, params: TrackingParams | None = None,
+           kernel: str = "auto") -> tuple[Tracker, list[FrameResult], TrackingScore]:
+    params = (params or TrackingParams()).model_copy(update={"kernel": kernel})
+    tr = Tracker(sc.cameras, params, sc.frame_period_s)
+    assert kernel == "auto" or tr.kernel_path == kernel
     results = [tr.process(b) for b in sc.bundles]
     est = [{e.obj_id: e.state[:3] for e in r.estimates} for r in results]
     return tr, results, score(sc.truth, est)
 
 
 @pytest.mark.parametrize(("n_cameras", "n_targets", "seed"), [(5, 4, 1), (4, 3, 2), (5, 3, 3)])
-def test_accuracy_on_synthetic_flights(n_cameras: int, n_targets: int, seed: int) -> None:
+@KERNELS
+def test_accuracy_on_synthetic_flights(n_cameras: int, n_targets: int, seed: int, kernel: str) -> None:
     sc = make_scenario(n_cameras=n_cameras, n_targets=n_targets, duration_s=10.0, noise_px=0.5, p_miss=0.05,
                        false_positives_per_camera=0.3, close_pass_m=0.006, seed=seed)
     # The scenario really is hard where it should be: a close pass with merged blobs, false positives.
     assert sc.closest_approach_m <= 0.0061 and sc.n_merged_blobs > 0 and sc.n_false_positives > 500
-    tr, _, s = _track(sc)
+    tr, _, s = _track(sc, kernel=kernel)
     print(f"\n{n_cameras} cameras, {n_targets} targets: {s.line()}\n  stats {tr.stats}")
     assert s.rmse_m < 0.002
     assert s.mota > 0.95
@@ -35,29 +46,32 @@ def test_accuracy_on_synthetic_flights(n_cameras: int, n_targets: int, seed: int
     assert s.id_switches <= 1
 
 
-def test_nan_and_inf_points_are_skipped_and_counted() -> None:
+@KERNELS
+def test_nan_and_inf_points_are_skipped_and_counted(kernel: str) -> None:
     sc = make_scenario(n_cameras=5, n_targets=3, duration_s=4.0, corrupt_fraction=0.05, seed=4)
     assert sc.n_corrupted > 100
-    tr, _, s = _track(sc)
+    tr, _, s = _track(sc, kernel=kernel)
     assert tr.stats["nonfinite_points"] == sc.n_corrupted
     assert tr.stats["points"] + tr.stats["nonfinite_points"] == sc.n_points
     print(f"\nwith {sc.n_corrupted} corrupted points: {s.line()}")
     assert s.rmse_m < 0.002 and s.mota > 0.95
 
 
-def test_infinite_orientation_is_counted_not_fatal() -> None:
+@KERNELS
+def test_infinite_orientation_is_counted_not_fatal(kernel: str) -> None:
     sc = make_scenario(n_cameras=4, n_targets=1, duration_s=0.5, close_pass_m=None, seed=6)
     sc.bundles[10].detections[0]["orientation"] = np.inf
     sc.bundles[11].detections[1]["eccentricity"] = -np.inf
-    tr, _, s = _track(sc)
+    tr, _, s = _track(sc, kernel=kernel)
     assert tr.stats["nonfinite_orientation"] >= 2
     assert s.mota > 0.9
 
 
-def test_one_camera_out_for_a_while_then_back() -> None:
+@KERNELS
+def test_one_camera_out_for_a_while_then_back(kernel: str) -> None:
     sc = make_scenario(n_cameras=5, n_targets=2, duration_s=4.0, close_pass_m=None, p_miss=0.0,
                        false_positives_per_camera=0.0, camera_outages=((2, 100, 299),), seed=8)
-    tr, results, s = _track(sc)
+    tr, results, s = _track(sc, kernel=kernel)
     ids_before = {e.obj_id for e in results[99].estimates}
     ids_after = {e.obj_id for e in results[350].estimates}
     assert ids_before == ids_after and len(ids_before) == 2
@@ -67,11 +81,12 @@ def test_one_camera_out_for_a_while_then_back() -> None:
     assert s.id_switches == 0 and s.rmse_m < 0.002
 
 
-def test_all_cameras_out_targets_coast_then_reacquire() -> None:
+@KERNELS
+def test_all_cameras_out_targets_coast_then_reacquire(kernel: str) -> None:
     outage = tuple((ci, 150, 154) for ci in range(4))
     sc = make_scenario(n_cameras=4, n_targets=2, duration_s=3.0, close_pass_m=None, p_miss=0.0,
                        false_positives_per_camera=0.0, camera_outages=outage, seed=9)
-    tr, results, s = _track(sc)
+    tr, results, s = _track(sc, kernel=kernel)
     ids = {e.obj_id for e in results[149].estimates}
     assert len(ids) == 2
     for f in range(150, 155):  # coasting: reported from the prediction, no camera, growing covariance
@@ -85,10 +100,11 @@ def test_all_cameras_out_targets_coast_then_reacquire() -> None:
     assert s.id_switches == 0 and tr.stats["births"] == 2
 
 
-def test_long_silence_kills_targets_and_they_are_reborn() -> None:
+@KERNELS
+def test_long_silence_kills_targets_and_they_are_reborn(kernel: str) -> None:
     sc = make_scenario(n_cameras=4, n_targets=1, duration_s=1.0, close_pass_m=None, p_miss=0.0,
                        false_positives_per_camera=0.0, seed=10)
-    tr = Tracker(sc.cameras, TrackingParams(), sc.frame_period_s)
+    tr = Tracker(sc.cameras, TrackingParams(kernel=kernel), sc.frame_period_s)
     for b in sc.bundles[:50]:
         tr.process(b)
     # 40 empty frames: the position std passes death_position_std_m.
@@ -102,28 +118,31 @@ def test_long_silence_kills_targets_and_they_are_reborn() -> None:
     assert born == [1]
 
 
-def test_skipped_trigger_frames_use_the_right_dt() -> None:
+@KERNELS
+def test_skipped_trigger_frames_use_the_right_dt(kernel: str) -> None:
     sc = make_scenario(n_cameras=4, n_targets=2, duration_s=3.0, close_pass_m=None, seed=12)
     kept = [b for b in sc.bundles if b.trigger_frame % 3 != 1]  # a third of the frames never arrive
     sub = Scenario(sc.cameras, sc.frame_period_s, kept, [sc.truth[b.trigger_frame] for b in kept],
                    [sc.truth_axis[b.trigger_frame] for b in kept])
-    tr, _, s = _track(sub)
+    tr, _, s = _track(sub, kernel=kernel)
     assert tr.stats["skipped_frames"] == len(sc.bundles) - len(kept) - (0 if sc.bundles[-1] in kept else 1)
     assert s.rmse_m < 0.002 and s.id_switches == 0
 
 
-def test_stale_and_repeated_bundles_are_ignored() -> None:
+@KERNELS
+def test_stale_and_repeated_bundles_are_ignored(kernel: str) -> None:
     sc = make_scenario(n_cameras=4, n_targets=1, duration_s=0.3, close_pass_m=None, seed=13)
-    tr, _, _ = _track(sc)
+    tr, _, _ = _track(sc, kernel=kernel)
     state = tr._x.copy()
     r = tr.process(sc.bundles[5])  # from the past
     assert tr.stats["stale_bundles"] == 1 and not r.associations and len(r.estimates) == 1
     np.testing.assert_array_equal(tr._x, state)
 
 
-def test_unknown_camera_and_bad_dtype() -> None:
+@KERNELS
+def test_unknown_camera_and_bad_dtype(kernel: str) -> None:
     sc = make_scenario(n_cameras=4, n_targets=1, duration_s=0.2, close_pass_m=None, seed=14)
-    tr = Tracker(sc.cameras, TrackingParams(), sc.frame_period_s)
+    tr = Tracker(sc.cameras, TrackingParams(kernel=kernel), sc.frame_period_s)
     b = sc.bundles[0]
     b.detections[77] = np.zeros(3, POINT_DTYPE)
     tr.process(b)
@@ -143,11 +162,12 @@ def test_constructor_checks() -> None:
         Tracker({}, TrackingParams(), 0.01)
 
 
-def test_flydra_association_with_merge_prevention_does_not_merge() -> None:
+@KERNELS
+def test_flydra_association_with_merge_prevention_does_not_merge(kernel: str) -> None:
     """flydra's independent per-target choice (exclusive_points = false): the merge-prevention rule
     fires during the close pass and the two trajectories stay apart."""
     sc = make_scenario(n_cameras=5, n_targets=4, duration_s=10.0, close_pass_m=0.006, seed=1)
-    tr, _, s = _track(sc, TrackingParams(exclusive_points=False))
+    tr, _, s = _track(sc, TrackingParams(exclusive_points=False), kernel)
     print(f"\nflydra association: {s.line()}, merges prevented {tr.stats['merges_prevented']}")
     assert tr.stats["merges_prevented"] > 0
     assert s.merges == 0 and s.id_switches <= 1 and s.rmse_m < 0.002
