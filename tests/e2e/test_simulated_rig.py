@@ -34,8 +34,10 @@ def test_every_animal_is_tracked_accurately(demo):
     assert s.gt_objects == cfg.animals
     assert s.tracks_found >= cfg.animals, f"only {s.tracks_found} tracks matched an animal"
     assert s.rmse_mm < 3.0, f"3D RMSE {s.rmse_mm:.2f} mm"
-    # Loose on purpose: a CPU-starved host can misnumber frames for a while (see the report).
-    assert s.recall > 0.5 and s.mota > 0.5, (s.recall, s.mota)
+    # Not the demo's goals (MOTA > 0.99): `make test` may share the 2 cores with much else, and a
+    # starved host tracks late bundles with cameras missing.
+    assert s.recall > 0.8 and s.mota > 0.8, (s.recall, s.mota)
+    assert r.frames_misnumbered == 0
     assert s.id_switches_free_flight == 0
     assert s.merges == 0
 
