@@ -52,6 +52,7 @@ WARMUP_SAMPLES = 15  # clock queries at WARMUP_INTERVAL_S right after a start, b
 WARMUP_INTERVAL_S = 0.02
 FIXED_GAIN_SPAN_S = 1.0  # until the samples span this much device time the fitted gain is mostly noise
 RECONNECT_EVERY_S = 2.0
+LOST_AFTER_FAILURES = 3  # clock queries unanswered in a row before the trigger counts as lost
 
 
 class _Device(Protocol):  # what TriggerDevice and StrawlabTriggerbox both offer
@@ -197,6 +198,7 @@ class TriggerSession:
         self.stats = TriggerSessionStats()
         self.started_at = math.nan  # host time START was sent
         self.lost_since: float | None = None
+        self._failures_in_row = 0
         self._pipe: _Pipeline | None = None
         self._early_log: list[str] = []
         self._stop = threading.Event()
@@ -292,11 +294,16 @@ class TriggerSession:
             r = self.device.query_clock()
         except (TriggerError, OSError, serial.SerialException) as exc:
             self.stats.clock_errors += 1
-            if self.lost_since is None:
+            self._failures_in_row += 1
+            # One unanswered query is not a lost trigger: on a loaded host a reply can miss its
+            # timeout. The port itself failing, or several misses in a row, is.
+            port_gone = isinstance(exc, (OSError, serial.SerialException))
+            if self.lost_since is None and (port_gone or self._failures_in_row >= LOST_AFTER_FAILURES):
                 self.lost_since = time.time()
                 self.stats.lost += 1
                 self.log(f"trigger not answering ({exc}); the run goes on with the last clock model")
             return None
+        self._failures_in_row = 0
         if self.lost_since is not None:
             self.log(f"trigger answering again after {time.time() - self.lost_since:.1f} s")
             self.lost_since = None
