@@ -6,6 +6,8 @@ detections, 0.3 false positives per camera and frame, a close pass) is tracked f
 be shared: CPU time is what our code costs, wall time what a user would see on an idle machine).
 Then, on the first frames of the same detections and in the same run, the Stone Soup tracker of
 stonesoup_baseline.py is timed the same way and both are scored against the ground truth.
+The tracker runs its C kernel when it is built (--kernel chooses); the NumPy path is then timed too on
+the same frames, side by side (numpy_* keys in the JSON), and checked to give the same estimates.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from rich.table import Table
 from flytrack_host.tracking.evaluation import score
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario
-from flytrack_host.tracking.tracker import Tracker
+from flytrack_host.tracking.tracker import Tracker, select_kernel
 
 app = typer.Typer(help="Benchmarks that print measured figures.", no_args_is_help=True)
 console = Console(width=200)
@@ -39,8 +41,8 @@ def _pct(a: np.ndarray, q: float) -> float:
     return float(np.percentile(a, q)) if a.size else float("nan")
 
 
-def _run_ours(sc, n: int) -> tuple[np.ndarray, np.ndarray, list, list]:  # noqa: ANN001
-    tr = Tracker(sc.cameras, TrackingParams(), sc.frame_period_s)
+def _run_ours(sc, n: int, kernel: str = "auto") -> tuple[np.ndarray, np.ndarray, list, list]:  # noqa: ANN001
+    tr = Tracker(sc.cameras, TrackingParams(kernel=kernel), sc.frame_period_s)
     wall = np.empty(n)
     cpu = np.empty(n)
     est = []
@@ -90,6 +92,8 @@ def tracker_bench(
     no_stonesoup: bool = typer.Option(False, "--no-stonesoup", help="Skip the Stone Soup comparison."),
     json_path: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
     seed: int = typer.Option(1, help="Scenario seed."),
+    kernel: str = typer.Option("auto", help="Tracker path: auto (C when built), c or numpy."),
+    no_numpy: bool = typer.Option(False, "--no-numpy", help="Do not also time the NumPy path."),
 ) -> None:
     """Tracker latency (P50, P99) for 2, 5 and 11 cameras with 1 to 10 targets; real time at 100 and
     200 fps; speed and accuracy against Stone Soup's EKF + nearest-neighbour tracker."""
@@ -100,14 +104,19 @@ def tracker_bench(
     if ss_missing:
         console.print(f"[yellow]{ss_missing}[/yellow] Comparison skipped.", highlight=False)
     use_ss = not no_stonesoup and ss_missing is None
+    if kernel not in ("auto", "c", "numpy"):
+        raise typer.BadParameter(f"--kernel must be auto, c or numpy, got {kernel!r}")
+    path, why = select_kernel(TrackingParams(kernel=kernel))  # type: ignore[arg-type]
+    console.print(f"tracker path: {'C kernel' if path == 'c' else 'NumPy'} ({why})", highlight=False)
+    compare_numpy = path == "c" and not no_numpy
     rows: list[dict] = []
     for C, T in configs:
         sc = make_scenario(n_cameras=C, n_targets=T, duration_s=n / 100.0, fps=100.0,
                            close_pass_m=0.006 if T >= 2 else None, seed=seed)
-        wall, cpu, est, births = _run_ours(sc, n)
+        wall, cpu, est, births = _run_ours(sc, n, path)
         s_all = score(sc.truth[:n], est)
         row: dict = {
-            "cameras": C, "targets": T, "frames": n,
+            "cameras": C, "targets": T, "frames": n, "kernel": path,
             "p50_ms": _pct(wall, 50), "p99_ms": _pct(wall, 99), "mean_ms": float(wall.mean()),
             "cpu_p50_ms": _pct(cpu, 50), "cpu_p99_ms": _pct(cpu, 99), "cpu_mean_ms": float(cpu.mean()),
             "rmse_mm": s_all.rmse_m * 1e3, "mota": s_all.mota, "idf1": s_all.idf1,
@@ -118,6 +127,19 @@ def tracker_bench(
             row[f"keeps_up_{fps}fps"] = bool(row["mean_ms"] < period)  # throughput: no backlog grows
             row[f"p99_within_period_{fps}fps"] = bool(row["p99_ms"] < period)
             row[f"cpu_p99_within_period_{fps}fps"] = bool(row["cpu_p99_ms"] < period)
+        if compare_numpy:
+            np_wall, np_cpu, np_est, _ = _run_ours(sc, n, "numpy")
+            diff = max((float(np.abs(a[k] - b[k]).max()) for a, b in zip(est, np_est, strict=True) for k in a
+                        if k in b), default=0.0)
+            same_ids = all(a.keys() == b.keys() for a, b in zip(est, np_est, strict=True))
+            row.update({
+                "numpy_p50_ms": _pct(np_wall, 50), "numpy_p99_ms": _pct(np_wall, 99),
+                "numpy_cpu_p50_ms": _pct(np_cpu, 50), "numpy_cpu_p99_ms": _pct(np_cpu, 99),
+                "numpy_cpu_mean_ms": float(np_cpu.mean()),
+                "c_speedup_cpu_p50": _pct(np_cpu, 50) / _pct(cpu, 50),
+                "c_speedup_cpu_mean": float(np_cpu.mean() / cpu.mean()),
+                "c_vs_numpy_max_position_diff_m": diff, "c_vs_numpy_same_ids": same_ids,
+            })
         if use_ss:
             ss_wall, ss_cpu, ss_est = _run_stonesoup(sc, n_ss, births)
             s_ours = score(sc.truth[:n_ss], est[:n_ss])
@@ -128,12 +150,16 @@ def tracker_bench(
                 "ss_cpu_mean_ms": float(ss_cpu.mean()),
                 "speed_ratio_cpu_mean": float(ss_cpu.mean() / cpu[:n_ss].mean()),
                 "speed_ratio_cpu_p50": float(_pct(ss_cpu, 50) / _pct(cpu[:n_ss], 50)),
+                **({"numpy_speed_ratio_cpu_mean": float(ss_cpu.mean() / np_cpu[:n_ss].mean())}
+                   if compare_numpy else {}),
                 "same_frames_ours_rmse_mm": s_ours.rmse_m * 1e3, "same_frames_ours_mota": s_ours.mota,
                 "ss_rmse_mm": s_ss.rmse_m * 1e3, "ss_mota": s_ss.mota, "ss_idf1": s_ss.idf1,
             })
         rows.append(row)
         _print_row(row)
     _print_table(rows, use_ss)
+    if compare_numpy:
+        _print_numpy_table(rows, use_ss)
     if json_path is not None:
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps({"tracker": rows}, indent=2))
@@ -141,7 +167,7 @@ def tracker_bench(
 
 
 def _print_row(r: dict) -> None:
-    line = (f"{r['cameras']:>2} cameras x {r['targets']:>2} targets: wall P50 {r['p50_ms']:.3f} ms, "
+    line = (f"{r['cameras']:>2} cameras x {r['targets']:>2} targets ({r['kernel']}): wall P50 {r['p50_ms']:.3f} ms, "
             f"P99 {r['p99_ms']:.3f} ms; CPU P50 {r['cpu_p50_ms']:.3f} ms, P99 {r['cpu_p99_ms']:.3f} ms; "
             f"RMSE {r['rmse_mm']:.2f} mm, MOTA {r['mota']:.3f}, IDF1 {r['idf1']:.3f}")
     if "ss_p50_ms" in r:
@@ -149,6 +175,9 @@ def _print_row(r: dict) -> None:
                  f"({r['speed_ratio_cpu_mean']:.0f}x slower), RMSE {r['ss_rmse_mm']:.2f} mm vs "
                  f"{r['same_frames_ours_rmse_mm']:.2f}, MOTA {r['ss_mota']:.3f} vs "
                  f"{r['same_frames_ours_mota']:.3f} on {r['ss_frames']} frames")
+    if "numpy_cpu_p50_ms" in r:
+        line += (f" | NumPy path CPU P50 {r['numpy_cpu_p50_ms']:.3f} ms ({r['c_speedup_cpu_p50']:.1f}x), "
+                 f"max |C - NumPy| {r['c_vs_numpy_max_position_diff_m']:.1e} m")
     console.print(line, highlight=False)
 
 
@@ -181,3 +210,25 @@ def _print_table(rows: list[dict], use_ss: bool) -> None:
                   "inflate). "
                   "Stone Soup gets our births (same frame, state and covariance); its time excludes "
                   "initiation, ours includes the birth search.", highlight=False)
+
+
+def _print_numpy_table(rows: list[dict], use_ss: bool) -> None:
+    t = Table(title="Same scenarios: C kernel vs NumPy path (ms)")
+    cols = ["cams x targets", "C CPU P50", "C CPU mean", "NumPy CPU P50", "NumPy CPU mean", "C speed-up P50",
+            "C speed-up mean", "max |C - NumPy| m", "same ids"]
+    if use_ss:
+        cols += ["vs Stone Soup (C)", "vs Stone Soup (NumPy)"]
+    for c in cols:
+        t.add_column(c, justify="right")
+    for r in rows:
+        cells = [f"{r['cameras']} x {r['targets']}", f"{r['cpu_p50_ms']:.3f}", f"{r['cpu_mean_ms']:.3f}",
+                 f"{r['numpy_cpu_p50_ms']:.3f}", f"{r['numpy_cpu_mean_ms']:.3f}", f"{r['c_speedup_cpu_p50']:.1f}x",
+                 f"{r['c_speedup_cpu_mean']:.1f}x", f"{r['c_vs_numpy_max_position_diff_m']:.1e}",
+                 "yes" if r["c_vs_numpy_same_ids"] else "NO"]
+        if use_ss:
+            cells += [f"{r['speed_ratio_cpu_mean']:.0f}x", f"{r['numpy_speed_ratio_cpu_mean']:.0f}x"]
+        t.add_row(*cells)
+    console.print(t)
+    console.print("Speed-ups and Stone Soup ratios are on this thread's CPU time (means over the frames "
+                  "Stone Soup tracked); the mean includes the NumPy birth search, which both paths share.",
+                  highlight=False)

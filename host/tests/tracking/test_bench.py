@@ -21,6 +21,22 @@ def test_bench_cli_writes_figures(tmp_path: Path) -> None:
     assert [(r["cameras"], r["targets"]) for r in rows] == [(2, 1), (5, 2), (5, 10), (11, 3), (11, 10)]
     assert all(r["p50_ms"] > 0 and r["frames"] == 30 for r in rows)
     assert "P50" in res.output
+    path = rows[0]["kernel"]
+    assert f"tracker path: {'C kernel' if path == 'c' else 'NumPy'}" in res.output
+    if path == "c":  # the NumPy path timed side by side on the same frames, same estimates
+        assert "C kernel vs NumPy path" in res.output
+        assert all(r["numpy_cpu_p50_ms"] > 0 and r["c_vs_numpy_same_ids"] for r in rows)
+        assert all(r["c_vs_numpy_max_position_diff_m"] < 1e-9 for r in rows)
+
+
+def test_bench_cli_numpy_path(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    res = CliRunner().invoke(app, ["tracker", "--quick", "--frames", "20", "--no-stonesoup", "--kernel", "numpy",
+                                   "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    rows = json.loads(out.read_text())["tracker"]
+    assert all(r["kernel"] == "numpy" and "numpy_cpu_p50_ms" not in r for r in rows)
+    assert "tracker path: NumPy" in res.output
 
 
 def test_stonesoup_camera_model_matches_ours() -> None:
