@@ -5,20 +5,28 @@
 #include <math.h>
 #include <string.h>
 
-int ftk_abi_version(void) { return FTK_ABI_VERSION; }
-size_t ftk_sizeof_params(void) { return sizeof(ftk_params); }
-size_t ftk_sizeof_buffers(void) { return sizeof(ftk_buffers); }
+int ftk_abi_version(void) {
+    return FTK_ABI_VERSION;
+}
+size_t ftk_sizeof_params(void) {
+    return sizeof(ftk_params);
+}
+size_t ftk_sizeof_buffers(void) {
+    return sizeof(ftk_buffers);
+}
 
 int64_t ftk_scratch_len(int64_t n_cameras, int64_t t_cap) {
     int64_t m = 2 * n_cameras;
-    /* inverse position covariances (9 per target); Joseph update: H (m x 3), y, S (m x m), P H^T and
-     * the solution (6 x m each), K (6 x m) */
+    /* inverse position covariances (9 per target); Joseph update: H (m x 3), y, S (m x m), P H^T
+     * and the solution (6 x m each), K (6 x m) */
     return 9 * t_cap + 3 * m + m + m * m + 3 * 6 * m + 64;
 }
 
 static int valid_buffers(const ftk_buffers *b, int64_t n_targets) {
-    if (!b || b->n_cameras < 1 || n_targets < 0 || n_targets > b->t_cap || b->n_cap < 0) return 0;
-    if (b->scratch_len < ftk_scratch_len(b->n_cameras, b->t_cap)) return 0;
+    if (!b || b->n_cameras < 1 || n_targets < 0 || n_targets > b->t_cap || b->n_cap < 0)
+        return 0;
+    if (b->scratch_len < ftk_scratch_len(b->n_cameras, b->t_cap))
+        return 0;
     return b->x && b->P && b->area && b->n_obs && b->axis && b->slot && b->index && b->rank &&
            b->starts && b->uv && b->uvi && b->parea && b->ori && b->ecc && b->rays && b->ori_ok &&
            b->claimed && b->cost && b->d2 && b->puv && b->J && b->front && b->assign && b->n_cams &&
@@ -26,15 +34,18 @@ static int valid_buffers(const ftk_buffers *b, int64_t n_targets) {
 }
 
 /* tracker._gather: finite points in slot order, rays (CameraArray.ray_directions). */
-static int gather(const ftk_params *p, const double *cams, const ftk_buffers *b, const unsigned char *raw,
-                  const int64_t *counts, int64_t *stats) {
+static int gather(const ftk_params *p, const double *cams, const ftk_buffers *b,
+                  const unsigned char *raw, const int64_t *counts, int64_t *stats) {
     int64_t C = b->n_cameras, total = 0;
     for (int64_t c = 0; c < C; c++) {
-        if (counts[c] < 0) return FTK_EINVAL;
+        if (counts[c] < 0)
+            return FTK_EINVAL;
         total += counts[c];
     }
-    if (total > b->n_cap) return FTK_ECAPACITY;
-    if (total > 0 && !raw) return FTK_EINVAL;
+    if (total > b->n_cap)
+        return FTK_ECAPACITY;
+    if (total > 0 && !raw)
+        return FTK_EINVAL;
     int64_t n = 0, row = 0, maxpc = 0;
     for (int64_t c = 0; c < C; c++) {
         const double *B = cams + c * FTK_CAM_STRIDE + FTK_CAM_RAYB;
@@ -63,10 +74,12 @@ static int gather(const ftk_params *p, const double *cams, const ftk_buffers *b,
             b->ori[n] = o;
             b->ecc[n] = e;
             b->ori_ok[n] = (uint8_t)(isfinite(o) && e >= p->min_eccentricity);
-            for (int k = 0; k < 3; k++) b->rays[3 * n + k] = B[3 * k] * ui + B[3 * k + 1] * vi + B[3 * k + 2];
+            for (int k = 0; k < 3; k++)
+                b->rays[3 * n + k] = B[3 * k] * ui + B[3 * k + 1] * vi + B[3 * k + 2];
             n++;
         }
-        if (r > maxpc) maxpc = r;
+        if (r > maxpc)
+            maxpc = r;
     }
     b->starts[C] = n;
     stats[FTK_ST_POINTS] = n;
@@ -79,7 +92,8 @@ static void predict(const ftk_params *p, const ftk_buffers *b, int64_t T, double
     double F[36] = {0}, Q[36] = {0};
     double q = p->motion_noise_scale;
     double q3 = q * pow(dt, 3.0) / 3.0, q2 = q * pow(dt, 2.0) / 2.0, q1 = q * dt;
-    for (int i = 0; i < 6; i++) F[7 * i] = 1.0;
+    for (int i = 0; i < 6; i++)
+        F[7 * i] = 1.0;
     for (int i = 0; i < 3; i++) {
         F[6 * i + i + 3] = dt;
         Q[6 * i + i] = q3;
@@ -90,20 +104,23 @@ static void predict(const ftk_params *p, const ftk_buffers *b, int64_t T, double
         double *x = b->x + 6 * t, *P = b->P + 36 * t, xn[6], FP[36];
         for (int i = 0; i < 6; i++) {
             double s = 0.0;
-            for (int j = 0; j < 6; j++) s += x[j] * F[6 * i + j];
+            for (int j = 0; j < 6; j++)
+                s += x[j] * F[6 * i + j];
             xn[i] = s;
         }
         memcpy(x, xn, sizeof xn);
         for (int i = 0; i < 6; i++)
             for (int j = 0; j < 6; j++) {
                 double s = 0.0;
-                for (int k = 0; k < 6; k++) s += F[6 * i + k] * P[6 * k + j];
+                for (int k = 0; k < 6; k++)
+                    s += F[6 * i + k] * P[6 * k + j];
                 FP[6 * i + j] = s;
             }
         for (int i = 0; i < 6; i++)
             for (int j = 0; j < 6; j++) {
                 double s = 0.0;
-                for (int k = 0; k < 6; k++) s += FP[6 * i + k] * F[6 * j + k];
+                for (int k = 0; k < 6; k++)
+                    s += FP[6 * i + k] * F[6 * j + k];
                 P[6 * i + j] = s + Q[6 * i + j];
             }
     }
@@ -123,7 +140,8 @@ static void project(const double *cams, const ftk_buffers *b, int64_t T) {
             const double *X = b->x + 6 * t;
             int64_t ct = c * T + t;
             double Xc[3];
-            for (int j = 0; j < 3; j++) Xc[j] = X[0] * R[3 * j] + X[1] * R[3 * j + 1] + X[2] * R[3 * j + 2] + tv[j];
+            for (int j = 0; j < 3; j++)
+                Xc[j] = X[0] * R[3 * j] + X[1] * R[3 * j + 1] + X[2] * R[3 * j + 2] + tv[j];
             double z = Xc[2];
             int front = z > 1e-9;
             double zi = 1.0 / (front ? z : 1.0);
@@ -135,7 +153,8 @@ static void project(const double *cams, const ftk_buffers *b, int64_t T) {
             double xy = q[0] * q[1];
             double qs[2] = {q[1], q[0]};
             double qd[2];
-            for (int i = 0; i < 2; i++) qd[i] = q[i] * radial + 2.0 * pv[i] * xy + ps[i] * (r2 + 2.0 * qq[i]);
+            for (int i = 0; i < 2; i++)
+                qd[i] = q[i] * radial + 2.0 * pv[i] * xy + ps[i] * (r2 + 2.0 * qq[i]);
             b->puv[2 * ct] = qd[0] * fx + qd[1] * skew + cx;
             b->puv[2 * ct + 1] = qd[0] * 0.0 + qd[1] * fy + cy;
             double Dd[2][2], KD[2][2], G[2][3];
@@ -145,36 +164,46 @@ static void project(const double *cams, const ftk_buffers *b, int64_t T) {
                     Dd[i][j] += 2.0 * pv[i] * qs[j];
                     Dd[i][j] += 2.0 * ps[i] * q[j];
                 }
-            for (int i = 0; i < 2; i++) Dd[i][i] += radial + 4.0 * ps[i] * q[i];
+            for (int i = 0; i < 2; i++)
+                Dd[i][i] += radial + 4.0 * ps[i] * q[i];
             for (int j = 0; j < 2; j++) {
                 KD[0][j] = fx * Dd[0][j] + skew * Dd[1][j];
                 KD[1][j] = 0.0 * Dd[0][j] + fy * Dd[1][j];
             }
             for (int i = 0; i < 2; i++)
-                for (int k = 0; k < 3; k++) G[i][k] = R[3 * i + k] - q[i] * R[6 + k];
+                for (int k = 0; k < 3; k++)
+                    G[i][k] = R[3 * i + k] - q[i] * R[6 + k];
             double *J = b->J + 6 * ct;
             for (int i = 0; i < 2; i++)
-                for (int k = 0; k < 3; k++) J[3 * i + k] = (KD[i][0] * G[0][k] + KD[i][1] * G[1][k]) * zi;
+                for (int k = 0; k < 3; k++)
+                    J[3 * i + k] = (KD[i][0] * G[0][k] + KD[i][1] * G[1][k]) * zi;
             b->front[ct] = (uint8_t)front;
         }
     }
 }
 
-/* Inverse of a 3x3 matrix by the adjugate (association.inv3); singular gives inf/NaN, refused later. */
+/* Inverse of a 3x3 matrix by the adjugate (association.inv3); singular gives inf/NaN, refused
+ * later. */
 static void inv3(const double *M, double *out) {
-    double a = M[0], bb = M[1], c = M[2], d = M[3], e = M[4], f = M[5], g = M[6], h = M[7], i = M[8];
+    double a = M[0], bb = M[1], c = M[2], d = M[3], e = M[4], f = M[5], g = M[6], h = M[7],
+           i = M[8];
     double co_a = e * i - f * h, co_b = f * g - d * i, co_c = d * h - e * g;
     double det = a * co_a + bb * co_b + c * co_c;
-    double adj[9] = {co_a, c * h - bb * i, bb * f - c * e, co_b, a * i - c * g, c * d - a * f,
-                     co_c, bb * g - a * h, a * e - bb * d};
-    for (int k = 0; k < 9; k++) out[k] = adj[k] / det;
+    double adj[9] = {co_a,          c * h - bb * i, bb * f - c * e, co_b,          a * i - c * g,
+                     c * d - a * f, co_c,           bb * g - a * h, a * e - bb * d};
+    for (int k = 0; k < 9; k++)
+        out[k] = adj[k] / det;
 }
 
-/* association.associate up to the clash test: gates, ray Mahalanobis distance, nearest neighbour. */
-static void associate(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t T, int64_t *stats) {
+/* association.associate up to the clash test: gates, ray Mahalanobis distance, nearest neighbour.
+ */
+static void associate(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t T,
+                      int64_t *stats) {
     int64_t C = b->n_cameras, N = b->starts[C];
-    for (int64_t k = 0; k < C * T; k++) b->assign[k] = -1;
-    if (T == 0 || N == 0) return;
+    for (int64_t k = 0; k < C * T; k++)
+        b->assign[k] = -1;
+    if (T == 0 || N == 0)
+        return;
     double *Ainv = b->scratch;
     for (int64_t t = 0; t < T; t++) {
         const double *P = b->P + 36 * t;
@@ -193,7 +222,8 @@ static void associate(const ftk_params *p, const double *cams, const ftk_buffers
             double cost = INFINITY;
             b->d2[n * T + t] = d2;
             int ok = b->front[ct] && d2 < gate2 && ratio < r && ratio > rinv;
-            if (ok && p->min_area_px > 0) ok = b->parea[n] > p->min_area_px;
+            if (ok && p->min_area_px > 0)
+                ok = b->parea[n] > p->min_area_px;
             if (ok) {
                 const double *A = Ainv + 9 * t, *m = b->x + 6 * t;
                 double w[3] = {m[0] - o[0], m[1] - o[1], m[2] - o[2]}, Aw[3], Ad[3];
@@ -206,7 +236,8 @@ static void associate(const ftk_params *p, const double *cams, const ftk_buffers
                 double dAd = d[0] * Ad[0] + d[1] * Ad[1] + d[2] * Ad[2];
                 double dist2 = wAw - dAw * dAw / dAd;
                 double dm = dist2 < 0.0 ? 0.0 : sqrt(dist2); /* NaN stays NaN: refused below */
-                if (dm < p->max_mahalanobis) cost = dm;
+                if (dm < p->max_mahalanobis)
+                    cost = dm;
             }
             b->cost[n * T + t] = cost;
         }
@@ -230,8 +261,10 @@ static void associate(const ftk_params *p, const double *cams, const ftk_buffers
         int clash = 0;
         for (int64_t t = 0; t < T; t++) {
             int64_t j = b->assign[c * T + t];
-            if (j < 0) continue;
-            if (b->claimed[j]) clash = 1;
+            if (j < 0)
+                continue;
+            if (b->claimed[j])
+                clash = 1;
             b->claimed[j] = 1;
         }
         conflicts += clash;
@@ -264,20 +297,26 @@ static void lu_solve(double *S, double *B, int m) {
             }
         }
         double pk = S[k * m + k];
-        if (pk == 0.0) pk = NAN;
+        if (pk == 0.0)
+            pk = NAN;
         for (int i = k + 1; i < m; i++) {
             double f = S[i * m + k] / pk;
-            if (f == 0.0) continue;
-            for (int j = k + 1; j < m; j++) S[i * m + j] -= f * S[k * m + j];
-            for (int j = 0; j < 6; j++) B[i * 6 + j] -= f * B[k * 6 + j];
+            if (f == 0.0)
+                continue;
+            for (int j = k + 1; j < m; j++)
+                S[i * m + j] -= f * S[k * m + j];
+            for (int j = 0; j < 6; j++)
+                B[i * 6 + j] -= f * B[k * 6 + j];
         }
     }
     for (int k = m - 1; k >= 0; k--) {
         double pk = S[k * m + k];
-        if (pk == 0.0) pk = NAN;
+        if (pk == 0.0)
+            pk = NAN;
         for (int j = 0; j < 6; j++) {
             double s = B[k * 6 + j];
-            for (int i = k + 1; i < m; i++) s -= S[k * m + i] * B[i * 6 + j];
+            for (int i = k + 1; i < m; i++)
+                s -= S[k * m + i] * B[i * 6 + j];
             B[k * 6 + j] = s / pk;
         }
     }
@@ -286,18 +325,23 @@ static void lu_solve(double *S, double *B, int m) {
 /* ekf._usable: finite with a Cholesky factor. */
 static int usable(const double *x, const double *P) {
     for (int i = 0; i < 6; i++)
-        if (!isfinite(x[i])) return 0;
+        if (!isfinite(x[i]))
+            return 0;
     for (int i = 0; i < 36; i++)
-        if (!isfinite(P[i])) return 0;
+        if (!isfinite(P[i]))
+            return 0;
     double L[36] = {0};
     for (int j = 0; j < 6; j++) {
         double s = P[7 * j];
-        for (int k = 0; k < j; k++) s -= L[6 * j + k] * L[6 * j + k];
-        if (!(s > 0.0)) return 0;
+        for (int k = 0; k < j; k++)
+            s -= L[6 * j + k] * L[6 * j + k];
+        if (!(s > 0.0))
+            return 0;
         L[7 * j] = sqrt(s);
         for (int i = j + 1; i < 6; i++) {
             double v = P[6 * i + j];
-            for (int k = 0; k < j; k++) v -= L[6 * i + k] * L[6 * j + k];
+            for (int k = 0; k < j; k++)
+                v -= L[6 * i + k] * L[6 * j + k];
             L[6 * i + j] = v / L[7 * j];
         }
     }
@@ -312,9 +356,11 @@ static int joseph(const ftk_params *p, const ftk_buffers *b, int64_t T, int64_t 
            *K = X + 12 * C;
     for (int64_t c = 0; c < C; c++) {
         int64_t j = b->assign[c * T + t], ct = c * T + t;
-        if (j < 0) continue;
+        if (j < 0)
+            continue;
         for (int r = 0; r < 2; r++) {
-            for (int k = 0; k < 3; k++) H[3 * (m + r) + k] = b->J[6 * ct + 3 * r + k];
+            for (int k = 0; k < 3; k++)
+                H[3 * (m + r) + k] = b->J[6 * ct + 3 * r + k];
             y[m + r] = b->uv[2 * j + r] - b->puv[2 * ct + r];
         }
         m += 2;
@@ -322,69 +368,83 @@ static int joseph(const ftk_params *p, const ftk_buffers *b, int64_t T, int64_t 
     const double *P = b->P + 36 * t, *x = b->x + 6 * t;
     for (int r = 0; r < 6; r++)
         for (int i = 0; i < m; i++)
-            PHt[r * m + i] = P[6 * r] * H[3 * i] + P[6 * r + 1] * H[3 * i + 1] + P[6 * r + 2] * H[3 * i + 2];
+            PHt[r * m + i] =
+                P[6 * r] * H[3 * i] + P[6 * r + 1] * H[3 * i + 1] + P[6 * r + 2] * H[3 * i + 2];
     for (int i = 0; i < m; i++)
         for (int j = 0; j < m; j++)
-            S[i * m + j] = H[3 * i] * PHt[j] + H[3 * i + 1] * PHt[m + j] + H[3 * i + 2] * PHt[2 * m + j] +
-                           (i == j ? p->r2 : 0.0);
+            S[i * m + j] = H[3 * i] * PHt[j] + H[3 * i + 1] * PHt[m + j] +
+                           H[3 * i + 2] * PHt[2 * m + j] + (i == j ? p->r2 : 0.0);
     for (int i = 0; i < m; i++)
-        for (int r = 0; r < 6; r++) X[6 * i + r] = PHt[r * m + i];
+        for (int r = 0; r < 6; r++)
+            X[6 * i + r] = PHt[r * m + i];
     lu_solve(S, X, m);
     for (int r = 0; r < 6; r++)
-        for (int i = 0; i < m; i++) K[r * m + i] = X[6 * i + r];
+        for (int i = 0; i < m; i++)
+            K[r * m + i] = X[6 * i + r];
     double xp[6], IKH[36], A[36], Pp[36];
     for (int r = 0; r < 6; r++) {
         double s = 0.0;
-        for (int i = 0; i < m; i++) s += K[r * m + i] * y[i];
+        for (int i = 0; i < m; i++)
+            s += K[r * m + i] * y[i];
         xp[r] = x[r] + s;
     }
     for (int r = 0; r < 6; r++)
         for (int c = 0; c < 6; c++) {
             double s = 0.0;
             if (c < 3)
-                for (int i = 0; i < m; i++) s += K[r * m + i] * H[3 * i + c];
+                for (int i = 0; i < m; i++)
+                    s += K[r * m + i] * H[3 * i + c];
             IKH[6 * r + c] = (r == c ? 1.0 : 0.0) - s;
         }
     for (int r = 0; r < 6; r++)
         for (int c = 0; c < 6; c++) {
             double s = 0.0;
-            for (int k = 0; k < 6; k++) s += IKH[6 * r + k] * P[6 * k + c];
+            for (int k = 0; k < 6; k++)
+                s += IKH[6 * r + k] * P[6 * k + c];
             A[6 * r + c] = s;
         }
     for (int r = 0; r < 6; r++)
         for (int c = 0; c < 6; c++) {
             double s = 0.0, kk = 0.0;
-            for (int k = 0; k < 6; k++) s += A[6 * r + k] * IKH[6 * c + k];
-            for (int i = 0; i < m; i++) kk += (K[r * m + i] * p->r2) * K[c * m + i];
+            for (int k = 0; k < 6; k++)
+                s += A[6 * r + k] * IKH[6 * c + k];
+            for (int i = 0; i < m; i++)
+                kk += (K[r * m + i] * p->r2) * K[c * m + i];
             Pp[6 * r + c] = s + kk;
         }
     double Ps[36];
     for (int r = 0; r < 6; r++)
-        for (int c = 0; c < 6; c++) Ps[6 * r + c] = (Pp[6 * r + c] + Pp[6 * c + r]) * 0.5;
-    if (!usable(xp, Ps)) return 0;
+        for (int c = 0; c < 6; c++)
+            Ps[6 * r + c] = (Pp[6 * r + c] + Pp[6 * c + r]) * 0.5;
+    if (!usable(xp, Ps))
+        return 0;
     memcpy(b->x + 6 * t, xp, sizeof xp);
     memcpy(b->P + 36 * t, Ps, sizeof Ps);
     return 1;
 }
 
-/* Eigen-decomposition of a symmetric 3x3 matrix by cyclic Jacobi rotations: eigenvalues ascending in
- * w, eigenvectors in the columns of V (as np.linalg.eigh). */
+/* Eigen-decomposition of a symmetric 3x3 matrix by cyclic Jacobi rotations: eigenvalues ascending
+ * in w, eigenvectors in the columns of V (as np.linalg.eigh). */
 static void eig3(const double *M, double *w, double *V) {
     double a[9];
     memcpy(a, M, sizeof a);
-    for (int i = 0; i < 9; i++) V[i] = (i % 4 == 0) ? 1.0 : 0.0;
+    for (int i = 0; i < 9; i++)
+        V[i] = (i % 4 == 0) ? 1.0 : 0.0;
     for (int sweep = 0; sweep < 60; sweep++) {
         double off = a[1] * a[1] + a[2] * a[2] + a[5] * a[5];
         double diag = a[0] * a[0] + a[4] * a[4] + a[8] * a[8];
-        if (!(off > 1e-40 * diag) || off == 0.0) break;
+        if (!(off > 1e-40 * diag) || off == 0.0)
+            break;
         static const int PQ[3][2] = {{0, 1}, {0, 2}, {1, 2}};
         for (int k = 0; k < 3; k++) {
             int pp = PQ[k][0], qq = PQ[k][1];
             double apq = a[3 * pp + qq];
-            if (apq == 0.0) continue;
+            if (apq == 0.0)
+                continue;
             double theta = (a[3 * qq + qq] - a[3 * pp + pp]) / (2.0 * apq);
-            double tt = fabs(theta) > 1e150 ? 0.5 / theta
-                                            : (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
+            double tt = fabs(theta) > 1e150
+                            ? 0.5 / theta
+                            : (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
             double cs = 1.0 / sqrt(tt * tt + 1.0), sn = tt * cs;
             for (int r = 0; r < 3; r++) { /* a = a G */
                 double arp = a[3 * r + pp], arq = a[3 * r + qq];
@@ -416,7 +476,8 @@ static void eig3(const double *M, double *w, double *V) {
     double Vs[9];
     for (int i = 0; i < 3; i++) {
         w[i] = d[order[i]];
-        for (int r = 0; r < 3; r++) Vs[3 * r + i] = V[3 * r + order[i]];
+        for (int r = 0; r < 3; r++)
+            Vs[3 * r + i] = V[3 * r + order[i]];
     }
     memcpy(V, Vs, sizeof Vs);
 }
@@ -429,15 +490,19 @@ static void orient(const ftk_params *p, const ftk_buffers *b, int64_t T, int64_t
     double *ax = b->axis + 3 * t;
     for (int64_t c = 0; c < C; c++) {
         int64_t j = b->assign[c * T + t];
-        if (j < 0 || !b->ori_ok[j]) continue;
+        if (j < 0 || !b->ori_ok[j])
+            continue;
         const double *J = b->J + 6 * (c * T + t);
         double th = b->ori[j], a0 = -sin(th), a1 = cos(th), n[3];
-        for (int k = 0; k < 3; k++) n[k] = a0 * J[k] + a1 * J[3 + k];
+        for (int k = 0; k < 3; k++)
+            n[k] = a0 * J[k] + a1 * J[3 + k];
         double norm = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
         double sc = 1.0 / (norm > 0 ? norm : 1.0);
-        for (int k = 0; k < 3; k++) n[k] *= sc;
+        for (int k = 0; k < 3; k++)
+            n[k] *= sc;
         for (int i = 0; i < 3; i++)
-            for (int k = 0; k < 3; k++) M[3 * i + k] += n[i] * n[k];
+            for (int k = 0; k < 3; k++)
+                M[3 * i + k] += n[i] * n[k];
         used++;
     }
     if (used < 2) {
@@ -455,14 +520,18 @@ static void orient(const ftk_params *p, const ftk_buffers *b, int64_t T, int64_t
     int ok = s1 / (s2 > 1e-300 ? s2 : 1e-300) >= p->min_plane_tan_half;
     double e[3] = {V[0], V[3], V[6]}, dot = 0.0;
     const double *vel = b->x + 6 * t + 3;
-    for (int k = 0; k < 3; k++) dot += e[k] * (isfinite(ax[k]) ? ax[k] : vel[k]);
-    for (int k = 0; k < 3; k++) ax[k] = !ok ? NAN : (dot < 0 ? -e[k] : e[k]);
+    for (int k = 0; k < 3; k++)
+        dot += e[k] * (isfinite(ax[k]) ? ax[k] : vel[k]);
+    for (int k = 0; k < 3; k++)
+        ax[k] = !ok ? NAN : (dot < 0 ? -e[k] : e[k]);
 }
 
-/* birth._midpoint_error for one pair under the prefilter threshold (birth.find_births needs one). */
-static int pair_may_give_birth(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t ia,
-                               int64_t ib) {
-    const double *ca = cams + b->slot[ia] * FTK_CAM_STRIDE, *cb = cams + b->slot[ib] * FTK_CAM_STRIDE;
+/* birth._midpoint_error for one pair under the prefilter threshold (birth.find_births needs one).
+ */
+static int pair_may_give_birth(const ftk_params *p, const double *cams, const ftk_buffers *b,
+                               int64_t ia, int64_t ib) {
+    const double *ca = cams + b->slot[ia] * FTK_CAM_STRIDE,
+                 *cb = cams + b->slot[ib] * FTK_CAM_STRIDE;
     const double *oa = ca + FTK_CAM_CENTER, *ob = cb + FTK_CAM_CENTER;
     const double *da = b->rays + 3 * ia, *db = b->rays + 3 * ib;
     double w[3], aa = 0, ab = 0, bb = 0, aw = 0, bw = 0;
@@ -475,27 +544,35 @@ static int pair_may_give_birth(const ftk_params *p, const double *cams, const ft
         bw += db[k] * w[k];
     }
     double den = aa * bb - ab * ab;
-    if (!(den > 1e-12 * aa * bb)) return 0;
+    if (!(den > 1e-12 * aa * bb))
+        return 0;
     double s = (ab * bw - bb * aw) / den, tt = (aa * bw - ab * aw) / den;
-    if (!(s > 0 && tt > 0)) return 0;
+    if (!(s > 0 && tt > 0))
+        return 0;
     double X[3], err = 0.0;
-    for (int k = 0; k < 3; k++) X[k] = 0.5 * (oa[k] + s * da[k] + ob[k] + tt * db[k]);
+    for (int k = 0; k < 3; k++)
+        X[k] = 0.5 * (oa[k] + s * da[k] + ob[k] + tt * db[k]);
     const double *cm[2] = {ca, cb};
     int64_t rows[2] = {ia, ib};
     for (int q = 0; q < 2; q++) {
         const double *Pm = cm[q] + FTK_CAM_P;
         double h[3];
-        for (int r = 0; r < 3; r++) h[r] = Pm[4 * r] * X[0] + Pm[4 * r + 1] * X[1] + Pm[4 * r + 2] * X[2] + Pm[4 * r + 3];
-        if (!(h[2] > 1e-9)) return 0;
+        for (int r = 0; r < 3; r++)
+            h[r] = Pm[4 * r] * X[0] + Pm[4 * r + 1] * X[1] + Pm[4 * r + 2] * X[2] + Pm[4 * r + 3];
+        if (!(h[2] > 1e-9))
+            return 0;
         err += hypot(h[0] / h[2] - b->uvi[2 * rows[q]], h[1] / h[2] - b->uvi[2 * rows[q] + 1]);
     }
     return 0.5 * err <= p->birth_prefilter_px;
 }
 
-int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t T, int64_t *stats) {
-    if (!p || !cams || !stats || !valid_buffers(b, T)) return FTK_EINVAL;
+int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t T,
+               int64_t *stats) {
+    if (!p || !cams || !stats || !valid_buffers(b, T))
+        return FTK_EINVAL;
     int64_t C = b->n_cameras, N = b->starts[C];
-    if (N < 0 || N > b->n_cap) return FTK_EINVAL;
+    if (N < 0 || N > b->n_cap)
+        return FTK_EINVAL;
     double *scr = b->scratch + 9 * b->t_cap;
     int64_t updated = 0, rejected = 0, dead = 0, claimed = 0;
     memset(b->claimed, 0, (size_t)N);
@@ -503,19 +580,23 @@ int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, in
         int64_t k = 0;
         for (int64_t c = 0; c < C; c++) {
             int64_t j = b->assign[c * T + t];
-            if (j < -1 || j >= N || (j >= 0 && b->slot[j] != c)) return FTK_EINVAL;
+            if (j < -1 || j >= N || (j >= 0 && b->slot[j] != c))
+                return FTK_EINVAL;
             if (j >= 0) {
                 k++;
                 /* Claimed before the update is accepted, as tracker.process does. */
-                if (!b->claimed[j]) claimed++;
+                if (!b->claimed[j])
+                    claimed++;
                 b->claimed[j] = 1;
             }
         }
         b->n_cams[t] = 0;
-        if (k == 0) continue;
+        if (k == 0)
+            continue;
         if (!joseph(p, b, T, t, scr)) {
             rejected++;
-            for (int64_t c = 0; c < C; c++) b->assign[c * T + t] = -1;
+            for (int64_t c = 0; c < C; c++)
+                b->assign[c * T + t] = -1;
             continue;
         }
         updated++;
@@ -538,9 +619,11 @@ int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, in
     int64_t pairs = 0;
     if (N - claimed >= p->birth_min_cameras)
         for (int64_t i = 0; i < N && !pairs; i++) {
-            if (b->claimed[i]) continue;
+            if (b->claimed[i])
+                continue;
             for (int64_t j = i + 1; j < N; j++)
-                if (!b->claimed[j] && b->slot[j] != b->slot[i] && pair_may_give_birth(p, cams, b, i, j)) {
+                if (!b->claimed[j] && b->slot[j] != b->slot[i] &&
+                    pair_may_give_birth(p, cams, b, i, j)) {
                     pairs = 1;
                     break;
                 }
@@ -555,11 +638,15 @@ int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, in
 
 int ftk_associate(const ftk_params *p, const double *cams, const ftk_buffers *b, const void *raw,
                   const int64_t *counts, int64_t T, double dt, int64_t *stats) {
-    if (!p || !cams || !counts || !stats || !valid_buffers(b, T)) return FTK_EINVAL;
-    if (T > 0 && !(isfinite(dt) && dt > 0)) return FTK_EINVAL;
-    for (int k = 0; k < FTK_ST_COUNT; k++) stats[k] = 0;
+    if (!p || !cams || !counts || !stats || !valid_buffers(b, T))
+        return FTK_EINVAL;
+    if (T > 0 && !(isfinite(dt) && dt > 0))
+        return FTK_EINVAL;
+    for (int k = 0; k < FTK_ST_COUNT; k++)
+        stats[k] = 0;
     int rc = gather(p, cams, b, (const unsigned char *)raw, counts, stats);
-    if (rc != FTK_OK) return rc;
+    if (rc != FTK_OK)
+        return rc;
     if (T > 0) {
         predict(p, b, T, dt);
         project(cams, b, T);
@@ -571,6 +658,7 @@ int ftk_associate(const ftk_params *p, const double *cams, const ftk_buffers *b,
 int ftk_frame(const ftk_params *p, const double *cams, const ftk_buffers *b, const void *raw,
               const int64_t *counts, int64_t T, double dt, int64_t *stats) {
     int rc = ftk_associate(p, cams, b, raw, counts, T, dt, stats);
-    if (rc != FTK_OK || stats[FTK_ST_RESOLVE]) return rc;
+    if (rc != FTK_OK || stats[FTK_ST_RESOLVE])
+        return rc;
     return ftk_update(p, cams, b, T, stats);
 }

@@ -1,14 +1,15 @@
-/* The tracker's per-frame hot path in C (host/flytrack_host/tracking/kernel.py loads it with ctypes).
+/* The tracker's per-frame hot path in C (host/flytrack_host/tracking/kernel.py loads it with
+ * ctypes).
  *
- * One call does, for all targets and cameras of a frame, what tracker.py does with NumPy: gather the
- * frame's finite points from the raw protocol bytes, predict (constant velocity, Braid's Q), project
- * every target through every camera with OpenCV distortion and its 2x3 Jacobian, gate and score every
- * (point, target) pair (image gate, area gate, Mahalanobis distance to the camera ray), pick each
- * camera's nearest neighbour per target, then the Joseph-form EKF update, the running area, the body
- * orientation, the death test and the birth prefilter on the unclaimed points.
- * The caller owns every buffer (no allocation here); the rare decisions that need scipy (clashes over a
- * point, flydra's merge-prevention rule) stop the call half way so that Python settles them and then
- * calls ftk_update.
+ * One call does, for all targets and cameras of a frame, what tracker.py does with NumPy: gather
+ * the frame's finite points from the raw protocol bytes, predict (constant velocity, Braid's Q),
+ * project every target through every camera with OpenCV distortion and its 2x3 Jacobian, gate and
+ * score every (point, target) pair (image gate, area gate, Mahalanobis distance to the camera ray),
+ * pick each camera's nearest neighbour per target, then the Joseph-form EKF update, the running
+ * area, the body orientation, the death test and the birth prefilter on the unclaimed points. The
+ * caller owns every buffer (no allocation here); the rare decisions that need scipy (clashes over a
+ * point, flydra's merge-prevention rule) stop the call half way so that Python settles them and
+ * then calls ftk_update.
  */
 #ifndef FLYTRACK_TRACKER_KERNEL_H
 #define FLYTRACK_TRACKER_KERNEL_H
@@ -65,8 +66,8 @@ typedef struct {
     double *axis;
     /* points (n_cap rows) in camera-slot order */
     int64_t *slot;
-    int64_t *index; /* position in its camera's detection array */
-    int64_t *rank;  /* position among its camera's finite points */
+    int64_t *index;  /* position in its camera's detection array */
+    int64_t *rank;   /* position among its camera's finite points */
     int64_t *starts; /* n_cameras + 1 */
     double *uv;      /* distorted (u, v) */
     double *uvi;     /* undistorted (u, v) */
@@ -80,9 +81,9 @@ typedef struct {
     double *cost; /* Mahalanobis distance to the ray, inf where a gate refuses */
     double *d2;   /* squared image distance to the predicted projection */
     /* (camera, target) */
-    double *puv;    /* (2) predicted distorted pixel */
-    double *J;      /* (2x3) Jacobian of the distorted projection */
-    uint8_t *front; /* target in front of the camera */
+    double *puv;     /* (2) predicted distorted pixel */
+    double *J;       /* (2x3) Jacobian of the distorted projection */
+    uint8_t *front;  /* target in front of the camera */
     int64_t *assign; /* chosen point row or -1 */
     /* (target) */
     int64_t *n_cams;
@@ -92,17 +93,17 @@ typedef struct {
 
 /* Figures a call writes into its int64 stats array. */
 enum {
-    FTK_ST_POINTS = 0,          /* finite points gathered */
-    FTK_ST_NONFINITE,           /* points skipped: NaN/inf position or area */
-    FTK_ST_NONFINITE_ORI,       /* points with an infinite angle or eccentricity (used without angle) */
-    FTK_ST_MAX_PER_CAMERA,      /* most finite points of one camera */
-    FTK_ST_CONFLICTS,           /* cameras where targets' nearest neighbours clash */
-    FTK_ST_RESOLVE,             /* 1: the caller must settle the association, then call ftk_update */
-    FTK_ST_UPDATED,             /* targets updated (accepted) */
-    FTK_ST_REJECTED,            /* updates refused (posterior not finite / not positive definite) */
-    FTK_ST_DEAD,                /* targets whose position std passed the death threshold */
-    FTK_ST_UNCLAIMED,           /* points no target claimed */
-    FTK_ST_BIRTH_PAIRS,         /* 1 when some unclaimed pair passes the birth prefilter */
+    FTK_ST_POINTS = 0,     /* finite points gathered */
+    FTK_ST_NONFINITE,      /* points skipped: NaN/inf position or area */
+    FTK_ST_NONFINITE_ORI,  /* points with an infinite angle or eccentricity (used without angle) */
+    FTK_ST_MAX_PER_CAMERA, /* most finite points of one camera */
+    FTK_ST_CONFLICTS,      /* cameras where targets' nearest neighbours clash */
+    FTK_ST_RESOLVE,        /* 1: the caller must settle the association, then call ftk_update */
+    FTK_ST_UPDATED,        /* targets updated (accepted) */
+    FTK_ST_REJECTED,       /* updates refused (posterior not finite / not positive definite) */
+    FTK_ST_DEAD,           /* targets whose position std passed the death threshold */
+    FTK_ST_UNCLAIMED,      /* points no target claimed */
+    FTK_ST_BIRTH_PAIRS,    /* 1 when some unclaimed pair passes the birth prefilter */
     FTK_ST_COUNT
 };
 
@@ -114,12 +115,13 @@ size_t ftk_sizeof_buffers(void);
 /* Doubles of scratch the calls need for this many cameras and target capacity. */
 int64_t ftk_scratch_len(int64_t n_cameras, int64_t t_cap);
 
-/* Gather, predict (when n_targets > 0), project and associate. counts[c]: points of camera slot c in
- * raw (the cameras' protocol bytes joined in slot order). stats: FTK_ST_COUNT int64s. */
+/* Gather, predict (when n_targets > 0), project and associate. counts[c]: points of camera slot c
+ * in raw (the cameras' protocol bytes joined in slot order). stats: FTK_ST_COUNT int64s. */
 int ftk_associate(const ftk_params *p, const double *cams, const ftk_buffers *b, const void *raw,
                   const int64_t *counts, int64_t n_targets, double dt, int64_t *stats);
 
-/* EKF update with b->assign, area, orientation, deaths, unclaimed points and the birth prefilter. */
+/* EKF update with b->assign, area, orientation, deaths, unclaimed points and the birth prefilter.
+ */
 int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t n_targets,
                int64_t *stats);
 

@@ -1,6 +1,6 @@
 /* The tracker kernel on random frames under ASan + UBSan: plausible and absurd cameras, states and
- * points (NaN, inf, huge, denormal), every buffer sized exactly to its capacity so that any overrun is
- * caught. Checks the invariants the Python side relies on and the argument checks. */
+ * points (NaN, inf, huge, denormal), every buffer sized exactly to its capacity so that any overrun
+ * is caught. Checks the invariants the Python side relies on and the argument checks. */
 #include "tracker_kernel.h"
 
 #include <math.h>
@@ -15,33 +15,44 @@ static uint64_t next_u64(void) {
     rng_state ^= rng_state << 17;
     return rng_state;
 }
-static double unif(double lo, double hi) { return lo + (hi - lo) * (double)(next_u64() >> 11) / 9007199254740992.0; }
+static double unif(double lo, double hi) {
+    return lo + (hi - lo) * (double)(next_u64() >> 11) / 9007199254740992.0;
+}
 static double wild(double lo, double hi) {
     switch (next_u64() % 24) {
-    case 0: return NAN;
-    case 1: return INFINITY;
-    case 2: return -INFINITY;
-    case 3: return 1e300;
-    case 4: return 4.9e-324;
-    case 5: return 0.0;
-    default: return unif(lo, hi);
+    case 0:
+        return NAN;
+    case 1:
+        return INFINITY;
+    case 2:
+        return -INFINITY;
+    case 3:
+        return 1e300;
+    case 4:
+        return 4.9e-324;
+    case 5:
+        return 0.0;
+    default:
+        return unif(lo, hi);
     }
 }
 
 /* Doubles out of float range become +-inf (a cast would be undefined behaviour). */
 static float tof(double d) {
-    if (d > 3.4e38) return INFINITY;
-    if (d < -3.4e38) return -INFINITY;
+    if (d > 3.4e38)
+        return INFINITY;
+    if (d < -3.4e38)
+        return -INFINITY;
     return (float)d;
 }
 
 static int failures = 0;
-#define CHECK(cond)                                                                                  \
-    do {                                                                                             \
-        if (!(cond)) {                                                                               \
+#define CHECK(cond)                                                                                \
+    do {                                                                                           \
+        if (!(cond)) {                                                                             \
             fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond);               \
-            failures++;                                                                              \
-        }                                                                                            \
+            failures++;                                                                            \
+        }                                                                                          \
     } while (0)
 
 static void *xcalloc(size_t n, size_t size) {
@@ -111,37 +122,47 @@ static void make_rig(rig *r, int64_t C, int64_t tcap, int64_t ncap, int absurd) 
             cm[FTK_CAM_RAYB + 3 * i + 2] = R[6 + i] - (R[i] * 320.0 + R[3 + i] * 240.0) / f;
         }
         for (int i = 0; i < 3; i++) {
-            for (int j = 0; j < 3; j++) cm[FTK_CAM_P + 4 * i + j] = (i < 2 ? f : 1.0) * R[3 * i + j] + (i < 2 ? K[2 + i] : 0.0) * R[6 + j];
+            for (int j = 0; j < 3; j++)
+                cm[FTK_CAM_P + 4 * i + j] =
+                    (i < 2 ? f : 1.0) * R[3 * i + j] + (i < 2 ? K[2 + i] : 0.0) * R[6 + j];
             cm[FTK_CAM_P + 4 * i + 3] = (i == 2 ? 2.0 : (i == 0 ? 320.0 : 240.0) * 2.0);
         }
         if (absurd)
             for (int k = 0; k < FTK_CAM_STRIDE; k++)
-                if (next_u64() % 8 == 0) cm[k] = wild(-1e3, 1e3);
+                if (next_u64() % 8 == 0)
+                    cm[k] = wild(-1e3, 1e3);
     }
 }
 
 static void free_rig(rig *r) {
     ftk_buffers *b = &r->b;
-    void *ptrs[] = {b->x, b->P, b->area, b->n_obs, b->axis, b->slot, b->index, b->rank, b->starts,
-                    b->uv, b->uvi, b->parea, b->ori, b->ecc, b->rays, b->ori_ok, b->claimed, b->cost,
-                    b->d2, b->puv, b->J, b->front, b->assign, b->n_cams, b->dead, b->scratch, r->cams};
-    for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++) free(ptrs[i]);
+    void *ptrs[] = {b->x,     b->P,      b->area,    b->n_obs, b->axis,    b->slot, b->index,
+                    b->rank,  b->starts, b->uv,      b->uvi,   b->parea,   b->ori,  b->ecc,
+                    b->rays,  b->ori_ok, b->claimed, b->cost,  b->d2,      b->puv,  b->J,
+                    b->front, b->assign, b->n_cams,  b->dead,  b->scratch, r->cams};
+    for (size_t i = 0; i < sizeof ptrs / sizeof ptrs[0]; i++)
+        free(ptrs[i]);
 }
 
 static void random_state(rig *r, int64_t T, int absurd) {
     for (int64_t t = 0; t < T; t++) {
         double *x = r->b.x + 6 * t, *P = r->b.P + 36 * t;
-        for (int i = 0; i < 6; i++) x[i] = absurd ? wild(-1, 1) : unif(-0.3, 0.3);
+        for (int i = 0; i < 6; i++)
+            x[i] = absurd ? wild(-1, 1) : unif(-0.3, 0.3);
         memset(P, 0, 36 * sizeof(double));
-        for (int i = 0; i < 6; i++) P[7 * i] = absurd ? wild(1e-9, 1e-2) : unif(1e-6, 1e-3);
-        if (absurd && next_u64() % 4 == 0) P[1] = P[6] = wild(-1, 1);
+        for (int i = 0; i < 6; i++)
+            P[7 * i] = absurd ? wild(1e-9, 1e-2) : unif(1e-6, 1e-3);
+        if (absurd && next_u64() % 4 == 0)
+            P[1] = P[6] = wild(-1, 1);
         r->b.area[t] = absurd ? wild(-10, 100) : unif(10, 60);
         r->b.n_obs[t] = 0;
-        for (int k = 0; k < 3; k++) r->b.axis[3 * t + k] = next_u64() % 2 ? NAN : unif(-1, 1);
+        for (int k = 0; k < 3; k++)
+            r->b.axis[3 * t + k] = next_u64() % 2 ? NAN : unif(-1, 1);
     }
 }
 
-/* Settle clashes the simplest way (the Python side uses scipy): the first target keeps the point. */
+/* Settle clashes the simplest way (the Python side uses scipy): the first target keeps the point.
+ */
 static void settle(rig *r, int64_t T) {
     int64_t C = r->b.n_cameras;
     for (int64_t c = 0; c < C; c++)
@@ -155,7 +176,8 @@ static void one_frame(rig *r, ftk_params *p, int64_t T, int absurd) {
     int64_t C = r->b.n_cameras, counts[16], total = 0, stats[FTK_ST_COUNT];
     for (int64_t c = 0; c < C; c++) {
         counts[c] = (int64_t)(next_u64() % 5);
-        if (total + counts[c] > r->b.n_cap) counts[c] = r->b.n_cap - total;
+        if (total + counts[c] > r->b.n_cap)
+            counts[c] = r->b.n_cap - total;
         total += counts[c];
     }
     float *raw = xcalloc((size_t)(total * FTK_POINT_WORDS), sizeof(float));
@@ -184,21 +206,25 @@ static void one_frame(rig *r, ftk_params *p, int64_t T, int absurd) {
     }
     int64_t N = r->b.starts[C];
     CHECK(N == stats[FTK_ST_POINTS]);
-    for (int64_t n = 0; n < N; n++) CHECK(r->b.slot[n] >= 0 && r->b.slot[n] < C && r->b.index[n] < counts[r->b.slot[n]]);
+    for (int64_t n = 0; n < N; n++)
+        CHECK(r->b.slot[n] >= 0 && r->b.slot[n] < C && r->b.index[n] < counts[r->b.slot[n]]);
     for (int64_t t = 0; t < T; t++) {
         CHECK(r->b.n_cams[t] >= 0 && r->b.n_cams[t] <= C);
         const double *P = r->b.P + 36 * t;
         if (r->b.n_cams[t] > 0)
             for (int i = 0; i < 6; i++)
-                for (int j = 0; j < 6; j++) CHECK(P[6 * i + j] == P[6 * j + i] && isfinite(P[6 * i + j]));
+                for (int j = 0; j < 6; j++)
+                    CHECK(P[6 * i + j] == P[6 * j + i] && isfinite(P[6 * i + j]));
     }
-    for (int64_t k = 0; k < C * T; k++) CHECK(r->b.assign[k] >= -1 && r->b.assign[k] < N);
+    for (int64_t k = 0; k < C * T; k++)
+        CHECK(r->b.assign[k] >= -1 && r->b.assign[k] < N);
     CHECK(stats[FTK_ST_UNCLAIMED] >= 0 && stats[FTK_ST_UNCLAIMED] <= N);
     free(raw);
 }
 
 int main(void) {
-    ftk_params p = {20.0, 10.0, 0.0, 20.0, 1.0, 0.1, 0.01212 * 0.01212, 0.1, 1.4, 0.0875, 20.0, 1, 2};
+    ftk_params p = {20.0, 10.0, 0.0,    20.0, 1.0, 0.1, 0.01212 * 0.01212,
+                    0.1,  1.4,  0.0875, 20.0, 1,   2};
     CHECK(ftk_abi_version() == FTK_ABI_VERSION);
     int64_t frames = 0;
     for (int trial = 0; trial < 400; trial++) {
@@ -211,8 +237,10 @@ int main(void) {
         p.min_area_px = trial % 5 == 0 ? 5.0 : 0.0;
         int64_t T = (int64_t)(next_u64() % (uint64_t)(tcap + 1));
         random_state(&r, T, absurd);
-        for (int f = 0; f < 20; f++, frames++) one_frame(&r, &p, T, absurd);
-        /* Argument checks: more targets than room, more points than room, negative counts, NULLs. */
+        for (int f = 0; f < 20; f++, frames++)
+            one_frame(&r, &p, T, absurd);
+        /* Argument checks: more targets than room, more points than room, negative counts, NULLs.
+         */
         int64_t stats[FTK_ST_COUNT], counts[16] = {0};
         CHECK(ftk_frame(&p, r.cams, &r.b, NULL, counts, tcap + 1, 0.01, stats) == FTK_EINVAL);
         counts[0] = ncap + 1;
