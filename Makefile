@@ -21,8 +21,8 @@ BENCH_TARGETS :=
 
 help:
 	@echo "FlyTrack make targets:"
-	@echo "  make demo      run the main job (the largest end-to-end slice that exists)"
-	@echo "  make test      set up, build, run every test (C and Python)"
+	@echo "  make demo      the whole rig simulated end to end (DEMO_ARGS='--help' for options)"
+	@echo "  make test      set up, build, run every test (C and Python), then lint"
 	@echo "  make bench     run every benchmark (BENCH_JSON=PATH writes figures as JSON)"
 	@echo "  make build     build the C parts and the firmware"
 	@echo "  make firmware  build the AVR trigger firmware"
@@ -42,6 +42,7 @@ build: cbuild firmware
 test: build
 	@$(MAKE) --no-print-directory test-c
 	@$(MAKE) --no-print-directory test-python
+	@$(MAKE) --no-print-directory lint
 
 test-c: cbuild
 	@cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
@@ -50,12 +51,13 @@ test-python: setup
 	@$(PYTEST) -q
 
 lint: setup
-	@$(VENV)/bin/ruff check host tests
-	@find protocol edge firmware -name '*.[ch]' | xargs -r clang-format --dry-run --Werror
+	@$(VENV)/bin/ruff check -q host tests && echo "lint: ruff clean"
+	@find protocol edge firmware host -name '*.[ch]' -not -path '*/.venv/*' | xargs -r clang-format --dry-run --Werror \
+	  && echo "lint: clang-format clean"
 
 format: setup
 	@$(VENV)/bin/ruff check --fix host tests || true
-	@find protocol edge firmware -name '*.[ch]' | xargs -r clang-format -i
+	@find protocol edge firmware host -name '*.[ch]' | xargs -r clang-format -i
 
 # Runs every benchmark; with BENCH_JSON=PATH their figures are merged into one JSON file.
 bench: build
