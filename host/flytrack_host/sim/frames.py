@@ -19,6 +19,8 @@ import os
 import queue
 import select
 import stat
+import struct
+import termios
 import threading
 import time
 from collections.abc import Sequence
@@ -215,8 +217,9 @@ class _CameraLink:
     other cameras nor the trigger; past `depth` queued frames the camera waits (back-pressure)."""
 
     def __init__(self, fd: int, frame_format: str, cam: Camera, fps: float, written_t, index: int, n_cams: int,
-                 depth: int = 64):
+                 cond: threading.Condition, depth: int = 64):
         self.fd = fd
+        self.cond = cond
         self.written_t, self.index, self.n_cams = written_t, index, n_cams
         self.y4m = frame_format == "y4m"
         self.closed = False
@@ -251,7 +254,9 @@ class _CameraLink:
             self._write(memoryview(img))
             if n >= 0 and not self.closed:
                 self.written_t[n * self.n_cams + self.index] = t_start
-            self.written += 1
+            with self.cond:
+                self.written += 1
+                self.cond.notify_all()
 
     def put(self, n: int, img: np.ndarray) -> None:
         """Queue frame `n` (-1: a pre-roll frame)."""
@@ -260,6 +265,14 @@ class _CameraLink:
     def finish(self, timeout: float = 30.0) -> None:
         self.q.put(None)
         self.thread.join(timeout)
+
+
+def _pipe_bytes(fd: int) -> int:
+    """Bytes waiting in a pipe (FIONREAD works on the write end too); 0 when it cannot tell."""
+    try:
+        return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+    except OSError:
+        return 0
 
 
 def _write_all(fd: int, buf: memoryview) -> None:
@@ -289,7 +302,8 @@ def _feed(
 ) -> None:
     counters[6] = raise_priority()
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
-    links = [_CameraLink(fd, frame_format, c, gt.fps, written_t, i, len(cameras))
+    written_cond = threading.Condition()
+    links = [_CameraLink(fd, frame_format, c, gt.fps, written_t, i, len(cameras), written_cond)
              for i, (fd, c) in enumerate(zip(edge_fds, cameras, strict=True))]
     render_s = put_s = 0.0
     buf = b""
@@ -366,11 +380,16 @@ def _feed(
                     counters[1] += 1
                     # Let the links write before rendering ahead (this process's GIL would delay
                     # them), but never wait long for a slow edge.
+                    target = int(counters[7] + counters[1])  # pre-roll frames went through the links too
                     deadline = time.perf_counter() + 0.5 / gt.fps
-                    while time.perf_counter() < deadline and any(
-                        lk.written < counters[1] and not lk.closed for lk in links
-                    ):
-                        time.sleep(5e-5)
+                    with written_cond:
+                        written_cond.wait_for(
+                            lambda t=target: all(lk.written >= t or lk.closed for lk in links), 0.5 / gt.fps
+                        )
+                    # ... and until the edges have read them, so that rendering ahead does not compete
+                    # with the edges for the CPU at the moment they work on the frame.
+                    while time.perf_counter() < deadline and any(_pipe_bytes(lk.fd) > 0 for lk in links):
+                        time.sleep(1e-4)
                     # Render the next frame now, while waiting for its pulse.
                     ahead_n = n + 1
                     if ahead_n < gt.n_frames:

@@ -29,7 +29,7 @@ import numpy as np
 
 from flytrack_host.camera import Camera
 from flytrack_host.sim.flight import Arena, FlightParams, GroundTruth, simulate_flight
-from flytrack_host.sim.frames import FrameFeeder
+from flytrack_host.sim.frames import FrameFeeder, raise_priority
 from flytrack_host.sim.metrics import FrameTracks, TrackingScores, latency_summary, score_tracks
 from flytrack_host.sim.render import RenderParams
 from flytrack_host.sim.rig import make_cameras, rig_config, write_rig
@@ -269,6 +269,9 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         edges.check_started()
         for p in edges.procs:
             cpu.add("edges", p.pid)
+            # On a rig each edge has its own computer: here they run at the simulated hardware's
+            # priority, so only the host competes with the rest of this machine.
+            raise_priority(p.pid)
         cpu.add("simulated cameras", feeder.pid)
         feeder.set_source(str(trig.fifo))
 
