@@ -3,6 +3,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from flytrack_host.sim.flight import Arena, simulate_flight
 from flytrack_host.sim.frames import EdgeLineParser, FrameFeeder
@@ -29,12 +30,13 @@ def _reader(fd, nbytes, out):
     out.append(bytes(data))
 
 
-def test_feeder_renders_one_frame_per_edge_for_every_camera():
+@pytest.mark.parametrize("fmt", ["raw", "y4m"])
+def test_feeder_renders_one_frame_per_edge_for_every_camera(fmt):
     gt = simulate_flight(2, 0.1, 100.0, seed=0)  # 10 frames
     cams = make_cameras(2, Arena(), seed=0, width=160, height=120)
     pipes = [os.pipe() for _ in cams]
     src_r, src_w = os.pipe()
-    feeder = FrameFeeder(gt, cams, [w for _, w in pipes], RenderParams(), seed=1)
+    feeder = FrameFeeder(gt, cams, [w for _, w in pipes], RenderParams(), seed=1, frame_format=fmt)
     for _, w in pipes:
         os.close(w)
     outs: list[list[bytes]] = [[] for _ in cams]
@@ -57,6 +59,13 @@ def test_feeder_renders_one_frame_per_edge_for_every_camera():
     assert st.written_time.shape == (10, 2) and np.all(st.written_time >= st.handoff_time[:, None])
     assert np.all(np.isfinite(st.handoff_time)) and np.all(np.diff(st.handoff_time) >= 0)
     for o in outs:
-        assert len(o[0]) == 12 * 160 * 120
-        frames = np.frombuffer(o[0], np.uint8).reshape(12, 120, 160)
+        data = o[0]
+        if fmt == "y4m":  # a stream header, then FRAME and the luma plane per frame
+            header, _, data = data.partition(b"\n")
+            assert header.startswith(b"YUV4MPEG2 W160 H120 F100000:1000") and b"Cmono" in header
+            parts = [data[i * (6 + 160 * 120) : (i + 1) * (6 + 160 * 120)] for i in range(12)]
+            assert all(p[:6] == b"FRAME\n" for p in parts)
+            data = b"".join(p[6:] for p in parts)
+        assert len(data) == 12 * 160 * 120
+        frames = np.frombuffer(data, np.uint8).reshape(12, 120, 160)
         assert 100 < frames.mean() < 200
