@@ -6,8 +6,11 @@
     -> scores against ground truth, latency, a figure, a summary table.
 
 The pieces are started in an order that matters: edge processes first, then the frame feeder (a
-forked child, so before any thread exists here), then the host, then the trigger, whose first
-pulse is frame 0 of every camera (the synchroniser ties each camera's first frame to it).
+forked child, so before any thread exists here) following the trigger's edge FIFO, then the trigger
+box (simavr opens that FIFO), the rig file, the host's TriggerSession (stop-and-reset, exact rate)
+and HostPipeline, a few pre-roll frames (the edges take their background; the host sees the cameras
+go quiet), and last the session's start: frame-0 tie armed, START; the first pulse is trigger frame 0
+and every camera's next frame.
 """
 
 from __future__ import annotations
