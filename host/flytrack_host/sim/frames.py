@@ -400,9 +400,9 @@ def _feed(
                     counters[3] = put_s
             for link in links:  # every frame handed out reaches its edge, then the edges see EOF
                 link.finish()
-            for fd in edge_fds:
+            for efd in edge_fds:
                 with contextlib.suppress(OSError):
-                    os.close(fd)
+                    os.close(efd)
             counters[4] = 1
             # The trigger runs on until the host stops it: keep reading its edges (a writer with no
             # reader would get SIGPIPE) until it closes or the parent says so.
