@@ -212,8 +212,9 @@ def raise_priority(pid: int = 0) -> bool:
 
 
 class _CameraLink:
-    """One camera's connection to its edge: a queue of frames and a thread writing them to the edge's
-    stdin. A slow edge then delays only its own frames (as a camera's frame buffer would), not the
+    """One camera's connection to its edge. A frame is written at once when the edge's pipe has room
+    for it (the common case: a cheap copy); otherwise it waits in this camera's queue for a writer
+    thread. A slow edge then delays only its own frames (as a camera's frame buffer would), not the
     other cameras nor the trigger; past `depth` queued frames the camera waits (back-pressure)."""
 
     def __init__(self, fd: int, frame_format: str, cam: Camera, fps: float, written_t, index: int, n_cams: int,
@@ -224,8 +225,11 @@ class _CameraLink:
         self.y4m = frame_format == "y4m"
         self.closed = False
         self.written = 0
+        self.queued = 0  # frames given to the writer thread and not yet written
+        self.inline = 0
         self.q: queue.Queue[tuple[int, np.ndarray] | None] = queue.Queue(depth)
-        grow_pipe(fd)
+        size = grow_pipe(fd)
+        self.capacity = size if size > 0 else 65536
         if self.y4m:
             self._write(_y4m_header(cam.width, cam.height, fps))
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -239,27 +243,39 @@ class _CameraLink:
         except OSError:
             self.closed = True  # the edge died; the host will see a dead camera
 
+    def _deliver(self, n: int, img: np.ndarray) -> None:
+        # Stamped as the write begins: a stamp after it could come late (the writer may not run again
+        # before the edge and the host are done with the frame), and the write itself is a memory copy
+        # of well under 0.1 ms, so the latency measured from here errs long, not short.
+        t_start = time.time()
+        if self.y4m:
+            self._write(b"FRAME\n")
+        self._write(memoryview(img))
+        if n >= 0 and not self.closed:
+            self.written_t[n * self.n_cams + self.index] = t_start
+
     def _run(self) -> None:
         while True:
             item = self.q.get()
             if item is None:
                 return
-            n, img = item
-            # Stamped as the write begins: a stamp after it could come late (this thread may not
-            # run again before the edge and the host are done with the frame), and the write itself
-            # is a memory copy of ~0.1 ms, so the latency measured from here errs long, not short.
-            t_start = time.time()
-            if self.y4m:
-                self._write(b"FRAME\n")
-            self._write(memoryview(img))
-            if n >= 0 and not self.closed:
-                self.written_t[n * self.n_cams + self.index] = t_start
+            self._deliver(*item)
             with self.cond:
                 self.written += 1
+                self.queued -= 1
                 self.cond.notify_all()
 
     def put(self, n: int, img: np.ndarray) -> None:
-        """Queue frame `n` (-1: a pre-roll frame)."""
+        """Hand over frame `n` (-1: a pre-roll frame)."""
+        need = img.nbytes + (6 if self.y4m else 0)
+        if self.queued == 0 and self.capacity - _pipe_bytes(self.fd) >= need:
+            self._deliver(n, img)  # nothing queued before it and it fits: no thread hand-off
+            self.inline += 1
+            with self.cond:
+                self.written += 1
+            return
+        with self.cond:
+            self.queued += 1
         self.q.put((n, img))
 
     def finish(self, timeout: float = 30.0) -> None:
