@@ -50,7 +50,12 @@ def test_feeder_renders_one_frame_per_edge_for_every_camera(fmt):
     os.write(src_w, b"# header\n" + b"".join(f"{i * 10} trigger 1\n{i * 10 + 5} trigger 0\n".encode()
                                              for i in range(12)))
     os.close(src_w)
+    t_end = time.monotonic() + 20
+    while not feeder.done and time.monotonic() < t_end:
+        time.sleep(0.01)
+    feeder.finish()  # the child also holds the stream's write end (forked after it was made)
     feeder.join(20)
+    assert not feeder.alive()
     for t in threads:
         t.join(5)
     st = feeder.stats()
