@@ -46,6 +46,7 @@ def summary_table(r: DemoReport) -> Table:
         nan = float("nan")
         t.add_row("host latency P50/P99", f"{_f(hl.get('p50_ms', nan))}/{_f(hl.get('p99_ms', nan))} ms",
                   "host's trigger time -> 3D")
+    t.add_row("trigger time bias", f"{_f(r.trigger_time_bias_ms)} ms", "host clock model vs the pulses")
     t.add_row("packets lost / late", f"{r.packets_lost} / {r.packets_late}", "loopback UDP")
     t.add_row("camera frames received", f"{r.camera_frames_received}/{r.camera_frames_sent}",
               "by the host before it stopped")

@@ -96,6 +96,7 @@ class DemoReport:
     scores: TrackingScores
     latency: dict[str, float]  # hand-over to 3D estimate (exposure and transfer are simulated)
     latency_parts_p50_ms: dict[str, float]
+    trigger_time_bias_ms: float  # host's trigger time (clock model) minus when the cameras saw the pulse
     latency_host: dict[str, float]  # the host's own figure: trigger time (clock model) -> estimate
     frames_triggered: int
     frames_rendered: int
@@ -470,7 +471,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
                           match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
     recording = host_summary.get("recording")
-    numbering = _frame_numbering(recording, fs.written_time, preroll)
+    numbering = _frame_numbering(recording, fs.written_time, preroll, fs.edge_time)
     if numbering["misnumbered"]:
         notes.append(f"the host's synchroniser gave {numbering['misnumbered']} of {numbering['camera_frames']} "
                      "camera frames a wrong trigger frame number (scores use the host's numbers)")
@@ -515,6 +516,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         scores=scores,
         latency=latency_summary(lat_a),
         latency_parts_p50_ms=numbering["parts_p50_ms"],
+        trigger_time_bias_ms=numbering["trigger_time_bias_ms"],
         latency_host=latency_host,
         frames_triggered=min(frames_triggered, gt.n_frames),
         frames_rendered=fs.frames_rendered,
@@ -567,7 +569,8 @@ def _lateness(handoff: np.ndarray, fps: float) -> dict[str, float]:
     return latency_summary(lag - lag.min())
 
 
-def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 0) -> dict[str, Any]:
+def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 0,
+                     edge_time: np.ndarray | None = None) -> dict[str, Any]:
     """Check the host's frame numbering against the truth, from the recording's 2D rows.
 
     Every edge got `preroll` frames before the trigger started, then every pulse's frame in order from
@@ -576,7 +579,8 @@ def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 
     exposure and the image transfer, is simulated).
     Returns the count of camera frames numbered otherwise, and per host trigger frame the hand-over
     time of the latest camera frame it was built from."""
-    out: dict[str, Any] = {"misnumbered": 0, "camera_frames": 0, "bundle_handoff": {}, "parts_p50_ms": {}}
+    out: dict[str, Any] = {"misnumbered": 0, "camera_frames": 0, "bundle_handoff": {}, "parts_p50_ms": {},
+                           "trigger_time_bias_ms": math.nan}
     if not recording or not Path(recording).exists():
         return out
     import h5py
@@ -624,6 +628,15 @@ def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 
     }
     if lat is not None and len(lat):
         parts["sync_and_track"] = lat["estimate_time"] - lat["last_arrival"]
+    if edge_time is not None and edge_time.size:
+        # The host's trigger time of each frame (from its clock model) against the moment the
+        # simulated cameras saw that pulse in the trigger's edge stream (itself ~0.1 ms after it).
+        cf = u["camera_frame"].astype(np.int64)
+        ok = (cf >= 0) & (cf < edge_time.size) & (u["trigger_frame"] == u["camera_frame"])
+        bias = u["timestamp"][ok] - edge_time[cf[ok]]
+        bias = bias[np.isfinite(bias)]
+        if bias.size:
+            out["trigger_time_bias_ms"] = float(np.median(bias) * 1e3)
     for k, v in parts.items():
         v = np.asarray(v, dtype=float)
         v = v[np.isfinite(v)]
