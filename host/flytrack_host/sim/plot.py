@@ -83,11 +83,13 @@ def plot_tracks(gt: GroundTruth, hyps: Sequence[FrameTracks], path: Path, title:
     lat = np.asarray(latencies_ms if latencies_ms is not None else [], dtype=float)
     lat = lat[np.isfinite(lat)]
     if lat.size:
-        hi_ms = max(1.0, float(np.percentile(lat, 99.5)) * 1.2)
-        ax_lat.hist(np.clip(lat, 0, hi_ms), bins=60, range=(0, hi_ms), color="0.35")
+        hi_ms = max(1.0, float(np.percentile(lat, 95)) * 2.0)
+        over = int(np.sum(lat > hi_ms))
+        ax_lat.hist(lat[lat <= hi_ms], bins=60, range=(0, hi_ms), color="0.35")
         p50 = float(np.median(lat))
         ax_lat.axvline(p50, color="C3", lw=1)
-        ax_lat.set_title(f"latency, frames to 3D estimate (P50 {p50:.2f} ms)", fontsize=9)
+        more = f"; {over} frames > {hi_ms:.0f} ms, max {lat.max():.0f} ms" if over else ""
+        ax_lat.set_title(f"latency, frames to 3D estimate (P50 {p50:.2f} ms{more})", fontsize=8)
         ax_lat.set_xlabel("ms")
         ax_lat.set_ylabel("frames")
     else:
