@@ -1,16 +1,28 @@
-"""Births of new targets from unclaimed points (seed 000 section 3.2.3).
+"""Births of new targets from unclaimed points (seed 000 section 3.2.3), bounded per frame.
 
-Points no existing target claimed are triangulated over combinations of 2 .. birth_max_combination
-cameras, one point per camera. A hypothesis passes when its 3D point lies in front of all its cameras
-and its mean reprojection error (undistorted pixels) is at most birth_max_reproj_px. The passing
-hypothesis with the most cameras (then the smallest error) starts a target; its points, and the
-unclaimed points of other cameras that reproject within the threshold of it, are used up; repeat while
-hypotheses remain.
+The paper triangulates every combination of 2 .. n cameras; with 10 newcomers in 11 cameras that is
+hundreds of thousands of hypotheses. Here the search is guided instead, with the same acceptance test:
 
-Speed: all tuples of one size are triangulated in one batched SVD. A k+1-camera tuple is only tried
-when it extends a passing k-camera tuple; this loses nothing in practice, because a tuple whose mean
-error is under the threshold always contains a pair whose own best fit is under it too (the mean of
-the pair errors at the tuple's point is at most the tuple's mean for the best pair).
+1. Seeds: pairs of unclaimed points from two cameras whose Sampson distance (the first-order
+   reprojection error of the best 3D point for the pair, from the pair's fundamental matrix,
+   CameraArray.fundamental, on undistorted pixels) is at most birth_max_reproj_px * _SEED_GATE.
+   A pair a hypothesis could pass with has a Sampson distance of about twice its mean error at most
+   (e_a + e_b <= 2 thr gives sqrt(e_a^2 + e_b^2) <= 2 thr); _SEED_GATE leaves a margin over that.
+   Seeds are ranked by Sampson distance and at most birth_max_hypotheses are evaluated per frame:
+   the rest wait for the next frame (their points stay unclaimed, so a birth is at most a frame late).
+2. Each seed is triangulated (DLT) and projected into every other camera; the nearest unclaimed point
+   there within _SEED_GATE * threshold joins it, nearest cameras first, up to birth_max_combination
+   cameras in all. The hypothesis is triangulated again (DLT over its cameras, one stacked SVD for all
+   hypotheses, absent cameras as zero rows) and passes when its point lies in front of all its
+   cameras and its mean reprojection error (undistorted pixels) is at most birth_max_reproj_px; when
+   the extended hypothesis fails, the seed pair alone may pass.
+3. Greedy choice: most hypothesis cameras, then most further cameras that see the point within the
+   threshold (so a chance match of a few points loses to a real animal seen by all cameras), then the
+   smallest error. An accepted hypothesis starts a target; its points, and the nearest unclaimed point
+   of each other camera within the threshold, are used up. Hypotheses that lost a point to an
+   accepted one are evaluated again on the points left (next round), within the same budget.
+The C kernel's birth prefilter (kernel/tracker_kernel.c) applies the same seed gate, so the NumPy
+birth search only runs when some seed exists (both paths make the same births).
 """
 
 from __future__ import annotations
@@ -25,7 +37,12 @@ from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams
 
 F64 = NDArray[np.float64]
-_PREFILTER = 4.0  # a pair goes to the SVD when its midpoint's error is under this many thresholds
+# Seed gate (Sampson distance of a pair) and extension gate (px from the seed's projection), in units
+# of birth_max_reproj_px. The kernel mirrors it (kernel.py: birth_seed_gate_px).
+_SEED_GATE = 4.0
+# Seeds evaluated together (one batch of NumPy calls); rounds repeat on the points left, up to
+# birth_max_hypotheses seeds per frame.
+_CHUNK = 64
 
 
 @dataclass(slots=True)
@@ -36,34 +53,64 @@ class Birth:
     reproj_px: float  # mean reprojection error of the hypothesis
 
 
-def triangulate_batch(P: F64, uv_ideal: F64) -> F64:
+@dataclass(slots=True)
+class BirthSearch:
+    """What one frame's search did (Tracker.stats sums these)."""
+
+    births: list[Birth]
+    evaluated: int = 0  # hypotheses (seeds) evaluated
+    deferred: int = 0  # seeds left for the next frame by the budget
+
+
+def triangulate_batch(P: F64, uv_ideal: F64, mask: NDArray[np.bool_] | None = None) -> F64:
     """Linear (DLT) triangulation of M points, each seen in k cameras: P (M, k, 3, 4) projection
     matrices, uv_ideal (M, k, 2) undistorted pixels -> (M, 3). Same algebra as camera.triangulate
-    (row-normalised homogeneous system, smallest right singular vector), batched."""
+    (row-normalised homogeneous system, smallest right singular vector), batched. With mask (M, k),
+    cameras where it is False are left out (their rows are zero, which does not change the solution)."""
     u = uv_ideal[..., 0, None]
     v = uv_ideal[..., 1, None]
     rows_u = u * P[..., 2, :] - P[..., 0, :]  # (M, k, 4)
     rows_v = v * P[..., 2, :] - P[..., 1, :]
     A = np.concatenate([rows_u, rows_v], axis=1)  # (M, 2k, 4)
-    A /= np.linalg.norm(A, axis=2, keepdims=True)
+    norm = np.linalg.norm(A, axis=2, keepdims=True)
+    if mask is not None:
+        m2 = np.concatenate([mask, mask], axis=1)[..., None]
+        A = np.where(m2, A / np.where(m2, norm, 1.0), 0.0)
+    else:
+        A /= norm
     _, _, vt = np.linalg.svd(A)
     Xh = vt[:, -1, :]
     with np.errstate(divide="ignore", invalid="ignore"):
         return Xh[:, :3] / Xh[:, 3:4]
 
 
-def _evaluate(cams: CameraArray, points: PointSet, tuples: NDArray[np.intp]) -> tuple[F64, F64]:
-    """Triangulate tuples (M, k) of point rows; return points (M, 3) and mean reprojection errors
-    (M,), inf where the point is behind a camera or not finite."""
-    M, k = tuples.shape
-    slots = points.slot[tuples]  # (M, k)
-    uv = np.stack([points.u_ideal[tuples], points.v_ideal[tuples]], axis=-1)
-    X = triangulate_batch(cams.P[slots], uv)
-    Xr = np.repeat(X, k, axis=0)
-    proj, front = cams.project_ideal(slots.ravel(), np.nan_to_num(Xr))
-    err = np.linalg.norm(proj - uv.reshape(-1, 2), axis=1).reshape(M, k).mean(axis=1)
-    good = front.reshape(M, k).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(err)
-    return X, np.where(good, err, np.inf)
+def seed_pairs(cams: CameraArray, points: PointSet, rows: NDArray[np.intp], gate_px: float) -> tuple[
+        NDArray[np.intp], F64]:
+    """Pairs (S, 2) of `rows` (two cameras, first row lower) whose Sampson distance is at most gate_px,
+    best first, and those distances (S,)."""
+    i, j = np.triu_indices(rows.size, 1)
+    sl = points.slot[rows]
+    keep = sl[i] != sl[j]
+    a, b = rows[i[keep]], rows[j[keep]]
+    d2 = sampson2(cams, points, a, b)
+    ok = d2 <= gate_px * gate_px
+    a, b, d2 = a[ok], b[ok], d2[ok]
+    order = np.argsort(d2, kind="stable")
+    return np.stack([a[order], b[order]], axis=1), np.sqrt(d2[order])
+
+
+def sampson2(cams: CameraArray, points: PointSet, a: NDArray[np.intp], b: NDArray[np.intp]) -> F64:
+    """Squared Sampson distance (px^2) of point pairs (a[k], b[k]) from different cameras:
+    (x_b' F x_a)^2 / (|(F x_a)_12|^2 + |(F' x_b)_12|^2), undistorted pixels."""
+    F = cams.fundamental[points.slot[a], points.slot[b]]  # (S, 3, 3): x_b' F x_a = 0
+    ua, va, ub, vb = points.u_ideal[a], points.v_ideal[a], points.u_ideal[b], points.v_ideal[b]
+    la = F[:, :, 0] * ua[:, None] + F[:, :, 1] * va[:, None] + F[:, :, 2]  # line F x_a in b
+    lb = F[:, 0, :] * ub[:, None] + F[:, 1, :] * vb[:, None] + F[:, 2, :]  # line F' x_b in a
+    num = la[:, 0] * ub + la[:, 1] * vb + la[:, 2]
+    den = la[:, 0] ** 2 + la[:, 1] ** 2 + lb[:, 0] ** 2 + lb[:, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = num * num / den
+    return np.where(np.isfinite(d2), d2, np.inf)
 
 
 def find_births(
@@ -75,102 +122,170 @@ def find_births(
 ) -> list[Birth]:
     """Births from the points where `free` (N,) is True. `existing` (T, 3): positions of current
     targets, for params.birth_min_separation_m."""
-    rows = np.flatnonzero(free)
-    if rows.size < params.birth_min_cameras:
-        return []
-    sl = points.slot[rows]  # non-decreasing
-    if 1 + int(np.count_nonzero(sl[1:] != sl[:-1])) < params.birth_min_cameras:
-        return []
-    thr = params.birth_max_reproj_px
-    i, j = np.triu_indices(rows.size, 1)
-    diff_cam = points.slot[rows[i]] != points.slot[rows[j]]
-    tuples = np.stack([rows[i[diff_cam]], rows[j[diff_cam]]], axis=1)
-    tuples = tuples[_midpoint_error(cams, points, tuples) <= _PREFILTER * thr]
-    hyps: list[tuple[NDArray[np.intp], F64, F64]] = []  # (tuples, X, err) per size
-    k = 2
-    while tuples.shape[0]:
-        X, err = _evaluate(cams, points, tuples)
-        passed = err <= thr
-        if not passed.any():
-            break
-        hyps.append((tuples[passed], X[passed], err[passed]))
-        if k >= params.birth_max_combination:
-            break
-        tuples = _extend(points, tuples[passed], rows)
-        k += 1
-    if not hyps:
-        return []
+    return search_births(cams, points, free, params, existing).births
 
-    # Greedy choice: most cameras first, then smallest error.
-    cand_rows: list[NDArray[np.intp]] = []
-    cand_X: list[F64] = []
-    cand_err: list[float] = []
-    for tup, X, err in reversed(hyps):
-        order = np.argsort(err, kind="stable")
-        for o in order:
-            cand_rows.append(tup[o])
-            cand_X.append(X[o])
-            cand_err.append(float(err[o]))
-    used = ~free.copy()
-    births: list[Birth] = []
+
+def search_births(
+    cams: CameraArray,
+    points: PointSet,
+    free: NDArray[np.bool_],
+    params: TrackingParams,
+    existing: F64 | None = None,
+) -> BirthSearch:
+    """find_births with the work it did (hypotheses evaluated, seeds deferred by the budget)."""
+    out = BirthSearch([])
+    thr = params.birth_max_reproj_px
+    budget = params.birth_max_hypotheses
+    used = ~free
+    done = np.empty(0, dtype=np.int64)  # seeds evaluated (a * N + b), not tried again this frame
+    N = points.n
+    while True:
+        rows = np.flatnonzero(~used)
+        if rows.size < params.birth_min_cameras:
+            break
+        sl = points.slot[rows]  # non-decreasing
+        if 1 + int(np.count_nonzero(sl[1:] != sl[:-1])) < params.birth_min_cameras:
+            break
+        seeds, _ = seed_pairs(cams, points, rows, _SEED_GATE * thr)
+        if done.size and seeds.shape[0]:
+            seeds = seeds[~np.isin(seeds[:, 0] * N + seeds[:, 1], done)]
+        if seeds.shape[0] == 0:
+            break
+        take = min(_CHUNK, budget)
+        if take == 0:
+            out.deferred = seeds.shape[0]
+            break
+        seeds = seeds[:take]
+        budget -= seeds.shape[0]
+        out.evaluated += seeds.shape[0]
+        done = np.concatenate([done, seeds[:, 0] * N + seeds[:, 1]])
+        _round(cams, points, used, rows, seeds, params, existing, out.births)
+    return out
+
+
+def _round(
+    cams: CameraArray,
+    points: PointSet,
+    used: NDArray[np.bool_],
+    rows: NDArray[np.intp],
+    seeds: NDArray[np.intp],
+    params: TrackingParams,
+    existing: F64 | None,
+    births: list[Birth],
+) -> None:
+    """Evaluate the seeds over the free points `rows`, accept greedily (marking `used`, appending to
+    births). A passing hypothesis that lost a point to an accepted one is skipped: its seed, when
+    still free, is not tried again this frame, but the other seeds over its points are (next round)."""
+    thr = params.birth_max_reproj_px
+    kmax = max(2, min(params.birth_max_combination, cams.n))
+    M = seeds.shape[0]
+    C = cams.n
+    slot = points.slot
+    # Free points as a dense (camera, rank) table, flattened, for per-camera nearest-neighbour look-ups.
+    fs = slot[rows]
+    starts = np.searchsorted(fs, np.arange(C + 1))
+    width = int(np.diff(starts).max())
+    cell = fs * width + (np.arange(rows.size) - starts[fs])
+    fu, fv = points.u_ideal[rows], points.v_ideal[rows]
+    Pm = cams.P
+    cams_ix = np.arange(C)
+
+    def nearest(X: F64, exclude: NDArray[np.intp]) -> tuple[F64, NDArray[np.intp]]:
+        """For points X (M, 3): per camera the distance (M, C) to the nearest free point and its row
+        (inf / -1 where none or X is behind the camera); cameras in exclude (M, k, -1 = none) skipped.
+        Written elementwise: tiny matrix products through BLAS cost more in call overhead."""
+        h = X[:, 0, None, None] * Pm[:, :, 0] + X[:, 1, None, None] * Pm[:, :, 1]
+        h += X[:, 2, None, None] * Pm[:, :, 2] + Pm[:, :, 3]  # (M, C, 3)
+        w = h[..., 2]
+        front = w > 1e-9
+        wi = 1.0 / np.where(front, w, 1.0)
+        du = (h[..., 0] * wi)[:, fs] - fu  # (M, R)
+        dv = (h[..., 1] * wi)[:, fs] - fv
+        d = np.sqrt(du * du + dv * dv)
+        d[~front[:, fs]] = np.inf
+        dense = np.full((X.shape[0], C * width), np.inf)
+        dense[:, cell] = d
+        dense = dense.reshape(X.shape[0], C, width)
+        k = np.argmin(dense, axis=2)  # (M, C)
+        dmin = np.take_along_axis(dense, k[..., None], axis=2)[..., 0]
+        dmin[(exclude[:, :, None] == cams_ix).any(axis=1)] = np.inf
+        near = rows[np.minimum(starts[:C] + k, rows.size - 1)]
+        return dmin, np.where(np.isfinite(dmin), near, -1)
+
+    # 1. Seeds triangulated, extended by the nearest free points of the other cameras.
+    sa, sb = slot[seeds[:, 0]], slot[seeds[:, 1]]
+    uv2 = np.stack([points.u_ideal[seeds], points.v_ideal[seeds]], axis=-1)  # (M, 2, 2)
+    P2 = cams.P[np.stack([sa, sb], axis=1)]
+    X2 = triangulate_batch(P2, uv2)
+    X2 = np.where(np.isfinite(X2), X2, 0.0)
+    hyp = np.full((M, kmax), -1, dtype=np.intp)
+    hyp[:, :2] = seeds
+    if kmax > 2:
+        dmin, near = nearest(X2, np.stack([sa, sb], axis=1))
+        order = np.argsort(dmin, axis=1, kind="stable")[:, : kmax - 2]
+        dsel = np.take_along_axis(dmin, order, axis=1)
+        hyp[:, 2:] = np.where(dsel <= _SEED_GATE * thr, np.take_along_axis(near, order, axis=1), -1)
+    X, err, n_hyp = _fit(cams, points, hyp)
+    # The seed pair alone where the extended hypothesis fails.
+    if kmax > 2:
+        err2 = _errors(cams, points, seeds, X2)
+        back = (err > thr) & (err2 <= thr)
+        if back.any():
+            hyp[back, 2:] = -1
+            X[back], err[back], n_hyp[back] = X2[back], err2[back], 2
+    ok = (err <= thr) & (n_hyp >= params.birth_min_cameras)
+    if not ok.any():
+        return
+    hyp, X, err, n_hyp = hyp[ok], X[ok], err[ok], n_hyp[ok]
+    # 2. Support: further cameras whose nearest free point lies within the threshold.
+    dmin, _ = nearest(X, np.where(hyp >= 0, slot[np.maximum(hyp, 0)], -1))
+    support = np.count_nonzero(dmin <= thr, axis=1)
+    order = np.lexsort((err, -support, -n_hyp))
+    # 3. Greedy acceptance (plain Python lists: a few hundred tiny checks).
     min_sep = params.birth_min_separation_m
-    for tup, X, err in zip(cand_rows, cand_X, cand_err, strict=True):
-        if tup.size < params.birth_min_cameras or used[tup].any():
+    hyp_l = hyp.tolist()
+    used_l = used.tolist()
+    for o in order.tolist():
+        tup_l = [r for r in hyp_l[o] if r >= 0]
+        if any(used_l[r] for r in tup_l):
             continue
+        Xo = X[o]
         if min_sep > 0:
             others = [existing] if existing is not None and existing.size else []
             others += [b.position[None, :] for b in births]
-            if others and np.min(np.linalg.norm(np.concatenate(others) - X, axis=1)) < min_sep:
+            if others and np.min(np.linalg.norm(np.concatenate(others) - Xo, axis=1)) < min_sep:
                 continue
+        tup = np.array(tup_l, dtype=np.intp)
         used[tup] = True
-        extra = _absorb(cams, points, used, X, tup, thr)
+        extra = _absorb(cams, points, used, Xo, tup, thr)
         used[extra] = True
-        births.append(Birth(X.copy(), np.concatenate([tup, extra]), int(tup.size), err))
-    return births
+        for r in tup_l + extra.tolist():
+            used_l[r] = True
+        births.append(Birth(Xo.copy(), np.concatenate([tup, extra]), int(tup.size), float(err[o])))
 
 
-def _midpoint_error(cams: CameraArray, points: PointSet, pairs: NDArray[np.intp]) -> F64:
-    """Cheap prefilter for pairs: the mean reprojection error of the midpoint of the two rays' closest
-    approach (inf when the rays meet behind a camera). The DLT point's error is close to the optimum,
-    which is never above the midpoint's; the midpoint's can exceed it by about the ratio of the two
-    cameras' depths, hence the margin _PREFILTER. Saves an SVD per chance pair of false positives."""
-    a, b = pairs[:, 0], pairs[:, 1]
-    ca, cb = cams.centers[points.slot[a]], cams.centers[points.slot[b]]
-    da, db = points.rays[a], points.rays[b]
-    w = ca - cb
-    aa = np.einsum("ij,ij->i", da, da)
-    ab = np.einsum("ij,ij->i", da, db)
-    bb = np.einsum("ij,ij->i", db, db)
-    aw = np.einsum("ij,ij->i", da, w)
-    bw = np.einsum("ij,ij->i", db, w)
-    den = aa * bb - ab * ab
-    ok = den > 1e-12 * aa * bb
-    den = np.where(ok, den, 1.0)
-    s = (ab * bw - bb * aw) / den
-    t = (aa * bw - ab * aw) / den
-    ok &= (s > 0) & (t > 0)
-    X = 0.5 * (ca + s[:, None] * da + cb + t[:, None] * db)
-    slots = np.concatenate([points.slot[a], points.slot[b]])
-    proj, front = cams.project_ideal(slots, np.concatenate([X, X]))
-    uv = np.stack([points.u_ideal[np.concatenate([a, b])], points.v_ideal[np.concatenate([a, b])]], axis=1)
-    err = np.linalg.norm(proj - uv, axis=1).reshape(2, -1).mean(axis=0)
-    ok &= front.reshape(2, -1).all(axis=0)
-    return np.where(ok, err, np.inf)
+def _fit(cams: CameraArray, points: PointSet, hyp: NDArray[np.intp]) -> tuple[F64, F64, NDArray[np.intp]]:
+    """DLT over each hypothesis's points (rows of hyp, -1 = none): points (M, 3), mean reprojection
+    errors (M,) (inf where behind a camera or not finite) and camera counts (M,)."""
+    mask = hyp >= 0
+    r = np.where(mask, hyp, 0)
+    uv = np.stack([points.u_ideal[r], points.v_ideal[r]], axis=-1)
+    X = triangulate_batch(cams.P[points.slot[r]], uv, mask)
+    return X, _errors(cams, points, hyp, X), mask.sum(axis=1)
 
 
-def _extend(points: PointSet, tuples: NDArray[np.intp], rows: NDArray[np.intp]) -> NDArray[np.intp]:
-    """All tuples of one more point (from a camera not yet in the tuple), without duplicates."""
-    M, k = tuples.shape
-    new = np.repeat(rows[None, :], M, axis=0)  # (M, R)
-    cam_new = points.slot[new]
-    cam_old = points.slot[tuples]  # (M, k)
-    ok = (cam_new[:, :, None] != cam_old[:, None, :]).all(axis=2)
-    mi, ri = np.nonzero(ok)
-    if mi.size == 0:
-        return np.empty((0, k + 1), dtype=np.intp)
-    ext = np.concatenate([tuples[mi], new[mi, ri][:, None]], axis=1)
-    ext.sort(axis=1)
-    return np.unique(ext, axis=0)
+def _errors(cams: CameraArray, points: PointSet, hyp: NDArray[np.intp], X: F64) -> F64:
+    """Mean reprojection error (M,) of X (M, 3) over the rows of hyp (M, k; -1 = none)."""
+    M, k = hyp.shape
+    mask = hyp >= 0
+    r = np.where(mask, hyp, 0)
+    Xf = np.nan_to_num(X)
+    proj, front = cams.project_ideal(points.slot[r].ravel(), np.repeat(Xf, k, axis=0))
+    uv = np.stack([points.u_ideal[r], points.v_ideal[r]], axis=-1).reshape(-1, 2)
+    e = np.linalg.norm(proj - uv, axis=1).reshape(M, k)
+    err = np.where(mask, e, 0.0).sum(axis=1) / np.maximum(mask.sum(axis=1), 1)
+    good = (front.reshape(M, k) | ~mask).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(err)
+    return np.where(good, err, np.inf)
 
 
 def _absorb(

@@ -19,11 +19,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flytrack_host.tracking.association import PointSet
+from flytrack_host.tracking.birth import _SEED_GATE
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams
 
 LIB_NAME = "libflytrack_tracker_kernel.so"
-ABI_VERSION = 1
+ABI_VERSION = 2
 CAM_STRIDE = 46  # FTK_CAM_STRIDE: doubles per camera in the packed table
 
 # Indices of the stats array (enum in tracker_kernel.h).
@@ -41,7 +42,7 @@ class KernelParams(ctypes.Structure):
 
     _fields_ = [(name, ctypes.c_double) for name in (
         "gate_px", "area_gate_ratio", "min_area_px", "max_mahalanobis", "r2", "motion_noise_scale",
-        "death_var", "area_smoothing", "min_eccentricity", "min_plane_tan_half", "birth_prefilter_px",
+        "death_var", "area_smoothing", "min_eccentricity", "min_plane_tan_half", "birth_seed_gate_px",
     )] + [("exclusive_points", ctypes.c_int64), ("birth_min_cameras", ctypes.c_int64)]
 
 
@@ -145,9 +146,9 @@ class TrackerKernel:
             motion_noise_scale=p.motion_noise_scale, death_var=p.death_position_std_m**2,
             area_smoothing=p.area_smoothing, min_eccentricity=p.min_eccentricity_for_orientation,
             min_plane_tan_half=float(np.tan(np.radians(p.orientation_min_plane_angle_deg) / 2.0)),
-            # The NumPy prefilter is err <= 4 * threshold (birth._PREFILTER); the margin makes rounding
-            # differences err on the side of running the NumPy birth search.
-            birth_prefilter_px=4.0 * p.birth_max_reproj_px * (1.0 + 1e-9) + 1e-9,
+            # birth.seed_pairs' gate (Sampson distance <= _SEED_GATE * threshold); the margin makes
+            # rounding differences err on the side of running the NumPy birth search.
+            birth_seed_gate_px=_SEED_GATE * p.birth_max_reproj_px * (1.0 + 1e-9) + 1e-9,
             exclusive_points=int(p.exclusive_points), birth_min_cameras=p.birth_min_cameras,
         )
         self._buf = Buffers(n_cameras=C)

@@ -65,6 +65,14 @@ class CameraArray:
         self._p4s = 4.0 * ps
         # Rays: world direction of undistorted pixel (u, v) is B @ (u, v, 1) with B = R^T K^-1.
         self._ray_B = np.stack([c.R.T @ np.linalg.inv(c.K) for c in cams])  # (C, 3, 3)
+        # Fundamental matrices on undistorted pixels, F[a, b] (C, C, 3, 3) with x_b' F[a, b] x_a = 0:
+        # the rays B_a x_a, B_b x_b and the baseline c_a - c_b are coplanar, so
+        # F[a, b] = B_b' [c_a - c_b]_x B_a (zero for a == b).
+        t = self.centers[:, None, :] - self.centers[None, :, :]  # (a, b, 3)
+        tx = np.zeros((C, C, 3, 3))
+        tx[..., 0, 1], tx[..., 0, 2], tx[..., 1, 2] = -t[..., 2], t[..., 1], -t[..., 0]
+        tx[..., 1, 0], tx[..., 2, 0], tx[..., 2, 1] = t[..., 2], -t[..., 1], t[..., 0]
+        self.fundamental = np.swapaxes(self._ray_B, 1, 2)[None, :] @ tx @ self._ray_B[:, None]
 
     def project_jacobian(self, X: F64) -> tuple[F64, F64, NDArray[np.bool_]]:
         """Targets X (T, 3) -> distorted pixels uv (C, T, 2), Jacobians J (C, T, 2, 3) and a mask

@@ -43,6 +43,15 @@ class TrackingParams(BaseModel):
     birth_max_combination: int = Field(
         3, ge=2, description="Largest camera combination tried when triangulating a birth (Braid: 2-3)."
     )
+    birth_max_hypotheses: int = Field(
+        256,
+        ge=1,
+        description=(
+            "Most birth hypotheses (seed pairs of unclaimed points, best first) evaluated in one frame; "
+            "the rest wait for the next frame, their points still unclaimed. Bounds a frame's birth "
+            "search (about 1-3 ms at 11 cameras with 10 newcomers and the default)."
+        ),
+    )
     death_position_std_m: float = Field(
         0.01212, gt=0, description=(
             "A target dies when its position std (the square root of the largest diagonal entry of its "

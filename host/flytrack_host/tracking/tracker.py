@@ -30,7 +30,7 @@ from flytrack_host.camera import Camera
 from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.tracking import kernel as ckernel
 from flytrack_host.tracking.association import PointSet, _assign_camera_globally, _prevent_merges, associate
-from flytrack_host.tracking.birth import Birth, find_births
+from flytrack_host.tracking.birth import Birth, search_births
 from flytrack_host.tracking.ekf import cv_process_noise, cv_transition, joseph_update, predict
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.orientation import axes_from_normals
@@ -55,6 +55,8 @@ STAT_KEYS = (
     "nonfinite_orientation",  # points with an infinite angle or eccentricity: used, without orientation
     "unknown_camera_points",  # points from a camera index the tracker has no calibration for: skipped
     "births",  # targets started (tentative)
+    "birth_hypotheses",  # birth hypotheses (seed pairs) evaluated
+    "birth_frames_cut",  # frames whose birth search hit birth_max_hypotheses (seeds left for later)
     "confirmed",  # targets confirmed and reported
     "deaths",  # reported targets that died
     "tentative_dropped",  # targets that died before confirmation
@@ -221,8 +223,8 @@ class Tracker:
         n_cams = k.n_cams[:T]
         if st[ckernel.ST_DEAD]:
             assign, n_cams = self._deaths(result, k.dead[:T].astype(bool), assign, n_cams)
-        # The kernel's prefilter found no pair of unclaimed points that could start a target: then
-        # find_births would return nothing, so it is not called.
+        # The kernel's prefilter found no seed pair of unclaimed points (birth.seed_pairs' gate): then
+        # the birth search would return nothing, so it is not called.
         if st[ckernel.ST_UNCLAIMED] >= p.birth_min_cameras and st[ckernel.ST_BIRTH_PAIRS]:
             pts = k.pointset()
             assign, n_cams = self._births(pts, k.claimed[: pts.n] == 0, assign, n_cams)
@@ -260,7 +262,10 @@ class Tracker:
     def _births(
         self, pts: PointSet, free: NDArray[np.bool_], assign: NDArray[np.intp], n_cams: NDArray[np.intp]
     ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        births = find_births(self.cams, pts, free, self.params, self._x[:, :3] if self.n_targets else None)
+        search = search_births(self.cams, pts, free, self.params, self._x[:, :3] if self.n_targets else None)
+        self.stats["birth_hypotheses"] += search.evaluated
+        self.stats["birth_frames_cut"] += search.deferred > 0
+        births = search.births
         if births:
             self.last_births = births
             assign, n_cams = self._add_births(births, pts, assign, n_cams)

@@ -526,44 +526,30 @@ static void orient(const ftk_params *p, const ftk_buffers *b, int64_t T, int64_t
         ax[k] = !ok ? NAN : (dot < 0 ? -e[k] : e[k]);
 }
 
-/* birth._midpoint_error for one pair under the prefilter threshold (birth.find_births needs one).
- */
+/* birth.sampson2 for one pair of points from two cameras, compared with the seed gate
+ * (birth.seed_pairs): find_births can only start a target from such a pair. The fundamental matrix
+ * F = B_b^T [c_a - c_b]_x B_a is applied through the rays d = B x, which the gather computed. */
 static int pair_may_give_birth(const ftk_params *p, const double *cams, const ftk_buffers *b,
                                int64_t ia, int64_t ib) {
     const double *ca = cams + b->slot[ia] * FTK_CAM_STRIDE,
                  *cb = cams + b->slot[ib] * FTK_CAM_STRIDE;
     const double *oa = ca + FTK_CAM_CENTER, *ob = cb + FTK_CAM_CENTER;
+    const double *Ba = ca + FTK_CAM_RAYB, *Bb = cb + FTK_CAM_RAYB;
     const double *da = b->rays + 3 * ia, *db = b->rays + 3 * ib;
-    double w[3], aa = 0, ab = 0, bb = 0, aw = 0, bw = 0;
-    for (int k = 0; k < 3; k++) {
-        w[k] = oa[k] - ob[k];
-        aa += da[k] * da[k];
-        ab += da[k] * db[k];
-        bb += db[k] * db[k];
-        aw += da[k] * w[k];
-        bw += db[k] * w[k];
-    }
-    double den = aa * bb - ab * ab;
-    if (!(den > 1e-12 * aa * bb))
-        return 0;
-    double s = (ab * bw - bb * aw) / den, tt = (aa * bw - ab * aw) / den;
-    if (!(s > 0 && tt > 0))
-        return 0;
-    double X[3], err = 0.0;
-    for (int k = 0; k < 3; k++)
-        X[k] = 0.5 * (oa[k] + s * da[k] + ob[k] + tt * db[k]);
-    const double *cm[2] = {ca, cb};
-    int64_t rows[2] = {ia, ib};
-    for (int q = 0; q < 2; q++) {
-        const double *Pm = cm[q] + FTK_CAM_P;
-        double h[3];
-        for (int r = 0; r < 3; r++)
-            h[r] = Pm[4 * r] * X[0] + Pm[4 * r + 1] * X[1] + Pm[4 * r + 2] * X[2] + Pm[4 * r + 3];
-        if (!(h[2] > 1e-9))
-            return 0;
-        err += hypot(h[0] / h[2] - b->uvi[2 * rows[q]], h[1] / h[2] - b->uvi[2 * rows[q] + 1]);
-    }
-    return 0.5 * err <= p->birth_prefilter_px;
+    double t[3] = {oa[0] - ob[0], oa[1] - ob[1], oa[2] - ob[2]};
+    double ta[3] = {t[1] * da[2] - t[2] * da[1], t[2] * da[0] - t[0] * da[2],
+                    t[0] * da[1] - t[1] * da[0]}; /* t x d_a */
+    double tb[3] = {t[1] * db[2] - t[2] * db[1], t[2] * db[0] - t[0] * db[2],
+                    t[0] * db[1] - t[1] * db[0]}; /* t x d_b */
+    /* F x_a = B_b^T (t x d_a): the epipolar line in b; F^T x_b = -B_a^T (t x d_b), in a. */
+    double la0 = Bb[0] * ta[0] + Bb[3] * ta[1] + Bb[6] * ta[2];
+    double la1 = Bb[1] * ta[0] + Bb[4] * ta[1] + Bb[7] * ta[2];
+    double lb0 = Ba[0] * tb[0] + Ba[3] * tb[1] + Ba[6] * tb[2];
+    double lb1 = Ba[1] * tb[0] + Ba[4] * tb[1] + Ba[7] * tb[2];
+    double num = db[0] * ta[0] + db[1] * ta[1] + db[2] * ta[2];
+    double den = la0 * la0 + la1 * la1 + lb0 * lb0 + lb1 * lb1;
+    double g = p->birth_seed_gate_px;
+    return num * num <= g * g * den && den > 0.0;
 }
 
 int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t T,

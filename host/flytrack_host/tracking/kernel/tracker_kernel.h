@@ -17,7 +17,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define FTK_ABI_VERSION 1
+#define FTK_ABI_VERSION 2
 
 /* A protocol point is 11 little-endian 4-byte words (protocol/SPEC.md); the ones read here. */
 #define FTK_POINT_WORDS 11
@@ -45,7 +45,7 @@ typedef struct {
     double area_smoothing;
     double min_eccentricity;
     double min_plane_tan_half; /* tan(orientation_min_plane_angle / 2) */
-    double birth_prefilter_px; /* a pair whose midpoint error is under this may give a birth */
+    double birth_seed_gate_px; /* a pair whose Sampson distance is under this may give a birth */
     int64_t exclusive_points;
     int64_t birth_min_cameras;
 } ftk_params;
