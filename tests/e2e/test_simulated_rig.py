@@ -33,10 +33,10 @@ def test_every_animal_is_tracked_accurately(demo):
     assert r.frames_rendered == 200
     assert s.gt_objects == cfg.animals
     assert s.tracks_found >= cfg.animals, f"only {s.tracks_found} tracks matched an animal"
-    assert s.rmse_mm < 3.0, f"3D RMSE {s.rmse_mm:.2f} mm"
-    # Not the demo's goals (MOTA > 0.99): `make test` may share the 2 cores with much else, and a
-    # starved host tracks late bundles with cameras missing.
-    assert s.recall > 0.8 and s.mota > 0.8, (s.recall, s.mota)
+    # The demo's goals are RMSE < 2 mm, MOTA > 0.99, IDF1 > 0.95 over 10 s. In 2 s the frames before
+    # each track is confirmed (3) weigh more: measured here MOTA 0.985-0.99, IDF1 0.99, RMSE 0.4-0.7 mm.
+    assert s.rmse_mm < 2.0, f"3D RMSE {s.rmse_mm:.2f} mm"
+    assert s.mota > 0.95 and s.idf1 > 0.95 and s.recall > 0.95, (s.mota, s.idf1, s.recall)
     assert r.frames_misnumbered == 0
     assert s.id_switches_free_flight == 0
     assert s.merges == 0
@@ -47,9 +47,11 @@ def test_loopback_loses_nothing_and_the_host_publishes(demo):
     _, r = demo
     assert r.packets_lost == 0
     assert r.camera_frames_sent == 3 * 200
-    assert r.camera_frames_received >= 0.99 * r.camera_frames_sent
+    assert r.camera_frames_received == r.camera_frames_sent
     rx = r.host_summary["receiver"]
-    assert sum(c["frames"] for c in rx["cameras"].values()) >= 3 * 190
+    # Every frame reached the host: the 200 triggered ones and the 3 pre-roll frames (background,
+    # taken before START) of each camera.
+    assert sum(c["frames"] for c in rx["cameras"].values()) == 3 * (200 + 3)
     assert rx["errors_by_name"] == {}
     assert r.live_frames > 100  # LIVE_ESTIMATES reached the rig's live subscriber
     lat = r.latency
@@ -62,7 +64,7 @@ def test_recording_opens_with_h5py_and_exports_to_braidz(demo):
     with h5py.File(r.recording, "r") as f:
         k = f["kalman_estimates"][:]
         assert len(k) > 100
-        assert set(np.unique(k["obj_id"])) and np.all(np.isfinite(k["x"]))
+        assert len(np.unique(k["obj_id"])) >= 2 and np.all(np.isfinite(k["x"]))
         d = f["data2d_distorted"][:]
         assert set(np.unique(d["camera_index"])) == {0, 1, 2}
     with zipfile.ZipFile(r.braidz) as z:
