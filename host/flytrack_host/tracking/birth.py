@@ -6,12 +6,13 @@ hundreds of thousands of hypotheses. Here the search is guided instead, with the
 1. Seeds: pairs of unclaimed points from two cameras whose Sampson distance (the first-order
    reprojection error of the best 3D point for the pair, from the pair's fundamental matrix,
    CameraArray.fundamental, on undistorted pixels) is at most birth_max_reproj_px * _SEED_GATE.
-   A pair a hypothesis could pass with has a Sampson distance of about twice its mean error at most
-   (e_a + e_b <= 2 thr gives sqrt(e_a^2 + e_b^2) <= 2 thr); _SEED_GATE leaves a margin over that.
+   and whose rays come closest in front of both cameras. A pair passing on its own has a Sampson
+   distance of about twice its mean error at most (e_a + e_b <= 2 thr gives sqrt(e_a^2 + e_b^2) <=
+   2 thr); _SEED_GATE = 2.5 leaves a margin over that.
    Seeds are ranked by Sampson distance and at most birth_max_hypotheses are evaluated per frame:
    the rest wait for the next frame (their points stay unclaimed, so a birth is at most a frame late).
 2. Each seed is triangulated (DLT) and projected into every other camera; the nearest unclaimed point
-   there within _SEED_GATE * threshold joins it, nearest cameras first, up to birth_max_combination
+   there within _EXTEND_GATE * threshold joins it, nearest cameras first, up to birth_max_combination
    cameras in all. The hypothesis is triangulated again (DLT over its cameras, one stacked SVD for all
    hypotheses, absent cameras as zero rows) and passes when its point lies in front of all its
    cameras and its mean reprojection error (undistorted pixels) is at most birth_max_reproj_px; when
@@ -38,8 +39,9 @@ from flytrack_host.tracking.params import TrackingParams
 
 F64 = NDArray[np.float64]
 # Seed gate (Sampson distance of a pair) and extension gate (px from the seed's projection), in units
-# of birth_max_reproj_px. The kernel mirrors it (kernel.py: birth_seed_gate_px).
-_SEED_GATE = 4.0
+# of birth_max_reproj_px. The kernel mirrors the seed gate (kernel.py: birth_seed_gate_px).
+_SEED_GATE = 2.5
+_EXTEND_GATE = 4.0
 # Seeds evaluated together (one batch of NumPy calls); rounds repeat on the points left, up to
 # birth_max_hypotheses seeds per frame.
 _CHUNK = 64
@@ -95,6 +97,8 @@ def seed_pairs(cams: CameraArray, points: PointSet, rows: NDArray[np.intp], gate
     d2 = sampson2(cams, points, a, b)
     ok = d2 <= gate_px * gate_px
     a, b, d2 = a[ok], b[ok], d2[ok]
+    ok = in_front(cams, points, a, b)
+    a, b, d2 = a[ok], b[ok], d2[ok]
     order = np.argsort(d2, kind="stable")
     return np.stack([a[order], b[order]], axis=1), np.sqrt(d2[order])
 
@@ -111,6 +115,21 @@ def sampson2(cams: CameraArray, points: PointSet, a: NDArray[np.intp], b: NDArra
     with np.errstate(divide="ignore", invalid="ignore"):
         d2 = num * num / den
     return np.where(np.isfinite(d2), d2, np.inf)
+
+
+def in_front(cams: CameraArray, points: PointSet, a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """Whether the rays of points a[k] and b[k] come closest in front of both cameras (the epipolar
+    constraint holds along the whole line, half of which images points behind a camera)."""
+    ca, cb = cams.centers[points.slot[a]], cams.centers[points.slot[b]]
+    da, db = points.rays[a], points.rays[b]
+    w = ca - cb
+    aa = np.einsum("ij,ij->i", da, da)
+    ab = np.einsum("ij,ij->i", da, db)
+    bb = np.einsum("ij,ij->i", db, db)
+    aw = np.einsum("ij,ij->i", da, w)
+    bw = np.einsum("ij,ij->i", db, w)
+    # Closest points ca + s da and cb + t db: s, t times the (positive) determinant aa bb - ab^2.
+    return (ab * bw - bb * aw > 0) & (aa * bw - ab * aw > 0)
 
 
 def find_births(
@@ -224,7 +243,7 @@ def _round(
         dmin, near = nearest(X2, np.stack([sa, sb], axis=1))
         order = np.argsort(dmin, axis=1, kind="stable")[:, : kmax - 2]
         dsel = np.take_along_axis(dmin, order, axis=1)
-        hyp[:, 2:] = np.where(dsel <= _SEED_GATE * thr, np.take_along_axis(near, order, axis=1), -1)
+        hyp[:, 2:] = np.where(dsel <= _EXTEND_GATE * thr, np.take_along_axis(near, order, axis=1), -1)
     X, err, n_hyp = _fit(cams, points, hyp)
     # The seed pair alone where the extended hypothesis fails.
     if kmax > 2:

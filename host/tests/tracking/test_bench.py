@@ -21,6 +21,11 @@ def test_bench_cli_writes_figures(tmp_path: Path) -> None:
     assert [(r["cameras"], r["targets"]) for r in rows] == [(2, 1), (5, 2), (5, 10), (11, 3), (11, 10)]
     assert all(r["p50_ms"] > 0 and r["frames"] == 30 for r in rows)
     assert "P50" in res.output
+    # The start-up case: ten animals new at once in 11 cameras, all born in frame 0, confirmed at 2.
+    new = json.loads(out.read_text())["newcomers"]
+    assert new[0]["kernel"] == rows[0]["kernel"] and new[0]["first_frame_cpu_ms"] > 0
+    assert all(n["all_confirmed_at_frame"] == 2 and n["mota"] > 0.95 for n in new)
+    assert "newcomers: 11 cameras x 10 animals" in res.output
     path = rows[0]["kernel"]
     assert f"tracker path: {'C kernel' if path == 'c' else 'NumPy'}" in res.output
     if path == "c":  # the NumPy path timed side by side on the same frames, same estimates

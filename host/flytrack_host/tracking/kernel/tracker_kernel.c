@@ -526,9 +526,10 @@ static void orient(const ftk_params *p, const ftk_buffers *b, int64_t T, int64_t
         ax[k] = !ok ? NAN : (dot < 0 ? -e[k] : e[k]);
 }
 
-/* birth.sampson2 for one pair of points from two cameras, compared with the seed gate
- * (birth.seed_pairs): find_births can only start a target from such a pair. The fundamental matrix
- * F = B_b^T [c_a - c_b]_x B_a is applied through the rays d = B x, which the gather computed. */
+/* birth.sampson2 for one pair of points from two cameras, compared with the seed gate, and
+ * birth.in_front (birth.seed_pairs): find_births can only start a target from such a pair. The
+ * fundamental matrix F = B_b^T [c_a - c_b]_x B_a is applied through the rays d = B x, which the
+ * gather computed. */
 static int pair_may_give_birth(const ftk_params *p, const double *cams, const ftk_buffers *b,
                                int64_t ia, int64_t ib) {
     const double *ca = cams + b->slot[ia] * FTK_CAM_STRIDE,
@@ -549,7 +550,20 @@ static int pair_may_give_birth(const ftk_params *p, const double *cams, const ft
     double num = db[0] * ta[0] + db[1] * ta[1] + db[2] * ta[2];
     double den = la0 * la0 + la1 * la1 + lb0 * lb0 + lb1 * lb1;
     double g = p->birth_seed_gate_px;
-    return num * num <= g * g * den && den > 0.0;
+    if (!(num * num <= g * g * den && den > 0.0))
+        return 0;
+    /* birth.in_front: the rays come closest in front of both cameras (a hair of slack, so that
+     * rounding never hides a pair the NumPy gate keeps). */
+    double aa = 0, ab = 0, bb = 0, aw = 0, bw = 0;
+    for (int k = 0; k < 3; k++) {
+        aa += da[k] * da[k];
+        ab += da[k] * db[k];
+        bb += db[k] * db[k];
+        aw += da[k] * t[k];
+        bw += db[k] * t[k];
+    }
+    double tol = 1e-12 * (fabs(ab * bw) + fabs(bb * aw) + fabs(aa * bw) + fabs(ab * aw));
+    return ab * bw - bb * aw > -tol && aa * bw - ab * aw > -tol;
 }
 
 int ftk_update(const ftk_params *p, const double *cams, const ftk_buffers *b, int64_t T,
