@@ -90,6 +90,7 @@ def test_rig_calibration_figure_and_json(demo, tmp_path):
         assert key in data["scores"]
     for key in ("p50_ms", "p99_ms", "max_ms"):
         assert key in data["latency"]
+    assert {g["name"] for g in data["goals"]} >= {"3D RMSE (mm)", "MOTA", "IDF1", "latency P50 (ms)"}
     assert data["packets_lost"] == 0 and "frames_in_time" in data and "host_kept_up" in data
 
 

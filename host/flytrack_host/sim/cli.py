@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from flytrack_host.sim.goals import check_goals
 from flytrack_host.sim.run import ROOT, DemoConfig, DemoError, DemoReport, run_demo, write_json
 
 
@@ -88,6 +89,10 @@ def demo_command(
         Console(stderr=True).print(f"[red]demo cannot run:[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
     console.print(summary_table(report))
+    goals = check_goals(report)
+    met = sum(g.ok for g in goals)
+    console.print(f"goals met: {met}/{len(goals)}  " + ", ".join(
+        f"{g.name} {g.goal}: {'[green]yes[/green]' if g.ok else '[red]NO[/red]'}" for g in goals), highlight=False)
     for n in report.notes:
         console.print(f"[yellow]note[/yellow] {n}", highlight=False)
     console.print(f"rig file   {report.rig_file}", highlight=False)

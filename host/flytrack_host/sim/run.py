@@ -33,6 +33,7 @@ import numpy as np
 from flytrack_host.camera import Camera
 from flytrack_host.sim.flight import Arena, FlightParams, GroundTruth, simulate_flight
 from flytrack_host.sim.frames import FrameFeeder, raise_priority
+from flytrack_host.sim.goals import check_goals
 from flytrack_host.sim.metrics import FrameTracks, TrackingScores, latency_summary, score_tracks
 from flytrack_host.sim.render import RenderParams
 from flytrack_host.sim.rig import make_cameras, rig_config, write_rig
@@ -670,4 +671,6 @@ def _jsonable(x: Any) -> Any:
 
 
 def write_json(report: DemoReport, path: Path) -> None:
-    Path(path).write_text(json.dumps(_jsonable(report.as_dict()), indent=1))
+    data = report.as_dict()
+    data["goals"] = [asdict(g) for g in check_goals(report)]
+    Path(path).write_text(json.dumps(_jsonable(data), indent=1))
