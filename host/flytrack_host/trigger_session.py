@@ -87,7 +87,7 @@ class SessionClock:
 
     def __init__(self) -> None:
         self._snap: tuple[float, float, float] | None = None  # gain, offset, frame period
-        self._recent: deque[tuple[float, float, float]] = deque(maxlen=64)  # rtt, host mid, device t
+        self._recent: deque[tuple[float, float, float]] = deque(maxlen=64)  # rtt, host sample time, device t
         self.source = "none"  # "none", "offset-only" or "fit"
 
     def clear(self) -> None:
@@ -97,8 +97,8 @@ class SessionClock:
 
     def update(self, model: ClockModel, reading: ClockReading, period_s: float) -> None:
         if reading.running:
-            self._recent.append((reading.host_t1 - reading.host_t0, 0.5 * (reading.host_t0 + reading.host_t1),
-                                 reading.device_time_s))
+            self._recent.append((reading.host_t1 - reading.host_t0,
+                                 model.sample_host_time(reading.host_t0, reading.host_t1), reading.device_time_s))
         if not self._recent:
             return
         span = max(r[2] for r in self._recent) - min(r[2] for r in self._recent)
@@ -157,7 +157,8 @@ def open_device(cfg: TriggerConfig, port: str | None = None, reset_wait_s: float
 
         soft = SoftwareTrigger(name="flytrack-soft")  # name field: 16 bytes
         try:
-            return TriggerDevice(soft.port, cfg.baud, reset_wait_s=0.0, model=model), soft
+            # Its pty delivers at once (no wire): the clock model takes the round trip's midpoint.
+            return TriggerDevice(soft.port, cfg.baud, reset_wait_s=0.0, model=model, wire_timed=False), soft
         except BaseException:
             soft.close()
             raise

@@ -18,7 +18,16 @@
  *   simulated timer scheduled them (simavr handles timer events after the instruction under way,
  *   up to a few cycles late; the log gives the hardware's cycle, not the simulator's step).
  * - --realtime paces the simulation to the wall clock (so a host clock model sees real elapsed
- *   time); otherwise it runs as fast as it can.
+ *   time); otherwise it runs as fast as it can. Paced, the harness costs little CPU although the
+ *   firmware busy-polls: when the firmware is in an idle loop (back at the same instruction with
+ *   every register, I/O register and RAM byte unchanged, having raised no interrupt, pin or UART
+ *   byte on the way), running that loop on changes nothing until the next simavr cycle timer (timer
+ *   compare, UART byte, injected edge, watchdog) or a host byte, so the harness advances the cycle
+ *   count by whole loop lengths up to the wall clock (never past it: a host byte lands at the cycle
+ *   it arrived) and sleeps in ppoll until the next timer is due or the pty has input. While the
+ *   firmware works it is emulated at most 50 us ahead of the wall clock. UART bytes reach the pty
+ *   when their stop bit ends on the simulated wire, not earlier. An edge-log comment
+ *   "# paced t0_monotonic=S t0_realtime=S" gives the wall time at which cycle 0 was due.
  * - --event-period N injects a square wave on the event input pin (INT0), first rising edge at
  *   --event-phase, high for --event-high cycles, to test the event timestamps.
  *
@@ -36,6 +45,12 @@
  * ATmega's OCR1x registers are double-buffered and a written value takes effect at the next BOTTOM
  * (datasheet, "16-bit Timer/Counter1"); simavr 1.6 ignores OCR1x writes in fast PWM mode until the
  * timer is reconfigured. The harness applies a written OCR1A/OCR1B at the next overflow.
+ *
+ * A second fix: simavr 1.6 times UART bytes from UBRR alone when UBRR is written, so a firmware
+ * that sets U2X afterwards (as this one does, like the Arduino core) gets half the baud rate, and
+ * it counts a parity bit that is not configured: 187 us a byte instead of the chip's 85 us (117647
+ * baud). The harness recomputes the byte time from UBRR, U2X, UCSZ, UPM and USBS whenever any of
+ * them is written, so the pty carries bytes at the chip's rate.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -56,6 +71,7 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <pty.h>
+#include <sys/prctl.h>
 #include <termios.h>
 
 enum { SIG_TRIGGER = 0, SIG_PULSE0, SIG_OUT1, SIG_OUT2, SIG_OUT3, SIG_EVENT, SIG_COUNT };
@@ -84,6 +100,9 @@ static FILE *g_log;
 static int g_level[SIG_COUNT];
 static unsigned long long g_edges[SIG_COUNT];
 static volatile sig_atomic_t g_stop;
+/* Anything the firmware did that the outside sees (interrupt, pin edge, UART byte, injected edge):
+ * an idle loop must not change it. */
+static uint64_t g_activity;
 
 /* OCR double-buffer model */
 static int g_ocr_pending[AVR_TIMER_COMP_COUNT];
@@ -171,6 +190,7 @@ static int g_irq_log;
 static void irq_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     int v = (int)(intptr_t)param;
     (void)irq;
+    g_activity++;
     if (value)
         g_avr->cycle += 4;
     if (!g_irq_log)
@@ -224,6 +244,7 @@ static void pin_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     int level = (value & 1) ? 1 : 0;
     uint64_t cycle = g_avr->cycle;
     (void)irq;
+    g_activity++;
     if (sig == SIG_TRIGGER)
         cycle = timer_edge_cycle(AVR_TIMER_COMPA, level);
     else if (sig == SIG_PULSE0)
@@ -259,6 +280,7 @@ static void tov_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 static avr_cycle_count_t event_tick(struct avr_t *avr, avr_cycle_count_t when, void *param) {
     int level = (int)(intptr_t)param;
     (void)avr;
+    g_activity++;
     avr_raise_irq(g_event_irq, (uint32_t)level);
     log_edge(SIG_EVENT, g_avr->cycle, level);
     if (level) {
@@ -271,20 +293,76 @@ static avr_cycle_count_t event_tick(struct avr_t *avr, avr_cycle_count_t when, v
     return 0;
 }
 
+/* UART byte time model (see the header comment) */
+static avr_uart_t *g_uart;
+static struct {
+    avr_io_write_t c;
+    void *param;
+    avr_io_addr_t addr;
+} g_uart_w[4];
+
+static void uart_timing_update(void) {
+    avr_uart_t *p = g_uart;
+    uint8_t c = p->r_ucsrc ? g_avr->data[p->r_ucsrc] : 0x06;
+    uint32_t ubrr = (uint32_t)(g_avr->data[p->ubrrl.reg] | (g_avr->data[p->ubrrh.reg] & 0x0F) << 8);
+    int u2x = avr_regbit_get(g_avr, p->u2x);
+    static const int databits[8] = {5, 6, 7, 8, 8, 8, 8, 9};
+    int db = databits[((c >> 1) & 3) | (avr_regbit_get(g_avr, p->ucsz2) << 2)];
+    int parity = ((c >> 4) & 3) ? 1 : 0; /* UPMn1:0 */
+    int stop = (c & 0x08) ? 2 : 1;       /* USBSn */
+    avr_cycle_count_t bit = (avr_cycle_count_t)(ubrr + 1) * (u2x ? 8 : 16);
+    p->cycles_per_byte = bit * (avr_cycle_count_t)(1 + db + parity + stop);
+}
+
+static void uart_cfg_write(struct avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param) {
+    int i = (int)(intptr_t)param;
+    if (g_uart_w[i].c)
+        g_uart_w[i].c(avr, addr, v, g_uart_w[i].param);
+    else
+        avr->data[addr] = v;
+    uart_timing_update();
+}
+
+static void uart_timing_install(char name) {
+    for (avr_io_t *io = g_avr->io_port; io; io = io->next)
+        if (io->kind && strcmp(io->kind, "uart") == 0 && ((avr_uart_t *)io)->name == name)
+            g_uart = (avr_uart_t *)io;
+    if (!g_uart)
+        return;
+    avr_io_addr_t regs[4] = {g_uart->r_ucsra, g_uart->r_ucsrc, g_uart->ubrrl.reg,
+                             g_uart->ubrrh.reg};
+    for (int i = 0; i < 4; i++) {
+        if (!regs[i])
+            continue;
+        int io = AVR_DATA_TO_IO(regs[i]);
+        g_uart_w[i].c = g_avr->io[io].w.c;
+        g_uart_w[i].param = g_avr->io[io].w.param;
+        g_uart_w[i].addr = regs[i];
+        g_avr->io[io].w.c = uart_cfg_write;
+        g_avr->io[io].w.param = (void *)(intptr_t)i;
+    }
+}
+
 /* pty bridge: AVR UART <-> pty master, serviced from the main loop */
 static int g_master = -1;
 static avr_irq_t *g_uart_in;
 static int g_xon = 1;
 static uint8_t g_rx[512]; /* host -> AVR, waiting for the UART to accept */
 static size_t g_rx_len, g_rx_done;
-static uint8_t g_tx[4096]; /* AVR -> host, waiting for the pty */
+static uint8_t g_tx[4096];      /* AVR -> host, waiting for the pty */
+static uint64_t g_tx_due[4096]; /* cycle at which each byte's stop bit ends */
 static size_t g_tx_len;
+static int g_paced;
 
 static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     (void)irq;
     (void)param;
-    if (g_tx_len < sizeof g_tx)
+    g_activity++;
+    if (g_tx_len < sizeof g_tx) {
+        /* simavr raises the byte when UDR is written; the receiver has it one byte time later */
+        g_tx_due[g_tx_len] = g_avr->cycle + (g_uart ? g_uart->cycles_per_byte : 0);
         g_tx[g_tx_len++] = (uint8_t)value;
+    }
 }
 static void xon_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     (void)irq;
@@ -299,11 +377,17 @@ static void xoff_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     g_xon = 0;
 }
 
-static void bridge_service(void) {
-    if (g_tx_len) {
-        ssize_t w = write(g_master, g_tx, g_tx_len);
+/* Moves the bytes: out, those due by cycle `due` (all of them when not paced); in, what the pty
+ * holds, at the current cycle. Returns the number of bytes given to the AVR. */
+static size_t bridge_service(uint64_t due) {
+    size_t n = 0, given = 0;
+    while (n < g_tx_len && (!g_paced || g_tx_due[n] <= due))
+        n++;
+    if (n) {
+        ssize_t w = write(g_master, g_tx, n);
         if (w > 0) {
             memmove(g_tx, g_tx + w, g_tx_len - (size_t)w);
+            memmove(g_tx_due, g_tx_due + w, (g_tx_len - (size_t)w) * sizeof g_tx_due[0]);
             g_tx_len -= (size_t)w;
         }
     }
@@ -312,8 +396,74 @@ static void bridge_service(void) {
         g_rx_len = r > 0 ? (size_t)r : 0;
         g_rx_done = 0;
     }
-    while (g_xon && g_rx_done < g_rx_len)
+    while (g_xon && g_rx_done < g_rx_len) {
         avr_raise_irq(g_uart_in, g_rx[g_rx_done++]);
+        given++;
+    }
+    return given;
+}
+
+/* ------------------------------------------------------------------ idle-loop detection (paced) */
+static uint8_t *g_snap;
+static size_t g_snap_len;
+static uint8_t g_snap_sreg[8];
+static int8_t g_snap_istate;
+
+static uint64_t next_timer_when(void) {
+    avr_cycle_timer_slot_p t = g_avr->cycle_timers.timer;
+    return t ? t->when : UINT64_MAX;
+}
+
+static void snap_take(void) {
+    memcpy(g_snap, g_avr->data, g_snap_len);
+    memcpy(g_snap_sreg, g_avr->sreg, sizeof g_snap_sreg);
+    g_snap_istate = g_avr->interrupt_state;
+}
+
+static int snap_same(void) {
+    return g_avr->interrupt_state == g_snap_istate &&
+           memcmp(g_avr->sreg, g_snap_sreg, sizeof g_snap_sreg) == 0 &&
+           memcmp(g_avr->data, g_snap, g_snap_len) == 0;
+}
+
+/* Emulates (at most max_cycles) until the firmware is back at an instruction with the whole state
+ * as it was the last time there, no timer having fired and nothing seen outside: an idle loop.
+ * Returns its length in cycles (the firmware is then at its start), or 0: busy, or the core
+ * stopped (*state tells). */
+static uint64_t find_idle_loop(uint64_t max_cycles, int *state) {
+    *state = g_avr->state;
+    if (g_avr->state != cpu_Running)
+        return 0;
+    const uint64_t start = g_avr->cycle;
+    uint64_t c0 = start, when0 = next_timer_when(), act = g_activity;
+    const avr_flashaddr_t pc0 = g_avr->pc;
+    snap_take();
+    while (g_avr->cycle - start < max_cycles) {
+        *state = avr_run(g_avr);
+        if (*state != cpu_Running)
+            return 0;
+        if (g_activity != act) {
+            /* something happened: look for the loop from here on */
+            act = g_activity;
+            c0 = 0;
+        }
+        if (g_avr->pc != pc0)
+            continue;
+        if (c0 && g_avr->cycle < when0 && snap_same())
+            return g_avr->cycle - c0;
+        snap_take();
+        c0 = g_avr->cycle;
+        when0 = next_timer_when();
+    }
+    return 0;
+}
+
+/* Advances an idle firmware by whole loops to at most cycle `to`, staying before the next timer. */
+static void skip_idle(uint64_t loop_len, uint64_t to) {
+    uint64_t nt = next_timer_when();
+    uint64_t lim = to < nt ? to : nt - 1;
+    if (lim > g_avr->cycle)
+        g_avr->cycle += (lim - g_avr->cycle) / loop_len * loop_len;
 }
 
 static int bridge_open(char uart, char *name, size_t name_len) {
@@ -333,8 +483,10 @@ static int bridge_open(char uart, char *name, size_t name_len) {
     snprintf(name, name_len, "%s", buf);
     uint32_t f = 0;
     avr_ioctl(g_avr, AVR_IOCTL_UART_GET_FLAGS(uart), &f);
-    f &= ~AVR_UART_FLAG_STDIO;
+    /* no console echo; no usleep() inside the simulation when the firmware polls UCSRA */
+    f &= ~(uint32_t)(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);
     avr_ioctl(g_avr, AVR_IOCTL_UART_SET_FLAGS(uart), &f);
+    uart_timing_install(uart);
     g_uart_in = avr_io_getirq(g_avr, AVR_IOCTL_UART_GETIRQ(uart), UART_IRQ_INPUT);
     avr_irq_register_notify(avr_io_getirq(g_avr, AVR_IOCTL_UART_GETIRQ(uart), UART_IRQ_OUTPUT),
                             uart_out_hook, NULL);
@@ -548,36 +700,102 @@ int main(int argc, char **argv) {
             limit = c;
     }
     const double t0 = now_s();
-    /* Host bytes are taken every 50 us of simulated time when paced (a wait for the wall clock is a
-     * ppoll on the pty, so a request arriving then is taken at once), every 250 us when free. */
-    const uint64_t step = realtime ? freq / 20000 : freq / 4000;
-    uint64_t next_service = step;
+    if (realtime && g_log) {
+        /* The wall-clock anchor of the pacing: cycle c is due at t0 + c / f_cpu. CLOCK_REALTIME is
+         * what a host stamps with (Python's time.time()), so edges can be placed on the host's
+         * clock. */
+        struct timespec rt;
+        clock_gettime(CLOCK_REALTIME, &rt);
+        fprintf(g_log, "# paced t0_monotonic=%.9f t0_realtime=%.9f\n", t0,
+                (double)rt.tv_sec + (double)rt.tv_nsec * 1e-9);
+    }
     int state = cpu_Running, rc = 0;
-    while (!g_stop) {
-        state = avr_run(g_avr);
-        if (state == cpu_Done || state == cpu_Crashed) {
-            fprintf(stderr, "error: firmware stopped (state %d) at cycle %llu\n", state,
-                    (unsigned long long)g_avr->cycle);
-            rc = 1;
-            break;
+    if (!realtime) {
+        /* Free running: host bytes are taken every 250 us of simulated time. */
+        const uint64_t step = freq / 4000;
+        uint64_t next_service = step;
+        while (!g_stop) {
+            state = avr_run(g_avr);
+            if (state == cpu_Done || state == cpu_Crashed)
+                break;
+            if (limit && g_avr->cycle >= limit)
+                break;
+            if (g_avr->cycle < next_service)
+                continue;
+            next_service = g_avr->cycle + step;
+            bridge_service(0);
         }
-        if (limit && g_avr->cycle >= limit)
-            break;
-        if (g_avr->cycle < next_service)
-            continue;
-        next_service = g_avr->cycle + step;
-        if (realtime) {
-            double ahead = (double)g_avr->cycle / (double)freq - (now_s() - t0);
-            if (ahead > 20e-6 && g_rx_done == g_rx_len) {
+    } else {
+        g_paced = 1;
+        g_snap_len = (size_t)g_avr->ramend + 1;
+        g_snap = malloc(g_snap_len);
+        if (!g_snap) {
+            fprintf(stderr, "error: out of memory\n");
+            return 2;
+        }
+        prctl(PR_SET_TIMERSLACK, 1000UL);    /* wake within ~1 us of the asked time, not 50 us */
+        const uint64_t ahead = freq / 20000; /* 50 us: how far a working firmware may run ahead */
+        const uint64_t probe = 1000;         /* cycles a search for the idle loop may emulate */
+        uint64_t loop_len = 0, probe_at = 0;
+        while (!g_stop) {
+            if (limit && g_avr->cycle >= limit)
+                break;
+            double now = now_s() - t0;
+            uint64_t wall_c = now > 0 ? (uint64_t)(now * (double)freq) : 0;
+            if (limit && wall_c > limit)
+                wall_c = limit;
+            if (loop_len)
+                skip_idle(loop_len, wall_c); /* catch up with the wall clock, never past it */
+            if (bridge_service(wall_c))
+                loop_len = 0; /* a host byte: the firmware has work */
+            uint64_t wake_c;
+            if (loop_len && next_timer_when() > wall_c + ahead) {
+                /* idle: nothing happens before the next timer, a due byte or host input */
+                wake_c = next_timer_when() - ahead;
+            } else {
+                loop_len = 0;
+                uint64_t bound = wall_c + ahead;
+                if (limit && bound > limit)
+                    bound = limit;
+                while (g_avr->cycle < bound && !loop_len) {
+                    if (g_avr->cycle >= probe_at) {
+                        loop_len = find_idle_loop(probe, &state);
+                        if (!loop_len)
+                            probe_at = g_avr->cycle + probe;
+                    } else {
+                        state = avr_run(g_avr);
+                    }
+                    if (state == cpu_Done || state == cpu_Crashed)
+                        break;
+                }
+                if (state == cpu_Done || state == cpu_Crashed)
+                    break;
+                if (loop_len)
+                    continue; /* idle again: catch up and sleep to the next timer */
+                bridge_service(wall_c);
+                wake_c = g_avr->cycle; /* working: let the wall clock catch up */
+            }
+            if (g_tx_len && g_tx_due[0] < wake_c)
+                wake_c = g_tx_due[0];
+            double wait = (double)wake_c / (double)freq - (now_s() - t0);
+            if (wait > 2e-6) {
+                if (wait > 0.5)
+                    wait = 0.5;
                 struct pollfd pfd = {g_master, POLLIN, 0};
-                struct timespec ts = {(time_t)ahead, (long)((ahead - (double)(time_t)ahead) * 1e9)};
+                struct timespec ts = {(time_t)wait, (long)((wait - (double)(time_t)wait) * 1e9)};
                 ppoll(&pfd, 1, &ts, NULL);
             }
         }
-        bridge_service();
+        free(g_snap);
+    }
+    if (state == cpu_Done || state == cpu_Crashed) {
+        fprintf(stderr, "error: firmware stopped (state %d) at cycle %llu\n", state,
+                (unsigned long long)g_avr->cycle);
+        rc = 1;
     }
     double wall = now_s() - t0;
-    bridge_service(); /* last replies out */
+    g_paced = 0;
+    bridge_service(0); /* last replies out */
     if (g_log)
         fclose(g_log);
     fprintf(stderr,

@@ -2,7 +2,14 @@
 
 Each clock query gives a device time (frame count and timer ticks -> seconds since frame 0 began)
 bracketed by two host times (request sent, reply received). The device time belongs somewhere in
-that round trip; its midpoint is the estimate, good to half the round trip. So the model keeps only
+that round trip. Where: on a serial link the bytes take their wire time (10 bits a byte at the
+baud rate: ~0.8 ms for a 9-byte request at 115200 baud, ~1.5 ms for a 17-byte reply) and the
+device samples its clock once the request's last byte is in (plus its own processing), so the
+sample instant is host_t0 + request wire time + processing; the round trip's midpoint would be
+(reply - request) / 2 late, ~0.35 ms here (LinkTiming). Without a known link (bytes that arrive at
+once, as on the SoftwareTrigger's pty) the midpoint is the estimate, good to half the round trip.
+Latency outside the wire (a USB adapter's, the host's scheduling) lengthens the round trip; the
+model keeps only
 samples whose round trip is small (an absolute bound, then the better part of the window), fits
 gain and offset by least squares over a window of recent samples, drops outliers (beyond a few
 robust standard deviations) and refits. A device time that goes backwards, or a run of samples far
@@ -19,10 +26,44 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class LinkTiming:
+    """Where within a clock query's round trip the device samples its clock, from the wire."""
+
+    request_s: float  # wire time of the request: the device has it all this long after host_t0
+    reply_s: float  # wire time of the reply: the host has it all this long after it was begun
+    device_s: float = 0.0  # device time from the request's last byte to its clock sample
+
+    @classmethod
+    def serial(cls, baudrate: float, request_bytes: int, reply_bytes: int, device_s: float = 0.0,
+               bits_per_byte: int = 10) -> LinkTiming:
+        """A UART link: `bits_per_byte` (8N1: 10) per byte at `baudrate`."""
+        if not baudrate > 0 or request_bytes < 0 or reply_bytes < 0:
+            raise ValueError("baudrate > 0 and byte counts >= 0 are required")
+        byte_s = bits_per_byte / float(baudrate)
+        return cls(request_bytes * byte_s, reply_bytes * byte_s, device_s)
+
+    @property
+    def min_rtt_s(self) -> float:
+        return self.request_s + self.device_s + self.reply_s
+
+    def sample_time(self, host_t0: float, host_t1: float) -> float:
+        """Host time of the device's clock sample: the request's last byte in, then processing.
+        The rest of the round trip (reply wire time, latency on the way back) comes after it.
+        The sample also came at least the reply's wire time before host_t1: a round trip shorter
+        than the wire allows (a link faster than its stated baud) is bounded by that, and by t0."""
+        return max(host_t0, min(host_t0 + self.request_s + self.device_s, host_t1 - self.reply_s))
+
+
+@dataclass(frozen=True)
 class ClockSample:
     host_t0: float  # host time the query was sent (s)
     host_t1: float  # host time the reply arrived (s)
     device_time_s: float
+    host_sample: float = math.nan  # host time of the device's sample (the midpoint if not given)
+
+    def __post_init__(self) -> None:
+        if math.isnan(self.host_sample):
+            object.__setattr__(self, "host_sample", self.host_mid)
 
     @property
     def rtt_s(self) -> float:
@@ -46,6 +87,7 @@ class ClockModel:
         jump_threshold_s: float = 0.020,
         jump_count: int = 3,
         min_samples: int = 3,
+        link: LinkTiming | None = None,
     ) -> None:
         if window < 2 or not 0 < keep_fraction <= 1 or max_rtt_s <= 0:
             raise ValueError("window >= 2, 0 < keep_fraction <= 1 and max_rtt_s > 0 are required")
@@ -57,6 +99,9 @@ class ClockModel:
         self.jump_threshold_s = jump_threshold_s
         self.jump_count = jump_count
         self.min_samples = min_samples
+        # How a round trip maps to the device's sample instant; None: its midpoint. The driver that
+        # knows the link (baud rate, frame sizes) sets it.
+        self.link = link
         self._samples: deque[ClockSample] = deque(maxlen=window)
         self._far = 0
         self.gain = 1.0
@@ -68,6 +113,13 @@ class ClockModel:
         self.restarts = 0
 
     # ------------------------------------------------------------------ samples
+
+    def sample_host_time(self, host_t0: float, host_t1: float) -> float:
+        """Host time at which the device sampled its clock during a query sent at host_t0 and
+        answered at host_t1: from the link's wire timing, else the round trip's midpoint."""
+        if self.link is None:
+            return 0.5 * (host_t0 + host_t1)
+        return self.link.sample_time(host_t0, host_t1)
 
     def reset(self) -> None:
         self._samples.clear()
@@ -81,13 +133,13 @@ class ClockModel:
         if not all(math.isfinite(v) for v in (host_t0, host_t1, device_time_s)) or host_t1 < host_t0:
             self.rejected_rtt += 1
             return False
-        s = ClockSample(host_t0, host_t1, device_time_s)
+        s = ClockSample(host_t0, host_t1, device_time_s, self.sample_host_time(host_t0, host_t1))
         if s.rtt_s > self.max_rtt_s:
             self.rejected_rtt += 1
             return False
         if self._samples and device_time_s < self._samples[-1].device_time_s:
             self._restart()
-        elif self.fitted and abs(self.device_to_host(device_time_s) - s.host_mid) > self.jump_threshold_s:
+        elif self.fitted and abs(self.device_to_host(device_time_s) - s.host_sample) > self.jump_threshold_s:
             self._far += 1
             if self._far < self.jump_count:
                 return True  # held back: an outlier unless the next ones agree
@@ -113,7 +165,7 @@ class ClockModel:
         keep_n = max(self.min_samples, int(math.ceil(self.keep_fraction * len(samples))))
         idx = np.argsort(rtts, kind="stable")[:keep_n]
         dev = np.array([samples[i].device_time_s for i in idx])
-        host = np.array([samples[i].host_mid for i in idx])
+        host = np.array([samples[i].host_sample for i in idx])
         if np.ptp(dev) <= 0:
             return False
         mask = np.ones(len(dev), dtype=bool)

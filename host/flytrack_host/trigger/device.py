@@ -20,10 +20,22 @@ import serial
 from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.protocol.errors import ProtocolError
 
-from .clock_model import ClockModel
+from .clock_model import ClockModel, LinkTiming
 from .common import PRESCALERS, ClockThread, RateChoice, TriggerError, choose_rate, open_serial
 
 log = logging.getLogger(__name__)
+
+# The firmware's time from a CLOCK_QUERY's last byte (its RX interrupt) to the clock sample: frame
+# decode (COBS, CRC) and dispatch, measured in simavr on both MCUs (899 and 881 cycles at 16 MHz).
+FIRMWARE_SAMPLE_DELAY_S = 56e-6
+
+
+def clock_link_timing(baudrate: float) -> LinkTiming:
+    """Wire timing of a FlyTrack clock query: the request as TriggerDevice sends it (a leading
+    delimiter, then the frame), the CLOCK reply's frame; sizes from the protocol's own encoder."""
+    request = b"\0" + tl.encode_message(tl.ClockQuery(), 1)
+    reply = tl.encode_message(tl.Clock(0, 0, 0, 0), 1)
+    return LinkTiming.serial(baudrate, len(request), len(reply), FIRMWARE_SAMPLE_DELAY_S)
 
 # What each request is answered with.
 _REPLY_FOR: dict[type[tl.SerialMessage], type[tl.SerialMessage]] = {
@@ -70,10 +82,15 @@ class TriggerDevice:
         timeout_s: float = 0.5,
         model: ClockModel | None = None,
         connect_attempts: int = 3,
+        wire_timed: bool = True,
     ) -> None:
+        """wire_timed: the link carries bytes at `baudrate` (a board, the simavr harness), so the
+        clock model places each clock sample from the wire times; False for a link that delivers
+        at once (the SoftwareTrigger's pty): the model then takes the round trip's midpoint."""
         self.port = port
         self.timeout_s = timeout_s
         self.model = model or ClockModel()
+        self.model.link = clock_link_timing(baudrate) if wire_timed else None
         self.stats = {"bad_frames": 0, "stray_replies": 0, "device_errors": 0, "events": 0}
         self._ser = open_serial(port, baudrate)
         self._lock = threading.Lock()  # one request at a time

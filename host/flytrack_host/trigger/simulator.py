@@ -86,6 +86,20 @@ def read_edges(path: str | Path) -> tuple[int, list[Edge]]:
     return f_cpu, edges
 
 
+def read_pacing_anchor(path: str | Path) -> float | None:
+    """The host time (time.time()) at which a paced run's cycle 0 was due, or None when the run was
+    not paced: cycle c of that run happened at anchor + c / f_cpu on the host's clock, to within
+    the pacing's slack."""
+    for line in Path(path).read_text().splitlines():
+        if line.startswith("# paced"):
+            for tok in line.split():
+                if tok.startswith("t0_realtime="):
+                    return float(tok[len("t0_realtime="):])
+        elif line and not line.startswith("#"):
+            break
+    return None
+
+
 class SimulatedTrigger:
     """The simavr harness running the real firmware; `pty` is its serial port, `edge_log` its edges."""
 
@@ -133,7 +147,8 @@ class SimulatedTrigger:
         raise TriggerError(f"simulator did not start: {self.stderr_text()}")
 
     def stderr_text(self) -> str:
-        self._stderr.flush()
+        if not self._stderr.closed:
+            self._stderr.flush()
         return self._stderr_path.read_text() if self._stderr_path.exists() else ""
 
     def stop(self, timeout_s: float = 5.0) -> int:

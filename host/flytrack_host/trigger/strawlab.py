@@ -19,12 +19,22 @@ import time
 
 import serial
 
-from .clock_model import ClockModel
+from .clock_model import ClockModel, LinkTiming
 from .common import ClockThread, RateChoice, TriggerError, choose_rate, open_serial
 from .device import ClockReading
 
 F_CPU = 16_000_000
 _PRESCALER_CHAR = {2: b"1", 3: b"2"}  # SPEC prescaler code -> the triggerbox's T= suffix
+
+
+# Clock query on the wire: 'P' + token (2 bytes); reply 'P', length, 7 payload bytes, checksum (10).
+# The triggerbox's processing time is not known here (no board to measure): taken as 0.
+CLOCK_REQUEST_BYTES = 2
+CLOCK_REPLY_BYTES = 10
+
+
+def clock_link_timing(baudrate: float) -> LinkTiming:
+    return LinkTiming.serial(baudrate, CLOCK_REQUEST_BYTES, CLOCK_REPLY_BYTES, 0.0)
 
 
 def checksum(payload: bytes) -> int:
@@ -35,10 +45,12 @@ class StrawlabTriggerbox:
     """The strawlab triggerbox on a serial port, with the TriggerDevice surface."""
 
     def __init__(self, port: str, baudrate: int = 115200, reset_wait_s: float = 2.0, timeout_s: float = 0.5,
-                 model: ClockModel | None = None) -> None:
+                 model: ClockModel | None = None, wire_timed: bool = True) -> None:
+        """wire_timed: as TriggerDevice's (False for a peer that answers at once on a pty)."""
         self.port = port
         self.timeout_s = timeout_s
         self.model = model or ClockModel()
+        self.model.link = clock_link_timing(baudrate) if wire_timed else None
         self.rate: RateChoice | None = None
         self._ser = open_serial(port, baudrate, timeout=timeout_s)
         self._lock = threading.Lock()

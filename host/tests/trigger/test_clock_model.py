@@ -67,3 +67,46 @@ def test_no_fit_is_a_clear_error() -> None:
     _feed(m, np.arange(10) * 0.1)
     with pytest.raises(RuntimeError, match="frame period"):
         m.frame_to_host_time(3)
+
+
+def test_link_timing_from_the_wire() -> None:
+    from flytrack_host.trigger.clock_model import LinkTiming
+    from flytrack_host.trigger.device import FIRMWARE_SAMPLE_DELAY_S, clock_link_timing
+    from flytrack_host.trigger.strawlab import clock_link_timing as strawlab_timing
+
+    link = clock_link_timing(115200)
+    # leading delimiter + COBS(6-byte body) + delimiter = 9 bytes; CLOCK: COBS(15) + delimiter = 17
+    assert link.request_s == pytest.approx(9 * 10 / 115200)
+    assert link.reply_s == pytest.approx(17 * 10 / 115200)
+    assert link.device_s == FIRMWARE_SAMPLE_DELAY_S
+    sl = strawlab_timing(115200)
+    assert (sl.request_s, sl.reply_s) == (pytest.approx(2 * 10 / 115200), pytest.approx(10 * 10 / 115200))
+    # The sample: request in, processing; never later than the reply's start, never before t0.
+    assert link.sample_time(100.0, 100.003) == pytest.approx(100.0 + link.request_s + link.device_s)
+    assert link.sample_time(100.0, 100.0015) == pytest.approx(100.0015 - link.reply_s)
+    assert link.sample_time(100.0, 100.0002) == 100.0
+    with pytest.raises(ValueError):
+        LinkTiming.serial(0, 9, 17)
+
+
+def test_wire_timing_removes_the_midpoint_bias() -> None:
+    """Device samples at t0 + request wire time + processing, the reply takes longer than the
+    request and the way back has extra latency: the midpoint puts device times late, the link
+    timing does not."""
+    from flytrack_host.trigger.device import clock_link_timing
+
+    link = clock_link_timing(115200)
+    rng = np.random.default_rng(5)
+    with_link, midpoint = ClockModel(frame_period_s=0.01, link=link), ClockModel(frame_period_s=0.01)
+    for i in range(200):
+        d = i * 0.05
+        sample = 1000.0 + d
+        t0 = sample - link.request_s - link.device_s
+        t1 = sample + link.reply_s + rng.uniform(20e-6, 300e-6)  # reader wake-up, scheduling
+        for m in (with_link, midpoint):
+            m.add_sample(t0, t1, d)
+    assert with_link.device_to_host(5.0) == pytest.approx(1005.0, abs=5e-6)
+    late = midpoint.device_to_host(5.0) - 1005.0
+    assert 0.3e-3 < late < 0.5e-3  # (reply - request) / 2 plus half the extra latency
+    assert with_link.sample_host_time(1.0, 1.01) == pytest.approx(1.0 + link.request_s + link.device_s)
+    assert midpoint.sample_host_time(1.0, 1.01) == pytest.approx(1.005)
