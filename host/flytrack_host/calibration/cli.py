@@ -123,7 +123,9 @@ def dlt_cmd(
     """Cameras from 6 or more known 2D/3D pairs each (direct linear transform, no distortion)."""
     sizes = {}
     for s in size:
-        name, _, wh = s.partition("=")
+        name, eq, wh = s.partition("=")
+        if not eq or not name:
+            raise InputError(f"--size {s!r}: expected NAME=WIDTHxHEIGHT, one per camera, e.g. --size cam1=640x480.")
         sizes[name] = _parse_size(wh)
     rows = _read_rows(pairs, ["camera", "x", "y", "z", "u", "v"])
     by_cam: dict[str, list[list[float]]] = {}

@@ -132,6 +132,10 @@ def test_cli_bad_inputs_give_one_paragraph(tmp_path: Path) -> None:
     save_points(synthetic_rig(3, n_points=200).obs, pts)
     r = _run_cli("selfcal", str(pts), "-o", str(tmp_path / "c.xml"), "--init", "svd")
     assert r.returncode == 2 and "initialisation 'svd' unknown" in r.stderr
+    pairs = tmp_path / "pairs.csv"
+    pairs.write_text("camera,x,y,z,u,v\n")
+    r = _run_cli("dlt", str(pairs), "--size", "640x480", "-o", str(tmp_path / "d.xml"))
+    assert r.returncode == 2 and "expected NAME=WIDTHxHEIGHT" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_factorization_needs_three_cameras() -> None:
