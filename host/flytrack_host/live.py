@@ -17,19 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from flytrack_host.protocol import OBJECT_DTYPE, LiveEstimates, ProtocolError, decode_datagram, encode
 from flytrack_host.tracking.types import FrameResult
-
-try:
-    from flytrack_host.protocol import (
-        OBJECT_DTYPE,
-        LiveEstimates,
-        ProtocolError,
-        decode_datagram,
-        encode,
-    )
-except ImportError:  # codec package not re-exporting the UDP messages yet
-    from flytrack_host.protocol.errors import ProtocolError
-    from flytrack_host.protocol.udp import OBJECT_DTYPE, LiveEstimates, decode_datagram, encode
 
 LIVE_MAX_OBJECTS = 27
 _COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))

@@ -170,6 +170,7 @@ class HostPipeline:
         self.tracker_resets = 0
         self.n_objects = 0
         self.callback_errors = 0
+        self.loop_errors = 0  # exceptions caught per item in the tracking thread (it goes on)
         self.recorder: Recorder | None = None
         self.receiver: Receiver | None = None
         self.live: LiveSender | None = None
@@ -334,25 +335,57 @@ class HostPipeline:
         assert self.receiver is not None and self.sync is not None
         try:
             while not self._stop.is_set():
-                if self._resync_request.is_set():
-                    self._do_resync()
-                d = self.sync.next_deadline()
-                now = time.time()
-                timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
-                for item in self.receiver.receive(timeout):
-                    if isinstance(item, CameraFrame):
-                        self.last_frame_recv = item.recv_time
-                        if not self._armed.is_set():
-                            # The trigger has not started yet: these frames belong to no trigger frame.
-                            self._handle([UntrackedFrame(item, -1, "before_trigger_start")])
-                            continue
-                        self._handle(self.sync.add(item, item.recv_time))
-                    elif isinstance(item, StatusReport):
-                        self._status(item)
-                self._handle(self.sync.poll(time.time()))
-        except BaseException as exc:  # report in stop(); the recording stays recoverable
+                if not self._guarded(self._step):
+                    time.sleep(0.001)  # a turn failing every time must not spin the CPU
+        except BaseException as exc:  # not an Exception (e.g. SystemExit): report in stop()
             self._error = exc
             log.exception("tracking thread failed")
+
+    def _step(self) -> None:
+        """One turn of the tracking thread: receive until the next deadline, hand on, close bundles.
+        Each item is handled on its own, so no datagram or bundle can end the thread."""
+        assert self.receiver is not None and self.sync is not None
+        if self._resync_request.is_set():
+            self._do_resync()
+        d = self.sync.next_deadline()
+        now = time.time()
+        timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
+        for item in self.receiver.receive(timeout):
+            self._guarded(self._item, item)
+        self._handle(self.sync.poll(time.time()))
+
+    def _item(self, item: CameraFrame | StatusReport) -> None:
+        assert self.sync is not None
+        if isinstance(item, CameraFrame):
+            self.last_frame_recv = item.recv_time
+            if not self._armed.is_set():
+                # The trigger has not started yet: these frames belong to no trigger frame.
+                self._handle([UntrackedFrame(item, -1, "before_trigger_start")])
+                return
+            try:
+                outputs = self.sync.add(item, item.recv_time)
+            except Exception:
+                # Keep the frame (recorded as rejected, not tracked), then let _guarded count it.
+                self._handle([UntrackedFrame(item, -1, "error")])
+                raise
+            self._handle(outputs)
+        elif isinstance(item, StatusReport):
+            self._status(item)
+
+    def _guarded(self, fn: Callable[..., object], *args: Any) -> bool:
+        """Run one step of the tracking thread; an exception is logged (the first few in full) and
+        counted (`loop_errors`), and the thread goes on."""
+        try:
+            fn(*args)
+            return True
+        except Exception as exc:
+            self.loop_errors += 1
+            if self.loop_errors <= 10:
+                log.exception("tracking thread: %s failed", getattr(fn, "__name__", fn))
+                self.log(f"{getattr(fn, '__name__', fn)} failed: {exc!r} (going on)", "pipeline")
+            elif self.loop_errors == 11:
+                self.log("more tracking-thread errors: counted, no longer logged", "pipeline")
+            return False
 
     def _status(self, rep: StatusReport) -> None:
         if self.recorder is None:
@@ -367,20 +400,23 @@ class HostPipeline:
 
     def _handle(self, outputs: list) -> None:
         for o in outputs:
-            if isinstance(o, SyncedBundle):
-                self._track(o)
-            elif isinstance(o, UntrackedFrame):
-                self.untracked[o.reason] = self.untracked.get(o.reason, 0) + 1
-                if self.recorder is not None:
-                    flag = FLAG_LATE if o.reason == "late" else FLAG_REJECTED
-                    t = self.sync.frame_time(o.trigger_frame) if self.sync and o.trigger_frame >= 0 else np.nan
-                    self.recorder.append("data2d_distorted", data2d_rows(o.frame, o.trigger_frame, t, flag))
-            elif isinstance(o, SyncEvent):
-                self.log(o.message, "sync")
-                if o.kind == "clock_jump" and o.global_jump and self.tracker is not None:
-                    self.tracker_resets += 1
-                    self._make_tracker()
-                    self.log("tracker restarted after the trigger clock jump", "sync")
+            self._guarded(self._output, o)
+
+    def _output(self, o: object) -> None:
+        if isinstance(o, SyncedBundle):
+            self._track(o)
+        elif isinstance(o, UntrackedFrame):
+            self.untracked[o.reason] = self.untracked.get(o.reason, 0) + 1
+            if self.recorder is not None:
+                flag = FLAG_LATE if o.reason == "late" else FLAG_REJECTED
+                t = self.sync.frame_time(o.trigger_frame) if self.sync and o.trigger_frame >= 0 else np.nan
+                self.recorder.append("data2d_distorted", data2d_rows(o.frame, o.trigger_frame, t, flag))
+        elif isinstance(o, SyncEvent):
+            self.log(o.message, "sync")
+            if o.kind == "clock_jump" and o.global_jump and self.tracker is not None:
+                self.tracker_resets += 1
+                self._make_tracker()
+                self.log("tracker restarted after the trigger clock jump", "sync")
 
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
@@ -433,6 +469,8 @@ class HostPipeline:
             rej = rs.rejected_address + rs.rejected_camera
             if rej:
                 parts.append(f"rejected {rej}")
+        if self.loop_errors:
+            parts.append(f"ERRORS {self.loop_errors}")
         s = self.latency.summary()
         if "total_p50_ms" in s:
             parts.append(f"latency P50 {s['total_p50_ms']:.1f} P99 {s['total_p99_ms']:.1f} ms")
@@ -453,6 +491,7 @@ class HostPipeline:
             "untracked": dict(self.untracked),
             "tracker_errors": self.tracker_errors,
             "tracker_resets": self.tracker_resets,
+            "loop_errors": self.loop_errors,
             "latency": self.latency.summary(),
             "latency_text": self.latency.format(),
             "recording": str(recording_h5) if recording_h5 else (str(self.recording_path) if self.record else None),
@@ -461,6 +500,7 @@ class HostPipeline:
             out["receiver"] = {
                 "datagrams": rs.datagrams, "rejected_address": rs.rejected_address,
                 "rejected_camera": rs.rejected_camera, "malformed_unattributed": rs.malformed_unattributed,
+                "internal_errors": rs.internal_errors,
                 "errors_by_name": dict(rs.errors_by_name),
                 "cameras": {i: asdict(c) for i, c in rs.cameras.items()},
             }

@@ -7,8 +7,10 @@ frame goes from the socket to the synchroniser without a thread hand-off.
 
 Checks: the sender's address and camera index must be in the rig file (else rejected and counted);
 per camera, sequence numbers give lost (gaps), duplicated and reordered datagrams; undecodable
-datagrams are counted by SPEC error name; SPLIT frames are joined, and a frame whose parts do not all
-arrive within `split_timeout_s` is passed on incomplete (flagged, counted).
+datagrams are counted by SPEC error name; SPLIT frames are joined (parts grouped by camera, camera
+frame and part count, so parts that disagree on the count never mix), and a frame whose parts do not
+all arrive within `split_timeout_s` is passed on incomplete (flagged, counted). No datagram can raise
+out of `receive`: an unexpected error while handling one is logged and counted (`internal_errors`).
 """
 
 from __future__ import annotations
@@ -22,14 +24,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from flytrack_host.protocol import (
+    EdgeStatus,
+    FeatureFrame,
+    ProtocolError,
+    decode_datagram,
+    join_feature_parts,
+)
 from flytrack_host.rig import RigConfig
 from flytrack_host.sync import CameraFrame
-
-try:
-    from flytrack_host.protocol import EdgeStatus, FeatureFrame, ProtocolError, decode_datagram
-except ImportError:  # codec package not re-exporting the UDP messages yet
-    from flytrack_host.protocol.errors import ProtocolError
-    from flytrack_host.protocol.udp import EdgeStatus, FeatureFrame, decode_datagram
 
 SEQ_MOD = 1 << 32
 _HALF = 1 << 31
@@ -59,6 +62,7 @@ class ReceiverStats:
     rejected_address: int = 0
     rejected_camera: int = 0
     malformed_unattributed: int = 0
+    internal_errors: int = 0  # datagrams whose handling raised (a bug): counted, logged, dropped
     errors_by_name: dict[str, int] = field(default_factory=dict)
     cameras: dict[int, CameraRecvStats] = field(default_factory=dict)
 
@@ -93,7 +97,8 @@ class Receiver:
         self.allowed_ips = set(self.allowed.values())
         self.stats = ReceiverStats(cameras={i: CameraRecvStats() for i in self.allowed})
         self._seq = {i: _SeqState() for i in self.allowed}
-        self._parts: dict[tuple[int, int], tuple[float, dict[int, FeatureFrame]]] = {}
+        # (camera, camera_frame, part_count) -> (monotonic time of the first part, part_index -> part)
+        self._parts: dict[tuple[int, int, int], tuple[float, dict[int, FeatureFrame]]] = {}
         host, port = parse_host_port(bind or rig.host.listen)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -125,7 +130,12 @@ class Receiver:
                 except OSError as exc:  # e.g. ICMP errors surfacing on Linux; keep going
                     self._warn_once(f"socket error: {exc}")
                     break
-                self.handle(data, addr, time.time(), out)
+                try:
+                    self.handle(data, addr, time.time(), out)
+                except Exception as exc:  # a bug on one datagram must not lose the batch
+                    self.stats.internal_errors += 1
+                    self._warn_once(f"datagram from {addr[0]} could not be handled: {exc!r}",
+                                    key=f"internal:{type(exc).__name__}")
         self.expire(time.monotonic(), out)
         return out
 
@@ -241,19 +251,27 @@ class Receiver:
 
     # --- split frames -------------------------------------------------------------------------
     def _add_part(self, msg: FeatureFrame, now: float, out: list) -> None:
-        key = (msg.camera_index, msg.camera_frame)
+        key = (msg.camera_index, msg.camera_frame, msg.part_count)
         entry = self._parts.get(key)
         if entry is None:
             entry = self._parts[key] = (time.monotonic(), {})
         parts = entry[1]
-        parts[msg.part_index] = msg
+        parts[msg.part_index] = msg  # the decoder checked part_index < part_count
         if len(parts) == msg.part_count:
             del self._parts[key]
-            ordered = [parts[i] for i in range(msg.part_count)]
-            pts = np.concatenate([p.points for p in ordered])
+            try:
+                joined = join_feature_parts(list(parts.values()))
+            except ProtocolError as exc:
+                self._count_malformed(msg.camera_index, exc)
+                return
             self.stats.cameras[msg.camera_index].frames += 1
-            out.append(self._to_frame(ordered[0], pts, now, incomplete=False,
-                                      truncated=any(p.truncated for p in ordered)))
+            out.append(self._to_frame(joined, joined.points, now, incomplete=False))
+
+    def _count_malformed(self, cam: int, exc: ProtocolError) -> None:
+        st = self.stats
+        st.errors_by_name[exc.name] = st.errors_by_name.get(exc.name, 0) + 1
+        st.cameras[cam].malformed += 1
+        self._warn_once(f"camera {cam}: bad split frame: {exc}", key=f"split:{cam}:{exc.name}")
 
     def expire(self, mono_now: float, out: list, force: bool = False) -> None:
         """Pass on split frames whose missing parts did not come in time."""

@@ -9,13 +9,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flytrack_host.camera import Camera
+from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.recording.schema import DATA2D, FLAG_REJECTED
 from flytrack_host.tracking.types import FrameBundle
-
-try:
-    from flytrack_host.protocol import POINT_DTYPE
-except ImportError:
-    from flytrack_host.protocol.udp import POINT_DTYPE
 
 _PT_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff", "orientation", "eccentricity",
               "cur_val", "mean_val", "sumsq_val")
