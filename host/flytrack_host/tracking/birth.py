@@ -153,32 +153,28 @@ def search_births(
 ) -> BirthSearch:
     """find_births with the work it did (hypotheses evaluated, seeds deferred by the budget)."""
     out = BirthSearch([])
-    thr = params.birth_max_reproj_px
+    rows = np.flatnonzero(free)
+    if rows.size < params.birth_min_cameras:
+        return out
+    sl = points.slot[rows]  # non-decreasing
+    if 1 + int(np.count_nonzero(sl[1:] != sl[:-1])) < params.birth_min_cameras:
+        return out
+    # The seed gate depends on the pair only: scored once, then rounds take the best seeds whose
+    # points are still free.
+    seeds, _ = seed_pairs(cams, points, rows, _SEED_GATE * params.birth_max_reproj_px)
     budget = params.birth_max_hypotheses
     used = ~free
-    done = np.empty(0, dtype=np.int64)  # seeds evaluated (a * N + b), not tried again this frame
-    N = points.n
-    while True:
-        rows = np.flatnonzero(~used)
-        if rows.size < params.birth_min_cameras:
-            break
-        sl = points.slot[rows]  # non-decreasing
-        if 1 + int(np.count_nonzero(sl[1:] != sl[:-1])) < params.birth_min_cameras:
-            break
-        seeds, _ = seed_pairs(cams, points, rows, _SEED_GATE * thr)
-        if done.size and seeds.shape[0]:
-            seeds = seeds[~np.isin(seeds[:, 0] * N + seeds[:, 1], done)]
-        if seeds.shape[0] == 0:
-            break
-        take = min(_CHUNK, budget)
-        if take == 0:
+    while seeds.shape[0]:
+        if budget == 0:
             out.deferred = seeds.shape[0]
             break
-        seeds = seeds[:take]
-        budget -= seeds.shape[0]
-        out.evaluated += seeds.shape[0]
-        done = np.concatenate([done, seeds[:, 0] * N + seeds[:, 1]])
-        _round(cams, points, used, rows, seeds, params, existing, out.births)
+        take = min(_CHUNK, budget)
+        batch, seeds = seeds[:take], seeds[take:]
+        budget -= batch.shape[0]
+        out.evaluated += batch.shape[0]
+        _round(cams, points, used, np.flatnonzero(~used), batch, params, existing, out.births)
+        if seeds.shape[0]:
+            seeds = seeds[~used[seeds].any(axis=1)]
     return out
 
 
@@ -193,8 +189,8 @@ def _round(
     births: list[Birth],
 ) -> None:
     """Evaluate the seeds over the free points `rows`, accept greedily (marking `used`, appending to
-    births). A passing hypothesis that lost a point to an accepted one is skipped: its seed, when
-    still free, is not tried again this frame, but the other seeds over its points are (next round)."""
+    births). A passing hypothesis that lost a point to an accepted one is skipped: its seed is not
+    tried again this frame, but later seeds over its free points are (next round)."""
     thr = params.birth_max_reproj_px
     kmax = max(2, min(params.birth_max_combination, cams.n))
     M = seeds.shape[0]
