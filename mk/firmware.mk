@@ -11,3 +11,11 @@ test-firmware: cbuild firmware-avr
 	@$(PYTEST) -q -s tests/firmware host/tests/trigger
 
 PART_TARGETS += test-firmware
+
+# CPU cost of the paced simavr harness (the simulated rig's trigger): prints % of a core.
+.PHONY: bench-trigger-sim
+bench-trigger-sim: cbuild firmware-avr
+	@$(PY) firmware/avr_trigger/harness/bench_pacing.py
+
+BENCH_TARGETS += bench-trigger-sim
+PART_TARGETS += bench-trigger-sim
