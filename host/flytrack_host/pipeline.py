@@ -425,9 +425,15 @@ class HostPipeline:
             try:
                 result = self.tracker.process(bundle)
             except Exception as exc:  # a tracker bug must not stop receiving and recording
+                # The tracker may be left half-updated, so later frames could fail the same way:
+                # start a fresh one (tracks restart; the 2D data of every frame is recorded anyway).
                 self.tracker_errors += 1
                 if self.tracker_errors <= 10:
-                    self.log(f"tracker failed on frame {bundle.trigger_frame}: {exc!r}", "tracker")
+                    log.error("tracker failed on frame %d", bundle.trigger_frame, exc_info=exc)
+                    self.log(f"tracker failed on frame {bundle.trigger_frame}: {exc!r}; tracker restarted",
+                             "tracker")
+                self.tracker_resets += 1
+                self._make_tracker()
         t_est = time.time()
         if result is not None:
             self.frames_tracked += 1
@@ -469,6 +475,8 @@ class HostPipeline:
             rej = rs.rejected_address + rs.rejected_camera
             if rej:
                 parts.append(f"rejected {rej}")
+        if self.tracker_errors:
+            parts.append(f"tracker errors {self.tracker_errors}")
         if self.loop_errors:
             parts.append(f"ERRORS {self.loop_errors}")
         s = self.latency.summary()

@@ -129,3 +129,54 @@ def test_an_exception_on_one_item_is_counted_and_the_frame_still_recorded(helper
     d2 = rec.table("data2d_distorted")
     assert set(d2[d2["camera_index"] == 0]["camera_frame"].tolist()) == set(range(40))
     assert any("synchroniser bug" in r["message"] for r in rec.textlog)
+
+
+class _PoisonedTracker:
+    """Raises on one frame and is left broken, as a tracker half-updated by an exception would be:
+    every later frame of the same instance fails too."""
+
+    instances = 0
+
+    def __init__(self, inner):
+        _PoisonedTracker.instances += 1
+        self.inner = inner
+        self.broken = False
+
+    def process(self, bundle):
+        if self.broken:
+            raise RuntimeError("tracker state corrupted")
+        if bundle.trigger_frame == 10 and _PoisonedTracker.instances == 1:
+            self.broken = True
+            raise RuntimeError("tracker bug on frame 10")
+        return self.inner.process(bundle)
+
+
+def test_a_tracker_exception_rebuilds_the_tracker(helpers, tmp_path):
+    fps = 200.0
+    _PoisonedTracker.instances = 0
+
+    def factory(cameras, params, period):
+        return _PoisonedTracker(helpers.factory(cameras, params, period))
+
+    pipe = HostPipeline(helpers.make_rig(2, fps=fps), cameras={0: None, 1: None}, tracker_factory=factory,
+                        recording_path=tmp_path / "r", bind="127.0.0.1:0", keep_results=True)
+    pipe.start()
+    edges = [helpers.EdgeSim(i, pipe.address, edge_trigger=True) for i in range(2)]
+    try:
+        t0 = time.monotonic()
+        for k in range(40):
+            for e in edges:
+                e.send(k)
+            _pace(t0, k, fps)
+        time.sleep(0.1)
+        status = pipe.status_line()
+    finally:
+        summary = pipe.stop()
+    assert summary["tracker_errors"] == 1 and summary["tracker_resets"] == 1
+    assert _PoisonedTracker.instances == 2
+    assert [r.trigger_frame for r in pipe.results] == [k for k in range(40) if k != 10]
+    assert "tracker errors 1" in status
+    rec = load_recording(summary["recording"])
+    assert any("tracker bug on frame 10" in r["message"] and "restarted" in r["message"] for r in rec.textlog)
+    d2 = rec.table("data2d_distorted")
+    assert set(d2["trigger_frame"].tolist()) == set(range(40))  # frame 10's 2D data recorded too
