@@ -2,6 +2,7 @@
  * (name = value, '-' or '_' alike); a TOML file's [sections] only group keys. */
 #include "config.h"
 
+#include <arpa/inet.h>
 #include <ctype.h>
 #include <errno.h>
 #include <math.h>
@@ -21,7 +22,10 @@ static const opt_doc docs[] = {
     {"input", "WHERE",
      "raw/y4m: file or - for stdin (default -); v4l2: device (/dev/video0); "
      "aravis: camera name as Aravis lists it (e.g. Aravis-Fake-<serial>) or IP"},
-    {"width", "PX", "frame width (raw: required; others: set on the camera, or 0 = as is)"},
+    {"width", "PX",
+     "frame width (raw: required; others: set on the camera, or 0 = as is). Raw from a "
+     "pipe: a wrong --width/--height/--pixel-format misaligns frames silently (a file's size "
+     "is checked; a pipe only fails if it ends inside a frame)"},
     {"height", "PX", "frame height"},
     {"pixel-format", "FMT", "mono8, mono16 (little-endian) or yuyv (luma used); default mono8"},
     {"fps", "HZ", "cameras: frame rate to set (0 = leave as is)"},
@@ -29,6 +33,9 @@ static const opt_doc docs[] = {
     {"host", "ADDR", "host receiving FEATURES, STATUS, IMAGE (default 127.0.0.1)"},
     {"port", "N", "its UDP port (default 7700)"},
     {"bind", "ADDR", "local address of the edge's socket (default 0.0.0.0)"},
+    {"control-allow", "ADDR[,ADDR]",
+     "accept CONTROL only from these IPv4 senders (repeatable; 'loopback' = 127.0.0.0/8, "
+     "'any' = all); default: the --host address and loopback. Others are dropped and counted"},
     {"control-port", "N",
      "local UDP port for CONTROL; features are sent from it too (default 7701, "
      "0 = any free port)"},
@@ -51,7 +58,8 @@ static const opt_doc docs[] = {
     {"despeckle-threshold", "D", "clear pixels whose difference is below D (default 5)"},
     {"min-area", "N", "drop regions with fewer than N kept pixels (default 1)"},
     {"subtract-cut", "0|1", "moment weights = difference - cut (1, default) or difference (0)"},
-    {"max-points", "N", "at most N points per frame, strongest first (default 100, <= 8160)"},
+    {"max-points", "N",
+     "at most N points per frame, strongest first (default 100, <= 8160 = 255 parts x 32)"},
     {"max-candidates", "N", "candidate pixels examined per frame (default 65536)"},
     {"intrinsics", "FX,FY,CX,CY[,SKEW]", "camera matrix for lens-distortion correction"},
     {"distortion", "K1,K2,P1,P2,K3", "OpenCV distortion coefficients (as host camera.py)"},
@@ -73,7 +81,24 @@ static void usage(const char *prog) {
     for (size_t i = 0; i < sizeof docs / sizeof docs[0]; i++) {
         char left[64];
         snprintf(left, sizeof left, "--%s %s", docs[i].name, docs[i].arg);
-        printf("  %-34s %s\n", left, docs[i].help);
+        /* Wrap the help at about 64 columns, continuation lines under the first. */
+        const char *h = docs[i].help;
+        int first = 1;
+        while (*h) {
+            int n = (int)strlen(h);
+            if (n > 64) {
+                n = 64;
+                while (n > 0 && h[n] != ' ')
+                    n--;
+                if (n == 0)
+                    n = 64;
+            }
+            printf("  %-34s %.*s\n", first ? left : "", n, h);
+            first = 0;
+            h += n;
+            while (*h == ' ')
+                h++;
+        }
     }
     printf("  %-34s %s\n", "--help", "this text");
 }
@@ -130,6 +155,32 @@ static int parse_list(const char *key, const char *v, double *out, int min_n, in
     }
     if (n < min_n)
         return err(key, v, "too few numbers");
+    return 0;
+}
+
+/* --control-allow: IPv4 addresses, "loopback" or "any", comma or space separated; adds to earlier
+ * ones (the option is repeatable). */
+static int parse_allow(edge_config *c, const char *key, const char *v) {
+    char buf[512];
+    if (strlen(v) >= sizeof buf)
+        return err(key, v, "too long");
+    snprintf(buf, sizeof buf, "%s", v);
+    int n = 0;
+    for (char *tok = strtok(buf, ", "); tok; tok = strtok(NULL, ", "), n++) {
+        struct in_addr a;
+        if (!strcmp(tok, "any"))
+            c->control_allow_any = 1;
+        else if (!strcmp(tok, "loopback"))
+            c->control_allow_loopback = 1;
+        else if (inet_pton(AF_INET, tok, &a) != 1)
+            return err(key, v, "not an IPv4 address (or 'loopback', 'any')");
+        else if (c->n_control_allow == EDGE_MAX_CONTROL_ALLOW)
+            return err(key, v, "more than 16 addresses");
+        else
+            c->control_allow[c->n_control_allow++] = a.s_addr;
+    }
+    if (!n)
+        return err(key, v, "needs an address");
     return 0;
 }
 
@@ -208,6 +259,8 @@ static int apply(edge_config *c, const char *key, const char *v) {
     }
     if (!strcmp(key, "distortion"))
         return parse_list(key, v, c->distortion, 5, 5);
+    if (!strcmp(key, "control-allow"))
+        return parse_allow(c, key, v);
     STR("input", input)
     INT("width", 0, 16384, width)
     INT("height", 0, 16384, height)
@@ -234,7 +287,7 @@ static int apply(edge_config *c, const char *key, const char *v) {
     DBL("despeckle-threshold", fx.despeckle_threshold)
     INT("min-area", 1, 1 << 30, fx.min_area)
     BOOL("subtract-cut", fx.subtract_cut)
-    INT("max-points", 1, 8160, fx.max_points)
+    INT("max-points", 1, FT_FX_MAX_POINTS, fx.max_points)
     INT("max-candidates", 1, 1 << 26, fx.max_candidates)
     fprintf(stderr, "flytrack-edge: unknown option \"%s\" (see --help)\n", key);
     return -1;

@@ -6,6 +6,8 @@
 
 #include "flytrack/features.h"
 
+#define EDGE_MAX_CONTROL_ALLOW 16
+
 typedef struct {
     char source[16]; /* raw, y4m, v4l2, aravis */
     char input[256]; /* path, "-" (stdin), /dev/videoN, or camera name */
@@ -30,6 +32,11 @@ typedef struct {
     double intrinsics[5]; /* fx fy cx cy skew */
     double distortion[5]; /* k1 k2 p1 p2 k3 */
     int have_intrinsics;
+    /* CONTROL senders accepted (--control-allow); none given: the --host address and loopback. */
+    uint32_t control_allow[EDGE_MAX_CONTROL_ALLOW]; /* IPv4, network byte order */
+    int n_control_allow;
+    int control_allow_any;      /* "any": every sender */
+    int control_allow_loopback; /* "loopback": 127.0.0.0/8 */
 } edge_config;
 
 /* 0 = ok, 1 = --help printed, -1 = error (message printed to stderr). */

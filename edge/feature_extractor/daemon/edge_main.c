@@ -39,6 +39,7 @@ typedef struct {
     uint32_t seq;
     uint8_t state;
     uint64_t frames_seen, frames_dropped, control_errors, send_errors;
+    uint64_t control_rejected; /* CONTROL datagrams from senders not in --control-allow */
     uint32_t last_error_code;
     char last_error[FT_STATUS_ERROR_LEN + 1];
     /* per-second statistics for STATUS */
@@ -155,6 +156,10 @@ static void send_features(edge *e, const ft_frame *f, const ft_fx_result *r) {
     uint32_t total = r->total_points > 65535 ? 65535 : r->total_points;
     uint32_t parts = 1, per = n;
     uint16_t flags = 0;
+    /* part_index/part_count are one byte: never more than 255 parts (the library caps max_points
+     * at FT_FX_MAX_POINTS = 255 x 32 already; this guards the cast, whatever the caller set). */
+    if (n > 255u * FT_FEATURES_MAX_POINTS)
+        n = 255u * FT_FEATURES_MAX_POINTS;
     if (n > FT_FEATURES_MAX_POINTS) {
         if (e->cfg.truncate) {
             per = n = FT_FEATURES_MAX_POINTS;
@@ -234,7 +239,9 @@ static void handle_control(edge *e, const uint8_t *buf, size_t len,
         char text[96];
         snprintf(text, sizeof text, "malformed CONTROL from %s: %s", inet_ntoa(from->sin_addr),
                  ft_err_name(r));
-        logmsg("%s (ignored; %llu so far)", text, (unsigned long long)e->control_errors);
+        /* A flood must not flood the log: the first ten, then every thousandth. */
+        if (e->control_errors <= 10 || e->control_errors % 1000 == 0 || e->cfg.verbose)
+            logmsg("%s (ignored; %llu so far)", text, (unsigned long long)e->control_errors);
         set_error(e, 20, text);
         /* The framing was right but a field was not: answer, so the sender is not left waiting. */
         if ((r == FT_E_BAD_FIELD || r == FT_E_NOT_FINITE) &&
@@ -303,6 +310,19 @@ static void handle_control(edge *e, const uint8_t *buf, size_t len,
     }
 }
 
+static int control_allowed(const edge *e, const struct sockaddr_in *from) {
+    const edge_config *c = &e->cfg;
+    uint32_t a = from->sin_addr.s_addr;
+    if (c->control_allow_any)
+        return 1;
+    if (c->control_allow_loopback && (ntohl(a) >> 24) == 127)
+        return 1;
+    for (int i = 0; i < c->n_control_allow; i++)
+        if (c->control_allow[i] == a)
+            return 1;
+    return 0;
+}
+
 static void poll_control(edge *e) {
     uint8_t buf[2048];
     for (;;) {
@@ -311,6 +331,18 @@ static void poll_control(edge *e) {
         ssize_t n = recvfrom(e->sock, buf, sizeof buf, MSG_DONTWAIT, (struct sockaddr *)&from, &fl);
         if (n < 0)
             return; /* EAGAIN: nothing more; ICMP errors from earlier sends land here too */
+        if (fl < sizeof from || from.sin_family != AF_INET || !control_allowed(e, &from)) {
+            if (e->control_rejected++ == 0) { /* said once; the count is logged at exit */
+                char text[96];
+                snprintf(text, sizeof text, "CONTROL from %s dropped: not in --control-allow",
+                         inet_ntoa(from.sin_addr));
+                logmsg("%s (further ones are only counted)", text);
+                set_error(e, 21, text);
+            } else if (e->cfg.verbose) {
+                logmsg("CONTROL from %s dropped", inet_ntoa(from.sin_addr));
+            }
+            continue;
+        }
         handle_control(e, buf, (size_t)n, &from);
     }
 }
@@ -370,6 +402,11 @@ static int open_socket(edge *e) {
     if (inet_pton(AF_INET, e->cfg.host, &e->host.sin_addr) != 1) {
         logmsg("--host %s is not an IPv4 address", e->cfg.host);
         return -1;
+    }
+    edge_config *c = &e->cfg;
+    if (!c->n_control_allow && !c->control_allow_any && !c->control_allow_loopback) {
+        c->control_allow[c->n_control_allow++] = e->host.sin_addr.s_addr;
+        c->control_allow_loopback = 1;
     }
     int sz = 4 << 20;
     setsockopt(e->sock, SOL_SOCKET, SO_SNDBUF, &sz, sizeof sz);
@@ -434,6 +471,8 @@ static int open_extractor(edge *e) {
         if (!m || got != n || extra) {
             logmsg("mask %s must be exactly %ux%u = %zu bytes", e->cfg.mask, p.width, p.height, n);
             free(m);
+            ft_fx_destroy(e->fx);
+            e->fx = NULL;
             return -1;
         }
         ft_fx_set_mask(e->fx, m);
@@ -532,6 +571,9 @@ int main(int argc, char **argv) {
     if (e.state != FT_STATE_ERROR)
         e.state = FT_STATE_STOPPED;
     poll_control(&e);
+    if (e.control_rejected)
+        logmsg("dropped %llu CONTROL datagrams from senders not in --control-allow",
+               (unsigned long long)e.control_rejected);
     send_status(&e); /* the last word: why we stopped */
     e.src.close(&e.src);
     ft_fx_destroy(e.fx);

@@ -59,6 +59,10 @@ static ssize_t read_some(int fd, void *dst, size_t want, int timeout_ms) {
     return n;
 }
 
+static const char *fmt_name(int fmt) {
+    return fmt == FT_FX_MONO8 ? "mono8" : fmt == FT_FX_MONO16 ? "mono16" : "yuyv";
+}
+
 static int file_next(ft_source *s, ft_frame *f, int timeout_ms) {
     file_priv *fp = s->priv;
     for (;;) {
@@ -84,9 +88,11 @@ static int file_next(ft_source *s, ft_frame *f, int timeout_ms) {
                 continue;
             }
             fp->line[fp->line_len] = 0;
-            if (strncmp(fp->line, "FRAME", 5) != 0) {
-                set_err(s, "Y4M: expected FRAME, got \"%.40s\" (frame %llu)", fp->line,
-                        (unsigned long long)fp->count);
+            if (strncmp(fp->line, "FRAME", 5) != 0 || (fp->line[5] && fp->line[5] != ' ')) {
+                set_err(s,
+                        "Y4M: expected FRAME, got \"%.40s\" (frame %llu; frames not of the "
+                        "header's size and colour space?)",
+                        fp->line, (unsigned long long)fp->count);
                 return FT_SRC_ERROR;
             }
             fp->line_len = 0;
@@ -103,8 +109,19 @@ static int file_next(ft_source *s, ft_frame *f, int timeout_ms) {
         if (n == 0) {
             if (fp->got == 0 && !fp->y4m)
                 return FT_SRC_END;
-            set_err(s, "input ended inside frame %llu: got %zu of %zu bytes (wrong frame size?)",
-                    (unsigned long long)fp->count, fp->got, fp->frame_bytes);
+            /* On a pipe this is the only sign of a wrong geometry: name what was expected. */
+            if (fp->y4m)
+                set_err(s,
+                        "input ended inside frame %llu: got %zu of %zu bytes (a %ux%u Y4M frame "
+                        "as its header says)",
+                        (unsigned long long)fp->count, fp->got, fp->frame_bytes, s->width,
+                        s->height);
+            else
+                set_err(s,
+                        "input ended inside frame %llu: got %zu of %zu bytes (%ux%u %s); check "
+                        "--width, --height, --pixel-format",
+                        (unsigned long long)fp->count, fp->got, fp->frame_bytes, s->width,
+                        s->height, fmt_name(s->pixel_format));
             return FT_SRC_ERROR;
         }
         fp->got += (size_t)n;
@@ -241,12 +258,18 @@ int ft_source_open_y4m(ft_source *s, const char *path, const ft_source_req *req)
     long w = 0, h = 0;
     char cs[32] = "420jpeg";
     for (char *tok = strtok(hdr + 9, " "); tok; tok = strtok(NULL, " ")) {
+        char *end = NULL;
         if (tok[0] == 'W')
-            w = strtol(tok + 1, NULL, 10);
+            w = strtol(tok + 1, &end, 10);
         else if (tok[0] == 'H')
-            h = strtol(tok + 1, NULL, 10);
+            h = strtol(tok + 1, &end, 10);
         else if (tok[0] == 'C')
             snprintf(cs, sizeof cs, "%s", tok + 1);
+        if (end && (end == tok + 1 || *end)) {
+            snprintf(s->error, sizeof s->error, "Y4M header: bad size field \"%.20s\"", tok);
+            file_close(s);
+            return -1;
+        }
     }
     if (w <= 0 || h <= 0 || w > 16384 || h > 16384) {
         snprintf(s->error, sizeof s->error, "Y4M header has a bad size W%ld H%ld", w, h);

@@ -121,8 +121,8 @@ static int check_tunables(const ft_fx_params *p, char *msg, size_t len) {
         return fail(msg, len, FT_FX_E_BAD_VALUE, "min_area must be >= 1");
     if (p->subtract_cut != 0 && p->subtract_cut != 1)
         return fail(msg, len, FT_FX_E_BAD_VALUE, "subtract_cut must be 0 or 1");
-    if (p->max_points < 1)
-        return fail(msg, len, FT_FX_E_BAD_VALUE, "max_points must be >= 1");
+    if (p->max_points < 1 || p->max_points > FT_FX_MAX_POINTS)
+        return fail(msg, len, FT_FX_E_BAD_VALUE, "max_points must be in 1..8160");
     return FT_FX_OK;
 }
 

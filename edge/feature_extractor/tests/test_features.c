@@ -53,6 +53,11 @@ static void test_errors(void) {
     char msg[96];
     CHECK(ft_fx_params_check(&p, msg, sizeof msg) == FT_FX_E_BAD_VALUE && strstr(msg, "alpha"));
     ft_fx_params_default(&p, 64, 48, FT_FX_MONO8);
+    p.max_points = FT_FX_MAX_POINTS + 1;
+    CHECK(ft_fx_params_check(&p, msg, sizeof msg) == FT_FX_E_BAD_VALUE &&
+          strstr(msg, "max_points"));
+    CHECK(ft_fx_create(&p, sizeof p, &fx) == FT_FX_E_BAD_VALUE && fx == NULL);
+    ft_fx_params_default(&p, 64, 48, FT_FX_MONO8);
     p.k1 = INFINITY;
     p.fx = p.fy = 100;
     CHECK(ft_fx_create(&p, sizeof p, &fx) == FT_FX_E_BAD_VALUE);
@@ -64,6 +69,7 @@ static void test_errors(void) {
     ft_fx_result r;
     CHECK(ft_fx_process(fx, frame, sizeof frame - 1, &r) == FT_FX_E_FRAME_SIZE);
     CHECK(ft_fx_process(fx, NULL, sizeof frame, &r) == FT_FX_E_ARG);
+    double v = 0;
     CHECK(ft_fx_set_param(fx, "nope", 1) == FT_FX_E_UNKNOWN_PARAM);
     CHECK(ft_fx_set_param(fx, NULL, 1) == FT_FX_E_UNKNOWN_PARAM);
     CHECK(ft_fx_set_param(fx, "alpha", 0) == FT_FX_E_BAD_VALUE);
@@ -71,8 +77,14 @@ static void test_errors(void) {
     CHECK(ft_fx_set_param(fx, "max_points", 2.5) == FT_FX_E_BAD_VALUE);
     CHECK(ft_fx_set_param(fx, "max_points", -1) == FT_FX_E_BAD_VALUE);
     CHECK(ft_fx_set_param(fx, "polarity", 3) == FT_FX_E_BAD_VALUE);
+    /* More than 255 parts x 32 points could not be sent: the cap holds for every caller. */
+    CHECK(ft_fx_set_param(fx, "max_points", 100000) == FT_FX_E_BAD_VALUE);
+    CHECK(ft_fx_set_param(fx, "max_points", FT_FX_MAX_POINTS + 1) == FT_FX_E_BAD_VALUE);
+    CHECK(ft_fx_set_param(fx, "max_points", 4294967295.0) == FT_FX_E_BAD_VALUE);
+    CHECK(ft_fx_get_param(fx, "max_points", &v) == FT_FX_OK && v == 100);
+    CHECK(ft_fx_set_param(fx, "max_points", FT_FX_MAX_POINTS) == FT_FX_OK);
+    CHECK(ft_fx_set_param(fx, "max_points", 100) == FT_FX_OK);
     CHECK(ft_fx_set_param(fx, "diff_threshold", 12) == FT_FX_OK);
-    double v = 0;
     CHECK(ft_fx_get_param(fx, "diff_threshold", &v) == FT_FX_OK && v == 12);
     CHECK(ft_fx_get_param(fx, "max_points", &v) == FT_FX_OK && v == 100);
     CHECK(ft_fx_background_mean(fx) == NULL);

@@ -24,6 +24,10 @@ extern "C" {
 
 #define FT_FX_ABI_VERSION 1
 
+/* The most points a frame may return (max_points): a FEATURES datagram carries 32 points and a
+ * frame splits over at most 255 parts (protocol/SPEC.md), so more could not be sent. */
+#define FT_FX_MAX_POINTS 8160u
+
 /* Pixel formats; the numbers are the STATUS message's (SPEC §1.2). MONO16 is host-endian uint16. */
 enum { FT_FX_MONO8 = 0, FT_FX_MONO16 = 1, FT_FX_YUYV = 2 };
 
@@ -64,7 +68,7 @@ typedef struct {
     uint32_t min_area;          /* regions with fewer kept pixels are dropped as speckle; 1 */
     int32_t subtract_cut;    /* 1: moment weight = diff - cut (weights fall to 0 at the edge: less
                                 centre bias); 0: weight = diff, as flydra */
-    uint32_t max_points;     /* at most this many points per frame, strongest first; 100 */
+    uint32_t max_points;     /* at most this many per frame, strongest first; 1..FT_FX_MAX_POINTS */
     uint32_t max_candidates; /* candidate pixels examined per frame; 0 = 65536 */
     /* Camera calibration for undistortion (camera.py: K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]],
      * dist = k1 k2 p1 p2 k3). fx = 0 means no calibration: undistorted = distorted. */
