@@ -749,9 +749,9 @@ int main(int argc, char **argv) {
             if (bridge_service(wall_c))
                 loop_len = 0; /* a host byte: the firmware has work */
             uint64_t wake_c;
-            if (loop_len && next_timer_when() > wall_c + ahead) {
+            if (loop_len && next_timer_when() > wall_c) {
                 /* idle: nothing happens before the next timer, a due byte or host input */
-                wake_c = next_timer_when() - ahead;
+                wake_c = next_timer_when(); /* its edges then come at their time, not early */
             } else {
                 loop_len = 0;
                 uint64_t bound = wall_c + ahead;
