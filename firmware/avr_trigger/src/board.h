@@ -21,7 +21,6 @@
 /* Arduino Nano / Uno */
 #define TRIG_DDR DDRB
 #define TRIG_PORT PORTB
-#define TRIG_PINR PINB
 #define TRIG_BIT PB1 /* D9 */
 #define PULSE_DDR DDRB
 #define PULSE_PORT PORTB
@@ -59,7 +58,6 @@
 /* Arduino Leonardo / Micro */
 #define TRIG_DDR DDRB
 #define TRIG_PORT PORTB
-#define TRIG_PINR PINB
 #define TRIG_BIT PB5 /* D9 */
 #define PULSE_DDR DDRB
 #define PULSE_PORT PORTB

@@ -175,12 +175,14 @@ void ft_timer_start(void) {
 void ft_timer_stop(void) {
     uint8_t sreg = SREG;
     /* Never cut a trigger pulse short: a runt pulse can start a half exposure on some cameras and
-     * would not have the width the cameras were set up for. A pulse lasts at most half a frame and
-     * its falling edge is set by the hardware, so wait for it with interrupts on (the wait is
-     * at most ~130 us at the default width); the next rising edge is then half a frame away. */
+     * would not have the width the cameras were set up for. In fast PWM the pin is high while
+     * TCNT1 <= OCR1A (set at BOTTOM, cleared at the match), so wait, interrupts on, until the
+     * counter has passed the match: at most the pulse width (~100 us at the default), and the next
+     * rising edge is then at least half a frame away. The counter, not the pin, is read: it is the
+     * same on the chip and in the simulator (simavr does not mirror OC1A into PINB). */
     for (;;) {
         cli();
-        if (!s_running || !(TRIG_PINR & _BV(TRIG_BIT)))
+        if (!s_running || !s_trig_on || TCNT1 > s_trig_ocr)
             break;
         SREG = sreg;
     }
