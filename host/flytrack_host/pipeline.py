@@ -170,6 +170,7 @@ class HostPipeline:
         self.tracker_resets = 0
         self.n_objects = 0
         self.callback_errors = 0
+        self.recording_error: str | None = None  # finalising the recording failed (raw files kept)
         self.loop_errors = 0  # exceptions caught per item in the tracking thread (it goes on)
         self.recorder: Recorder | None = None
         self.receiver: Receiver | None = None
@@ -235,7 +236,12 @@ class HostPipeline:
         self.log(self.latency.format(), "latency")
         h5 = None
         if self.recorder is not None:
-            h5 = self.recorder.stop(finalize=True)
+            try:
+                h5 = self.recorder.stop(finalize=True)
+            except Exception as exc:  # e.g. a full disk: the raw files stay, `recording recover` later
+                self.recording_error = f"{exc!r}"
+                log.error("finalising the recording failed: %r; the raw files in %s are kept",
+                          exc, self.recording_path)
         if self.receiver is not None:
             self.receiver.close()
         if self.live is not None:
@@ -475,6 +481,8 @@ class HostPipeline:
             rej = rs.rejected_address + rs.rejected_camera
             if rej:
                 parts.append(f"rejected {rej}")
+        if self.recorder is not None:
+            parts.append(self.recorder_status())
         if self.tracker_errors:
             parts.append(f"tracker errors {self.tracker_errors}")
         if self.loop_errors:
@@ -488,6 +496,20 @@ class HostPipeline:
             except Exception as exc:  # a status line must never take the run down
                 parts.append(f"status error {exc!r}")
         return " | ".join(parts)
+
+    def recorder_status(self) -> str:
+        """Queue depth of the recorder, and what it lost (write errors, full queue) if anything."""
+        rec = self.recorder
+        if rec is None:
+            return "not recording"
+        st = rec.stats
+        out = f"rec queue {rec.queue_bytes / 1e6:.1f} MB"
+        lost = sum(st.dropped_rows.values())
+        if st.write_errors:
+            out += f" WRITE ERRORS {st.write_errors} ({rec.last_error})"
+        if lost or st.dropped_log_lines:
+            out += f" LOST {lost} rows"
+        return out
 
     def summary(self, recording_h5: Path | None = None) -> dict[str, Any]:
         rs = self.receiver.stats if self.receiver else None
@@ -503,6 +525,7 @@ class HostPipeline:
             "latency": self.latency.summary(),
             "latency_text": self.latency.format(),
             "recording": str(recording_h5) if recording_h5 else (str(self.recording_path) if self.record else None),
+            "recording_error": self.recording_error,
         }
         if rs is not None:
             out["receiver"] = {
@@ -644,3 +667,9 @@ def run_command(
                       highlight=False)
     if summary["recording"]:
         console.print(f"recording: {summary['recording']}", highlight=False)
+    rs = summary.get("recorder") or {}
+    lost = sum(rs.get("dropped_rows", {}).values())
+    if rs.get("write_errors") or lost or summary.get("recording_error"):
+        console.print(f"[red]recording incomplete[/red]: {rs.get('write_errors', 0)} write errors, {lost} rows lost"
+                      + (f"; not finalised ({summary['recording_error']}): run `flytrack recording recover`"
+                         if summary.get("recording_error") else ""), highlight=False)

@@ -127,7 +127,7 @@ def retrack(
     tracker = tracker_factory(cameras, params, 1.0 / fps)
     rec = None
     if out is not None:
-        rec = Recorder(out, flush_interval_s=1.0, meta={
+        rec = Recorder(out, flush_interval_s=1.0, on_full="block", meta={
             "rig_name": f"retrack of {Path(data.source).name}", "fps": fps,
             "tracking_params": params.model_dump(), "retracked_from": data.source, "saving_program": "flytrack retrack",
         })

@@ -1,19 +1,31 @@
 """Crash-safe recording: append-only raw files written by a separate thread.
 
 The tracking thread only puts NumPy arrays on a queue (`append`), which never blocks. A writer thread
-appends their bytes to one raw file per table and flushes every `flush_interval_s`, so a process
-killed at any moment (even with SIGKILL) leaves files that `finalize`/`recover` turn into HDF5,
-losing at most the rows of the last flush interval.
+takes what is queued every `poll_s` (50 ms), appends its bytes to one raw file per table with plain
+`os.write` calls (so the rows are in the kernel at once: a process killed at any moment, even with
+SIGKILL, loses nothing written) and `os.fsync`s every `flush_interval_s` (so a power loss loses at
+most that interval). `finalize`/`recover` turn the files into HDF5.
+
+Failures are never silent and never grow memory without bound:
+- a write that fails (disk full, I/O error) is undone to the file's last whole row (a raw file
+  never holds a partial row in its middle), its rows are counted as lost (`stats.write_errors`,
+  `stats.dropped_rows`), the first error of an episode is logged at once and kept in `last_error`,
+  and the writer goes on (the next writes succeed when space comes back);
+- the queue holds at most `max_queue_bytes`: beyond that `append` drops the rows and counts them
+  (`stats.dropped_rows`, `stats.queue_bytes` shows the depth); the writer notes every drop in the
+  recording's text log once it can, so the recording itself says rows are missing.
 """
 
 from __future__ import annotations
 
+import errno
 import json
+import logging
 import os
-import queue
 import socket
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,8 +39,21 @@ TEXTLOG_NAME = "textlog.jsonl"
 META_NAME = "meta.json"
 H5_NAME = "recording.h5"
 FORMAT_VERSION = 1
+TEXTLOG_KEY = "__textlog__"
+DEFAULT_MAX_QUEUE_BYTES = 256 << 20  # minutes of a big rig's 2D data; a stuck disk must not eat the RAM
+
+log = logging.getLogger("flytrack.recording")
 
 _STOP = object()
+
+
+def _write_all(fd: int, data: bytes | memoryview) -> None:
+    """Write all of `data` to `fd` (os.write may write less than asked). The seam the tests use to
+    fake a full disk."""
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        view = view[n:]
 
 
 @dataclass
@@ -36,23 +61,44 @@ class RecorderStats:
     rows: dict[str, int] = field(default_factory=dict)
     bytes_written: int = 0
     log_lines: int = 0
-    flushes: int = 0
-    max_queue_depth: int = 0
+    flushes: int = 0  # fsyncs
+    max_queue_depth: int = 0  # items taken in one turn of the writer
+    queue_bytes: int = 0  # bytes queued and not yet written (at the last look)
+    max_queue_bytes: int = 0
     write_errors: int = 0
+    dropped_rows: dict[str, int] = field(default_factory=dict)  # lost to a full queue or a failed write
+    dropped_log_lines: int = 0
+    queue_full_drops: int = 0  # rows and lines dropped because the queue was full
 
 
 class Recorder:
-    """Records one run into the folder `path` (created; must not exist yet)."""
+    """Records one run into the folder `path` (created; must not exist yet).
 
-    def __init__(self, path: Path | str, flush_interval_s: float = 1.0, meta: dict[str, Any] | None = None):
+    `on_full`: "drop" (live: `append` never blocks, rows beyond `max_queue_bytes` are dropped and
+    counted) or "block" (offline, e.g. re-tracking: `append` waits for room)."""
+
+    def __init__(self, path: Path | str, flush_interval_s: float = 1.0, meta: dict[str, Any] | None = None,
+                 max_queue_bytes: int = DEFAULT_MAX_QUEUE_BYTES, on_full: str = "drop"):
+        if on_full not in ("drop", "block"):
+            raise ValueError(f"on_full must be 'drop' or 'block', not {on_full!r}")
         self.path = Path(path)
         self.flush_interval_s = float(flush_interval_s)
         self.meta = dict(meta or {})
+        self.max_queue_bytes = int(max_queue_bytes)
+        self.on_full = on_full
         self.stats = RecorderStats()
-        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self.last_error: str | None = None  # the latest write error, for status lines
+        self._q: deque = deque()
+        self._in_bytes = 0  # queued so far (producers, under _put_lock)
+        self._out_bytes = 0  # taken by the writer (writer thread only)
+        self._put_lock = threading.Lock()
         self._thread: threading.Thread | None = None
-        self._files: dict[str, Any] = {}
-        self._error: BaseException | None = None
+        self._fds: dict[str, int] = {}
+        self._sizes: dict[str, int] = {}  # bytes of whole rows/lines in each file
+        self._unsynced: set[str] = set()
+        self._noted_drops: dict[str, int] = {}  # drops already written to the text log
+        self._noted_log_drops = 0
+        self._failing = False  # inside an episode of write errors (log once per episode)
         self._stopped = False
         self._wake = threading.Event()
         self.poll_s = min(0.05, self.flush_interval_s)
@@ -67,25 +113,33 @@ class Recorder:
             "start_time": time.time(),
             "hostname": socket.gethostname(),
             "flush_interval_s": self.flush_interval_s,
+            "max_queue_bytes": self.max_queue_bytes,
             **self.meta,
         }
         self._write_small(META_NAME, json.dumps(meta, indent=1).encode())
         for name in TABLES:
-            self._files[name] = open(self.path / (name + RAW_SUFFIX), "ab")
-        self._files["__textlog__"] = open(self.path / TEXTLOG_NAME, "ab")
+            self._open(name, self.path / (name + RAW_SUFFIX))
+        self._open(TEXTLOG_KEY, self.path / TEXTLOG_NAME)
+        self._fsync_dir()  # the files exist after a power loss too
         self._thread = threading.Thread(target=self._run, name="flytrack-recorder", daemon=True)
         self._thread.start()
+
+    def _open(self, key: str, path: Path) -> None:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self._fds[key] = fd
+        self._sizes[key] = os.fstat(fd).st_size
 
     def attach(self, name: str, data: bytes) -> None:
         """Store a whole small file (rig file, calibration) in the recording, right away."""
         self._write_small(name, data)
 
     def append(self, table: str, rows: np.ndarray) -> None:
-        """Queue rows for `table`; never blocks. Rows must have the table's dtype exactly."""
+        """Queue rows for `table`; never blocks (with on_full="drop"). Rows must have the table's
+        dtype exactly."""
         if rows.dtype != TABLES[table]:
             raise TypeError(f"rows for {table} have dtype {rows.dtype}, expected {TABLES[table]}")
         if len(rows):
-            self._q.put((table, rows))
+            self._put((table, rows), rows.nbytes)
 
     def append_many(self, items: list[tuple[str, np.ndarray]]) -> None:
         """Queue rows for several tables at once (one queue operation for a whole frame)."""
@@ -94,25 +148,52 @@ class Recorder:
                 raise TypeError(f"rows for {table} have dtype {rows.dtype}, expected {TABLES[table]}")
         items = [(t, r) for t, r in items if len(r)]
         if items:
-            self._q.put(items)
+            self._put(items, sum(r.nbytes for _, r in items))
 
     def log(self, message: str, source: str = "host", host_time: float | None = None) -> None:
         t = time.time() if host_time is None else host_time
-        self._q.put(("__textlog__", {"host_time": t, "source": source, "message": message}))
+        self._put((TEXTLOG_KEY, {"host_time": t, "source": source, "message": message}), 64 + len(message))
+
+    @property
+    def queue_bytes(self) -> int:
+        return self._in_bytes - self._out_bytes
+
+    def _put(self, item: Any, nbytes: int) -> None:
+        if self.on_full == "block":
+            while self.queue_bytes + nbytes > self.max_queue_bytes and self.queue_bytes > 0 and not self._stopped:
+                time.sleep(0.005)
+        with self._put_lock:
+            depth = self._in_bytes - self._out_bytes
+            if depth + nbytes > self.max_queue_bytes and self.on_full == "drop":
+                self._count_dropped(item)
+                return
+            self._in_bytes += nbytes
+            self._q.append((item, nbytes))
+        if depth + nbytes > self.stats.max_queue_bytes:
+            self.stats.max_queue_bytes = depth + nbytes
+
+    def _count_dropped(self, item: Any) -> None:
+        for name, payload in item if isinstance(item, list) else [item]:
+            if name == TEXTLOG_KEY:
+                self.stats.dropped_log_lines += 1
+                self.stats.queue_full_drops += 1
+            else:
+                self.stats.dropped_rows[name] = self.stats.dropped_rows.get(name, 0) + len(payload)
+                self.stats.queue_full_drops += len(payload)
 
     def stop(self, finalize: bool = True) -> Path | None:
-        """Drain the queue, close the files and (by default) write the HDF5 file. Returns its path."""
+        """Write what is queued, fsync and close the files and (by default) write the HDF5 file.
+        Returns its path. Rows lost to write errors or a full queue are in `stats` and the text log."""
         if self._stopped:
             return self.path / H5_NAME if (self.path / H5_NAME).exists() else None
         self._stopped = True
         if self._thread is not None:
-            self._q.put(_STOP)
+            self._q.append((_STOP, 0))
             self._wake.set()
             self._thread.join()
-        for f in self._files.values():
-            f.close()
-        if self._error is not None:
-            raise RuntimeError(f"recording writer failed: {self._error}") from self._error
+        for fd in self._fds.values():
+            os.close(fd)
+        self._fds.clear()
         if finalize:
             from flytrack_host.recording.finalize import finalize as _finalize
 
@@ -123,58 +204,148 @@ class Recorder:
     def _run(self) -> None:
         # Poll the queue every `poll_s` instead of blocking on it: a put then never wakes this
         # thread, so the tracking thread does not lose the GIL to it once per row batch.
-        next_flush = time.monotonic() + self.flush_interval_s
-        try:
-            while True:
-                stop = self._wake.wait(min(self.poll_s, max(0.0, next_flush - time.monotonic())))
+        next_sync = time.monotonic() + self.flush_interval_s
+        while True:
+            stop = self._wake.wait(min(self.poll_s, max(0.0, next_sync - time.monotonic())))
+            try:
                 done = self._drain()
-                if time.monotonic() >= next_flush or done or stop:
-                    self._flush()
-                    next_flush = time.monotonic() + self.flush_interval_s
-                if done:
-                    return
-        except BaseException as exc:  # keep the error for stop(); never kill the tracker
-            self._error = exc
-            self.stats.write_errors += 1
+                self._note_drops()
+                if time.monotonic() >= next_sync or done or stop:
+                    self._sync()
+                    next_sync = time.monotonic() + self.flush_interval_s
+            except Exception as exc:  # a bug here must not end the recording: count, log, go on
+                done = stop
+                self._error(f"recording writer: {exc!r}", exc)
+            if done:
+                return
 
     def _drain(self) -> bool:
-        """Write everything queued; True when the stop marker was reached."""
+        """Write everything queued (one write per file); True when the stop marker was reached."""
+        batches: dict[str, list[Any]] = {}
         n = 0
-        while True:
-            try:
-                item = self._q.get_nowait()
-            except queue.Empty:
-                self.stats.max_queue_depth = max(self.stats.max_queue_depth, n)
-                return False
+        done = False
+        while self._q:
+            item, nbytes = self._q.popleft()
+            self._out_bytes += nbytes
             n += 1
             if item is _STOP:
-                return True
-            if isinstance(item, list):
-                for sub in item:
-                    self._write(sub)
-            else:
-                self._write(item)
+                done = True
+                break
+            for name, payload in item if isinstance(item, list) else [item]:
+                batches.setdefault(name, []).append(payload)
+        self.stats.max_queue_depth = max(self.stats.max_queue_depth, n)
+        for name, payloads in batches.items():
+            self._write_batch(name, payloads)
+        self.stats.queue_bytes = self.queue_bytes
+        return done
 
-    def _write(self, item: tuple[str, Any]) -> None:
-        name, payload = item
-        f = self._files[name]
-        if name == "__textlog__":
-            line = (json.dumps(payload, ensure_ascii=False) + "\n").encode()
-            f.write(line)
-            self.stats.log_lines += 1
-            self.stats.bytes_written += len(line)
+    def _write_batch(self, name: str, payloads: list[Any]) -> None:
+        if name == TEXTLOG_KEY:
+            data = b"".join((json.dumps(p, ensure_ascii=False) + "\n").encode() for p in payloads)
+            count = len(payloads)
         else:
-            data = np.ascontiguousarray(payload).tobytes()
-            f.write(data)
-            self.stats.rows[name] = self.stats.rows.get(name, 0) + len(payload)
-            self.stats.bytes_written += len(data)
+            data = b"".join(np.ascontiguousarray(p).tobytes() for p in payloads)
+            count = sum(len(p) for p in payloads)
+        fd = self._fds[name]
+        try:
+            _write_all(fd, data)
+        except OSError as exc:
+            # Undo a partial write: the file keeps whole rows only, so everything after stays aligned.
+            try:
+                os.ftruncate(fd, self._sizes[name])
+            except OSError:
+                pass
+            self.stats.write_errors += 1
+            with self._put_lock:  # producers count their drops in the same dict
+                if name == TEXTLOG_KEY:
+                    self.stats.dropped_log_lines += count
+                else:
+                    self.stats.dropped_rows[name] = self.stats.dropped_rows.get(name, 0) + count
+            self._error(f"recording: cannot write {name} ({os.strerror(exc.errno) if exc.errno else exc}); "
+                        f"{count} {'lines' if name == TEXTLOG_KEY else 'rows'} lost", exc)
+            return
+        if self._failing:
+            self._failing = False
+            log.warning("recording: writing again after write errors (%d so far)", self.stats.write_errors)
+        self._sizes[name] += len(data)
+        self._unsynced.add(name)
+        self.stats.bytes_written += len(data)
+        if name == TEXTLOG_KEY:
+            self.stats.log_lines += count
+        else:
+            self.stats.rows[name] = self.stats.rows.get(name, 0) + count
 
-    def _flush(self) -> None:
-        for f in self._files.values():
-            f.flush()
+    def _error(self, message: str, exc: BaseException) -> None:
+        self.last_error = message
+        if not self._failing:  # once per episode, at once (not at stop)
+            self._failing = True
+            log.error("%s", message, exc_info=exc if not isinstance(exc, OSError) else None)
+
+    def _note_drops(self) -> None:
+        """Put drops not yet noted into the text log (directly: the queue may be what is full)."""
+        st = self.stats
+        with self._put_lock:
+            snap, snap_lines = dict(st.dropped_rows), st.dropped_log_lines
+        seen = self._noted_drops
+        new = {k: v - seen.get(k, 0) for k, v in snap.items() if v > seen.get(k, 0)}
+        new_lines = snap_lines - self._noted_log_drops
+        if not new and not new_lines:
+            return
+        what = ", ".join(f"{n} {k} rows" for k, n in sorted(new.items()))
+        if new_lines:
+            what = (what + ", " if what else "") + f"{new_lines} log lines"
+        why = []
+        if st.queue_full_drops:
+            why.append(f"recorder queue full ({self.max_queue_bytes} bytes): {st.queue_full_drops} dropped so far")
+        if st.write_errors:
+            why.append(f"{st.write_errors} write errors so far, last: {self.last_error}")
+        line = {"host_time": time.time(), "source": "recorder",
+                "message": f"DATA LOST: {what} not recorded ({'; '.join(why)})"}
+        fd = self._fds[TEXTLOG_KEY]
+        data = (json.dumps(line) + "\n").encode()
+        try:
+            _write_all(fd, data)
+        except OSError:
+            try:
+                os.ftruncate(fd, self._sizes[TEXTLOG_KEY])
+            except OSError:
+                pass
+            return  # noted on a later turn
+        self._sizes[TEXTLOG_KEY] += len(data)
+        self._unsynced.add(TEXTLOG_KEY)
+        self._noted_drops, self._noted_log_drops = snap, snap_lines
+        if not self._failing:
+            log.warning("%s", line["message"])
+
+    def _sync(self) -> None:
+        """fsync the files written since the last time (power-loss safety, about once a second)."""
+        for name in list(self._unsynced):
+            try:
+                os.fsync(self._fds[name])
+            except OSError as exc:
+                if exc.errno != errno.EINVAL:  # EINVAL: a file system that cannot sync (pipes, some FUSE)
+                    self.stats.write_errors += 1
+                    self._error(f"recording: fsync of {name} failed ({exc})", exc)
+                    continue
+            self._unsynced.discard(name)
         self.stats.flushes += 1
+
+    def _fsync_dir(self) -> None:
+        try:
+            fd = os.open(self.path, os.O_RDONLY)
+        except OSError:
+            return
+        try:
+            os.fsync(fd)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
 
     def _write_small(self, name: str, data: bytes) -> None:
         tmp = self.path / (name + ".tmp")
-        tmp.write_bytes(data)
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, self.path / name)
