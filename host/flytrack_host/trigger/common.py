@@ -6,6 +6,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Self
 
 import serial
 
@@ -110,3 +111,37 @@ class ClockThread:
         self._stop.set()
         if self._thread.is_alive() and threading.current_thread() is not self._thread:
             self._thread.join(timeout=2)
+
+
+class SerialTrigger:
+    """What every serial trigger driver shares: the background clock-query thread and its lifetime.
+    Subclasses set `_ser` (the serial port) and `_clock_thread = None`, and define `query_clock()`."""
+
+    _ser: serial.Serial
+    _clock_thread: ClockThread | None
+
+    def query_clock(self) -> object:
+        raise NotImplementedError
+
+    def start_clock_thread(self, period_s: float = 0.1) -> None:
+        if self._clock_thread is None:
+            self._clock_thread = ClockThread(self.query_clock, period_s)
+            self._clock_thread.start()
+
+    def stop_clock_thread(self) -> None:
+        if self._clock_thread is not None:
+            self._clock_thread.stop()
+            self._clock_thread = None
+
+    def close(self) -> None:
+        self.stop_clock_thread()
+        try:
+            self._ser.close()
+        except (serial.SerialException, OSError):
+            pass
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

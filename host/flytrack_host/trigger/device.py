@@ -21,7 +21,7 @@ from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.protocol.errors import ProtocolError
 
 from .clock_model import ClockModel, LinkTiming
-from .common import PRESCALERS, ClockThread, RateChoice, TriggerError, choose_rate, open_serial
+from .common import PRESCALERS, ClockThread, RateChoice, SerialTrigger, TriggerError, choose_rate, open_serial
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ class InputEvent:
     host_time: float | None  # from the clock model, None before it has a fit
 
 
-class TriggerDevice:
+class TriggerDevice(SerialTrigger):
     """A FlyTrack trigger (firmware or simulator) on a serial port."""
 
     def __init__(
@@ -302,31 +302,11 @@ class TriggerDevice:
             except queue.Empty:
                 return out
 
-    # ------------------------------------------------------------------ clock thread, lifetime
-
-    def start_clock_thread(self, period_s: float = 0.1) -> None:
-        if self._clock_thread is None:
-            self._clock_thread = ClockThread(self.query_clock, period_s)
-            self._clock_thread.start()
-
-    def stop_clock_thread(self) -> None:
-        if self._clock_thread is not None:
-            self._clock_thread.stop()
-            self._clock_thread = None
+    # ------------------------------------------------------------------ lifetime
 
     def close(self) -> None:
-        self.stop_clock_thread()
-        self._closed.set()
-        try:
-            self._ser.close()
-        except (serial.SerialException, OSError):
-            pass
-
-    def __enter__(self) -> TriggerDevice:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+        self._closed.set()  # before the port closes: the reader thread then exits quietly
+        super().close()
 
 
 __all__ = ["TriggerDevice", "TriggerError", "ClockReading", "InputEvent", "PRESCALERS"]

@@ -20,7 +20,7 @@ import time
 import serial
 
 from .clock_model import ClockModel, LinkTiming
-from .common import ClockThread, RateChoice, TriggerError, choose_rate, open_serial
+from .common import ClockThread, RateChoice, SerialTrigger, TriggerError, choose_rate, open_serial
 from .device import ClockReading
 
 F_CPU = 16_000_000
@@ -41,7 +41,7 @@ def checksum(payload: bytes) -> int:
     return sum(payload) & 0xFF
 
 
-class StrawlabTriggerbox:
+class StrawlabTriggerbox(SerialTrigger):
     """The strawlab triggerbox on a serial port, with the TriggerDevice surface."""
 
     def __init__(self, port: str, baudrate: int = 115200, reset_wait_s: float = 2.0, timeout_s: float = 0.5,
@@ -55,6 +55,7 @@ class StrawlabTriggerbox:
         self._ser = open_serial(port, baudrate, timeout=timeout_s)
         self._lock = threading.Lock()
         self._token = 0
+        self._levels = [0, 0]  # analog outputs 0 and 1, as last set (O= sets both at once)
         self._clock_thread: ClockThread | None = None
         if reset_wait_s > 0:
             time.sleep(reset_wait_s)
@@ -93,7 +94,10 @@ class StrawlabTriggerbox:
 
     def _send(self, cmd: bytes) -> None:
         with self._lock:
-            self._ser.write(cmd)
+            try:
+                self._ser.write(cmd)
+            except (serial.SerialException, OSError) as exc:
+                raise TriggerError(f"cannot write to {self.port}: {exc}") from None
 
     def info(self) -> dict[str, object]:
         name = self._query(b"N?", b"N").rstrip(b"\0").decode("ascii", "replace")
@@ -140,32 +144,8 @@ class StrawlabTriggerbox:
         """Analog outputs 0/1 set fully low or high (O= command)."""
         if channel not in (0, 1):
             raise TriggerError("the strawlab triggerbox has analog outputs 0 and 1")
-        self._levels = getattr(self, "_levels", [0, 0])
         self._levels[channel] = 0xFFFF if level else 0
         self._send(b"O=" + struct.pack("<HHB", self._levels[0], self._levels[1], 3))
 
     def events(self) -> list:
         return []
-
-    def start_clock_thread(self, period_s: float = 0.1) -> None:
-        if self._clock_thread is None:
-            self._clock_thread = ClockThread(self.query_clock, period_s)
-            self._clock_thread.start()
-
-    def stop_clock_thread(self) -> None:
-        if self._clock_thread is not None:
-            self._clock_thread.stop()
-            self._clock_thread = None
-
-    def close(self) -> None:
-        self.stop_clock_thread()
-        try:
-            self._ser.close()
-        except (serial.SerialException, OSError):
-            pass
-
-    def __enter__(self) -> StrawlabTriggerbox:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

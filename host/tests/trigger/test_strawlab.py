@@ -104,3 +104,17 @@ def test_bad_checksum_is_an_error() -> None:
             StrawlabTriggerbox(box.port, reset_wait_s=0, timeout_s=0.2)
     finally:
         box.close()
+
+
+def test_unplugged_box_is_a_trigger_error_not_a_traceback() -> None:
+    box = _Box()
+    try:
+        tb = StrawlabTriggerbox(box.port, reset_wait_s=0)
+        tb._ser.close()  # the board is unplugged: every write fails at the port
+        with pytest.raises(TriggerError, match="cannot write"):
+            tb.set_output(0, 1)
+        with pytest.raises(TriggerError, match="cannot write"):
+            tb.stop()
+        tb.close()
+    finally:
+        box.close()
