@@ -14,12 +14,39 @@ from flytrack_host.protocol import decode_datagram
 REPO = Path(__file__).resolve().parents[2]
 
 
-def edge_binary() -> Path:
+# The sanitizer build must stop at its first finding (exit status != 0 and the report on stderr);
+# leaks count as findings too. Harmless for the plain build, which ignores these variables.
+SANITIZER_ENV = {
+    "ASAN_OPTIONS": "abort_on_error=1:detect_leaks=1:halt_on_error=1",
+    "UBSAN_OPTIONS": "halt_on_error=1:print_stacktrace=1",
+}
+SANITIZER_REPORTS = ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:")
+
+
+def edge_binary(name: str = "flytrack-edge") -> Path:
     build = Path(os.environ.get("FLYTRACK_BUILD_DIR", REPO / "build"))
-    path = build / "edge" / "feature_extractor" / "flytrack-edge"
+    path = build / "edge" / "feature_extractor" / name
     if not path.is_file():
         pytest.fail(f"{path} is missing: run `make cbuild` first")
     return path
+
+
+@pytest.fixture(autouse=True)
+def _sanitizer_env(monkeypatch) -> None:
+    """Every daemon started by these tests inherits the sanitizer options."""
+    for k, v in SANITIZER_ENV.items():
+        monkeypatch.setenv(k, v)
+
+
+def _assert_clean(stderr: str) -> None:
+    for r in SANITIZER_REPORTS:
+        assert r not in stderr, stderr[-4000:]
+
+
+@pytest.fixture
+def no_sanitizer_report():
+    """assert_clean(stderr): fails with the report when a sanitizer found something."""
+    return _assert_clean
 
 
 def free_udp_port() -> int:
@@ -82,3 +109,9 @@ def receiver():
 @pytest.fixture
 def edge_bin() -> Path:
     return edge_binary()
+
+
+@pytest.fixture(params=["flytrack-edge", "flytrack-edge-san"], ids=["plain", "asan"])
+def edge_any(request) -> Path:
+    """The daemon, plain and built with ASan + UBSan: bad-input tests run against both."""
+    return edge_binary(request.param)

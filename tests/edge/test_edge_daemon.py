@@ -195,15 +195,28 @@ def test_control_messages(edge_bin: Path, receiver) -> None:
          "cannot open"),
         (["--source", "aravis", "--input", "No-Such-Camera-42"], 3, "cannot open camera"),
         (["--source", "v4l2", "--input", "/nonexistent/video9"], 3, "cannot open"),
+        (["--width", "8", "--height", "8", "--max-points", "8161"], 2, "must be in 1..8160"),
+        (["--width", "8", "--height", "8", "--control-allow", "10.0.0"], 2, "not an IPv4 address"),
+        (["--width", "8", "--height", "8", "--control-allow", ","], 2, "needs an address"),
+        (["--width", "7", "--height", "8", "--pixel-format", "yuyv"], 2, "even width"),
+        (["--width", "8", "--height", "8", "--mask", "MASK"], 2, "must be exactly 8x8 = 64 bytes"),
     ],
 )
-def test_bad_configuration_exits_with_a_clear_error(edge_bin: Path, receiver, args, code, message) -> None:
-    p, _ = start(edge_bin, receiver, *args, stdin=subprocess.DEVNULL)
+def test_bad_configuration_exits_with_a_clear_error(edge_any: Path, receiver, tmp_path: Path, args, code,
+                                                    message, no_sanitizer_report) -> None:
+    mask = tmp_path / "mask.raw"
+    mask.write_bytes(bytes(63))  # one byte short
+    args = [str(mask) if a == "MASK" else a for a in args]
+    p, _ = start(edge_any, receiver, *args, stdin=subprocess.DEVNULL)
     assert p.wait(30) == code
-    assert message in p.stderr.read().decode()
+    err = p.stderr.read().decode()
+    assert message in err
+    no_sanitizer_report(err)
 
 
-def test_wrong_frame_size_and_truncated_stream(edge_bin: Path, receiver, tmp_path: Path) -> None:
+def test_wrong_frame_size_and_truncated_stream(edge_any: Path, receiver, tmp_path: Path,
+                                               no_sanitizer_report) -> None:
+    edge_bin = edge_any
     raw = tmp_path / "frames.raw"
     raw.write_bytes(bytes(W * H * 2 + 10))
     p, _ = start(edge_bin, receiver, "--width", str(W), "--height", str(H), "--input", str(raw),
@@ -217,6 +230,8 @@ def test_wrong_frame_size_and_truncated_stream(edge_bin: Path, receiver, tmp_pat
     assert p.wait(10) == 3
     err = p.stderr.read().decode()
     assert "ended inside frame 2" in err and f"got {W * H // 2} of {W * H} bytes" in err
+    assert f"({W}x{H} mono8); check --width, --height, --pixel-format" in err
+    no_sanitizer_report(err)
     receiver.poll(0.3)
     assert len(features(receiver.messages)) == 2  # the whole frames were not lost
     last = [m for m in receiver.messages if isinstance(m, EdgeStatus)][-1]

@@ -261,6 +261,15 @@ def test_bad_input_is_a_clear_error() -> None:
         fx.set_mask(np.ones((10, 10), np.uint8))
     fx.set_param("diff_threshold", 12.5)
     assert fx.get_param("diff_threshold") == 12.5
+    # max_points: at most 255 FEATURES parts x 32 points, at create and at run time alike.
+    with pytest.raises(FeatureError, match="max_points must be in 1..8160"):
+        FeatureExtractor(64, 48, params=ExtractorParams(max_points=8161))
+    for bad in (8161, 100000, 2**32 - 1):
+        with pytest.raises(FeatureError, match="out of range"):
+            fx.set_param("max_points", bad)
+    assert fx.get_param("max_points") == 100
+    fx.set_param("max_points", 8160)
+    assert fx.get_param("max_points") == 8160
 
 
 def test_missing_library_tells_how_to_build(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
