@@ -77,6 +77,26 @@ class LatencyStats:
         r[0] = (trigger_frame, trigger_time, first_arrival, last_arrival, estimate_time, n_cameras, n_missing)
         return r
 
+    def add_rows(self, lat: np.ndarray) -> None:
+        """Account many LATENCY rows at once (finalising a recording chunk by chunk)."""
+        self.n += len(lat)
+        vals = {
+            "total": lat["estimate_time"] - lat["trigger_time"],
+            "arrival": lat["last_arrival"] - lat["trigger_time"],
+            "tracking": lat["estimate_time"] - lat["last_arrival"],
+        }
+        n_bins = len(self.counts["total"])
+        for p, v in vals.items():
+            ms = v[np.isfinite(v)] * 1e3
+            if len(ms):
+                self.max_ms[p] = max(self.max_ms[p], float(ms.max()))
+                idx = np.clip((ms / BIN_MS).astype(np.int64), 0, n_bins - 1)
+                self.counts[p] += np.bincount(idx, minlength=n_bins)
+
+    def histogram(self) -> tuple[np.ndarray, np.ndarray]:
+        """(counts, bin edges in ms) of trigger -> estimate, as `latency_histogram` gives."""
+        return self.counts["total"].copy(), np.arange(0.0, MAX_MS + BIN_MS / 2, BIN_MS)
+
     def percentile(self, part: str, q: float) -> float:
         c = self.counts[part]
         total = int(c.sum())

@@ -21,6 +21,13 @@ def recover(
     force: bool = typer.Option(False, help="Rewrite recording.h5 even if it already exists."),
 ) -> None:
     """Complete a recording whose process died: turn its raw files into recording.h5."""
+    if not path.exists():
+        console.print(f"[red]error[/red] {path}: no such folder", highlight=False)
+        raise typer.Exit(code=2)
+    if not path.is_dir():
+        console.print(f"[red]error[/red] {path}: not a folder (give the recording folder, which holds "
+                      "meta.json and the *.bin files)", highlight=False)
+        raise typer.Exit(code=2)
     if (path / H5_NAME).exists() and not force:
         console.print(f"{path}: already finalised ({H5_NAME} exists); use --force to rebuild it")
         return

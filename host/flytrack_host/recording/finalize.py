@@ -2,7 +2,9 @@
 
 A raw file cut by a crash ends in at most one partial row: it is dropped and counted. A text log cut
 mid-line loses that line only. The HDF5 file is written under a temporary name and renamed, so it is
-either complete or absent.
+either complete or absent. Tables are copied in chunks of `CHUNK_BYTES` (a memory map of the raw
+file into a resizable dataset), so a recording of any length finalises in bounded memory; the
+latency histogram and its percentiles (0.1 ms bins) are accumulated over the same chunks.
 """
 
 from __future__ import annotations
@@ -15,10 +17,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from flytrack_host.recording.schema import LATENCY, dtype_from_json
+from flytrack_host.recording.schema import dtype_from_json
 from flytrack_host.recording.writer import H5_NAME, META_NAME, RAW_SUFFIX, TEXTLOG_NAME
 
-ATTACHED = ("rig.toml",)
+ATTACHED = ("rig.toml", "rig.json")  # rig.json: a rig given without its TOML text
+CHUNK_BYTES = 8 << 20  # raw bytes copied per step when finalising
+H5_CHUNK_BYTES = 64 << 10  # HDF5 storage chunk of the tables
 
 
 class RecordingError(Exception):
@@ -60,14 +64,46 @@ def read_raw_textlog(folder: Path) -> tuple[list[dict], int]:
     if not path.exists():
         return [], 0
     rows, dropped = [], 0
-    for line in path.read_bytes().split(b"\n"):
-        if not line:
-            continue
-        try:
-            rows.append(json.loads(line))
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            dropped += 1
+    with open(path, "rb") as f:
+        for line in f:
+            line = line.rstrip(b"\n")
+            if not line:
+                continue
+            try:
+                rows.append(json.loads(line))
+            except (json.JSONDecodeError, UnicodeDecodeError):
+                dropped += 1
     return rows, dropped
+
+
+def _copy_table(h5: h5py.File, folder: Path, name: str, dt: np.dtype, report: FinalizeReport,
+                last_t: list[float], on_chunk=None) -> None:
+    """Raw file -> dataset `name`, CHUNK_BYTES at a time."""
+    path = folder / (name + RAW_SUFFIX)
+    size = path.stat().st_size if path.exists() else 0
+    n = size // dt.itemsize
+    report.rows[name] = n
+    if size - n * dt.itemsize:
+        report.partial_bytes_dropped[name] = size - n * dt.itemsize
+    ds = h5.create_dataset(name, shape=(n,), maxshape=(None,), dtype=dt,
+                           chunks=(max(1, H5_CHUNK_BYTES // dt.itemsize),))
+    if n == 0:
+        return
+    tcols = [c for c in ("cam_received_timestamp", "host_time", "estimate_time", "stop_timestamp") if c in dt.names]
+    step = max(1, CHUNK_BYTES // dt.itemsize)
+    mm = np.memmap(path, dtype=dt, mode="r", shape=(n,))
+    try:
+        for a in range(0, n, step):
+            block = np.array(mm[a : a + step])
+            ds[a : a + len(block)] = block
+            for tcol in tcols:
+                finite = block[tcol][np.isfinite(block[tcol])]
+                if len(finite):
+                    last_t.append(float(finite.max()))
+            if on_chunk is not None:
+                on_chunk(block)
+    finally:
+        del mm
 
 
 def finalize(folder: Path | str) -> FinalizeReport:
@@ -76,19 +112,13 @@ def finalize(folder: Path | str) -> FinalizeReport:
     report = FinalizeReport(h5_path=folder / H5_NAME)
     tmp = folder / (H5_NAME + ".tmp")
     last_t: list[float] = []
+    from flytrack_host.latency import LatencyStats  # (import cycle)
+
+    lat_stats = LatencyStats()
     with h5py.File(tmp, "w") as h5:
         for name, desc in meta["tables"].items():
-            dt = dtype_from_json(desc)
-            rows, partial = read_raw_table(folder, name, dt)
-            report.rows[name] = len(rows)
-            if partial:
-                report.partial_bytes_dropped[name] = partial
-            h5.create_dataset(name, data=rows, maxshape=(None,), chunks=True if len(rows) else None)
-            for tcol in ("cam_received_timestamp", "host_time", "estimate_time", "stop_timestamp"):
-                if tcol in dt.names and len(rows):
-                    finite = rows[tcol][np.isfinite(rows[tcol])]
-                    if len(finite):
-                        last_t.append(float(finite.max()))
+            _copy_table(h5, folder, name, dtype_from_json(desc), report, last_t,
+                        on_chunk=lat_stats.add_rows if name == "latency" else None)
         log, dropped = read_raw_textlog(folder)
         report.log_lines, report.log_lines_dropped = len(log), dropped
         str_dt = h5py.string_dtype()
@@ -97,18 +127,15 @@ def finalize(folder: Path | str) -> FinalizeReport:
             tl[i] = (row.get("host_time", np.nan), str(row.get("source", "")), str(row.get("message", "")))
         h5.create_dataset("textlog", data=tl)
         if "latency" in meta["tables"]:
-            from flytrack_host.latency import latency_histogram, latency_summary  # (import cycle)
-
-            lat = h5["latency"][...].astype(LATENCY)
-            counts, edges = latency_histogram(lat)
+            counts, edges = lat_stats.histogram()
             g = h5.create_group("latency_histogram")
             g.create_dataset("counts", data=counts)
             g.create_dataset("edges_ms", data=edges)
-            for k, v in latency_summary(lat).items():
+            for k, v in lat_stats.summary().items():
                 g.attrs[k] = v
         files = h5.create_group("files")
         for p in sorted(folder.iterdir()):
-            if p.name in ATTACHED or p.name.startswith("calibration."):
+            if p.name in ATTACHED or (p.name.startswith("calibration.") and not p.name.endswith(".tmp")):
                 files.create_dataset(p.name, data=np.frombuffer(p.read_bytes(), dtype=np.uint8))
         for k, v in meta.items():
             if k == "tables":

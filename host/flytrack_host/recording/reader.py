@@ -10,6 +10,7 @@ import h5py
 import numpy as np
 
 from flytrack_host.recording.finalize import (
+    ATTACHED,
     RecordingError,
     read_meta,
     read_raw_table,
@@ -24,7 +25,7 @@ class Recording:
     tables: dict[str, np.ndarray]
     textlog: list[dict]
     meta: dict
-    files: dict[str, bytes] = field(default_factory=dict)  # rig.toml, calibration.*
+    files: dict[str, bytes] = field(default_factory=dict)  # rig.toml or rig.json, calibration.*
 
     def table(self, name: str) -> np.ndarray:
         return self.tables.get(name, np.zeros(0, dtype=TABLES[name]))
@@ -63,7 +64,7 @@ def _load_raw(folder: Path) -> Recording:
     files = {
         p.name: p.read_bytes()
         for p in folder.iterdir()
-        if p.name == "rig.toml" or (p.name.startswith("calibration.") and not p.name.endswith(".tmp"))
+        if p.name in ATTACHED or (p.name.startswith("calibration.") and not p.name.endswith(".tmp"))
     }
     return Recording(tables=tables, textlog=log, meta=meta, files=files)
 
