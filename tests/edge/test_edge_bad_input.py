@@ -355,7 +355,11 @@ def _complete(msgs: list) -> bool:
 # ---- CONTROL sender allow-list ----------------------------------------------------------------------------
 
 def test_control_allow_list(edge_any: Path, receiver, tmp_path: Path, no_sanitizer_report) -> None:
-    e = Edge(edge_any, receiver, tmp_path, "--width", "16", "--height", "8", "--control-allow", "127.0.0.2")
+    cfg = tmp_path / "edge.toml"
+    cfg.write_text('[network]\ncontrol_allow = ["127.0.0.2", "10.1.2.3"]\n')
+    # The file's list and the flag's add up (the option is repeatable).
+    e = Edge(edge_any, receiver, tmp_path, "--width", "16", "--height", "8", "--config", str(cfg),
+             "--control-allow", "10.9.9.9")
     other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     other.bind(("127.0.0.2", 0))
     other.settimeout(5.0)

@@ -159,14 +159,15 @@ static int parse_list(const char *key, const char *v, double *out, int min_n, in
 }
 
 /* --control-allow: IPv4 addresses, "loopback" or "any", comma or space separated; adds to earlier
- * ones (the option is repeatable). */
+ * ones (the option is repeatable, and a config file's list adds to the flags'). */
 static int parse_allow(edge_config *c, const char *key, const char *v) {
     char buf[512];
     if (strlen(v) >= sizeof buf)
         return err(key, v, "too long");
     snprintf(buf, sizeof buf, "%s", v);
     int n = 0;
-    for (char *tok = strtok(buf, ", "); tok; tok = strtok(NULL, ", "), n++) {
+    /* Quotes count as separators too: a TOML array of strings ["a", "b"] arrives as "a", "b". */
+    for (char *tok = strtok(buf, ", \"'"); tok; tok = strtok(NULL, ", \"'"), n++) {
         struct in_addr a;
         if (!strcmp(tok, "any"))
             c->control_allow_any = 1;
