@@ -2,7 +2,8 @@
 .PHONY: test-edge bench-edge
 
 # C unit tests (plain, ASan+UBSan, V4L2 seam), the NumPy reference comparison, the daemon end to end
-# (stdin, Y4M, control, bad input, Aravis fake camera).
+# (stdin, Y4M, control, Aravis fake camera; bad input against both flytrack-edge and its ASan+UBSan
+# build flytrack-edge-san).
 test-edge: cbuild
 	@cd $(BUILD) && ctest --output-on-failure -R '^edge_'
 	@$(PYTEST) -q host/tests/features tests/edge
