@@ -1,9 +1,11 @@
-"""Shared fixtures of the firmware-in-simavr tests: build once, skip clearly without the AVR tools."""
+"""Shared fixtures of the firmware-in-simavr tests: build once; without the AVR tools a skip in a bare
+pytest run, a failure under make (which installs them)."""
 
 from __future__ import annotations
 
 import pytest
 
+from flytrack_host.testing import missing_part
 from flytrack_host.trigger import simulator
 
 FIGURES: dict[str, str] = {}
@@ -12,7 +14,7 @@ FIGURES: dict[str, str] = {}
 @pytest.fixture(scope="session")
 def built() -> tuple:
     if not simulator.tools_available():
-        pytest.skip("avr-gcc / simavr not installed: the firmware cannot run here (SoftwareTrigger covers the host)")
+        missing_part("avr-gcc / simavr not installed: the firmware cannot run here (SoftwareTrigger covers the host)")
     return simulator.build("atmega328p")
 
 

@@ -29,6 +29,7 @@ from flytrack_host.protocol.udp import POINT_DTYPE, FeatureFrame, encode_feature
 from flytrack_host.recording import load_recording
 from flytrack_host.recording.schema import FLAG_TRACKED
 from flytrack_host.rig import parse_rig
+from flytrack_host.testing import missing_part
 from flytrack_host.trigger import simulator
 from flytrack_host.trigger_session import TriggerSession
 
@@ -199,7 +200,7 @@ def check_recording(summary: dict, edges: list[FakeEdge], period: float, runs: i
 @pytest.fixture(scope="module")
 def firmware() -> tuple:
     if not simulator.tools_available():
-        pytest.skip("avr-gcc / simavr not installed: the firmware cannot run here (the software trigger test runs)")
+        missing_part("avr-gcc / simavr not installed: the firmware cannot run here (the software trigger test runs)")
     return simulator.build("atmega328p")
 
 

@@ -142,6 +142,9 @@ def tracker_bench(
                 "c_vs_numpy_max_position_diff_m": diff, "c_vs_numpy_same_ids": same_ids,
             })
         if use_ss:
+            from flytrack_host.tracking.stonesoup_baseline import check_camera_model
+
+            check_camera_model(sc.cameras)  # Stone Soup sees our cameras, or the comparison means nothing
             ss_wall, ss_cpu, ss_est = _run_stonesoup(sc, n_ss, births)
             s_ours = score(sc.truth[:n_ss], est[:n_ss])
             s_ss = score(sc.truth[:n_ss], ss_est)

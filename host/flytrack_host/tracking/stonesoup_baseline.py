@@ -28,7 +28,7 @@ from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionM
 from stonesoup.predictor.kalman import ExtendedKalmanPredictor
 from stonesoup.types.array import StateVector, StateVectors
 from stonesoup.types.detection import Detection
-from stonesoup.types.state import GaussianState
+from stonesoup.types.state import GaussianState, State
 from stonesoup.types.track import Track
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
@@ -64,6 +64,25 @@ class CameraMeasurementModel(NonLinearGaussianMeasurement):
         H = np.zeros((2, self.ndim_state))
         H[:, list(self.mapping)] = J
         return H
+
+
+def check_camera_model(cameras: Mapping[int, Camera], X: Sequence[float] = (0.6, 0.05, 0.1)) -> None:
+    """The comparison is only fair if Stone Soup sees our cameras: its measurement function and
+    Jacobian through CameraMeasurementModel must equal Camera.project / project_jacobian at X (each
+    camera), and the velocity columns be zero. Raises AssertionError naming the camera otherwise."""
+    X = np.asarray(X, dtype=np.float64)
+    sv = np.zeros(6)
+    sv[list(_POS)] = X
+    state = State(StateVector(sv))
+    for ci, cam in cameras.items():
+        model = CameraMeasurementModel(ndim_state=6, mapping=_POS, noise_covar=np.eye(2), camera=cam)
+        np.testing.assert_allclose(np.asarray(model.function(state), dtype=np.float64).ravel(), cam.project(X)[0],
+                                   rtol=1e-12, atol=1e-9, err_msg=f"camera {ci}: Stone Soup projection")
+        H = np.asarray(model.jacobian(state), dtype=np.float64)
+        np.testing.assert_allclose(H[:, list(_POS)], cam.project_jacobian(X)[1], rtol=1e-12, atol=1e-9,
+                                   err_msg=f"camera {ci}: Stone Soup Jacobian")
+        vel = [i for i in range(6) if i not in _POS]
+        assert np.all(H[:, vel] == 0), f"camera {ci}: Stone Soup Jacobian has velocity terms"
 
 
 class StoneSoupTracker:

@@ -1,20 +1,19 @@
 """The rendered frames against the real feature extractor library (the code flytrack-edge runs)."""
 
 import numpy as np
-import pytest
 
+from flytrack_host.features import extractor
 from flytrack_host.sim.flight import Arena, simulate_flight
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 from flytrack_host.sim.rig import make_cameras
-
-extractor = pytest.importorskip("flytrack_host.features.extractor")
+from flytrack_host.testing import missing_part
 
 
 def test_extractor_finds_every_drawn_animal_to_a_fraction_of_a_pixel():
     try:
         extractor.FeatureExtractor(64, 64)
     except OSError as exc:  # the C library is built by `make build`
-        pytest.skip(f"libflytrack_features not built: {exc}")
+        missing_part(f"libflytrack_features not built: {exc}")
     gt = simulate_flight(3, 1.0, 100.0, seed=4)
     cams = make_cameras(3, Arena(), seed=4)
     errs, missed, found = [], 0, 0
