@@ -13,7 +13,9 @@ model keeps only
 samples whose round trip is small (an absolute bound, then the better part of the window), fits
 gain and offset by least squares over a window of recent samples, drops outliers (beyond a few
 robust standard deviations) and refits. A device time that goes backwards, or a run of samples far
-off the model, means the device restarted (or was reset): the window starts afresh.
+off the model, means the device restarted (or was reset): the window starts afresh. The far samples
+are held back until `jump_count` of them agree with each other; they then seed the new window, so the
+model is fitted again at once (not `min_samples` queries later).
 """
 
 from __future__ import annotations
@@ -103,7 +105,7 @@ class ClockModel:
         # knows the link (baud rate, frame sizes) sets it.
         self.link = link
         self._samples: deque[ClockSample] = deque(maxlen=window)
-        self._far = 0
+        self._held: list[ClockSample] = []  # samples far off the fit, held back until a jump is confirmed
         self.gain = 1.0
         self.offset = 0.0
         self.residual_s = math.nan
@@ -123,7 +125,7 @@ class ClockModel:
 
     def reset(self) -> None:
         self._samples.clear()
-        self._far = 0
+        self._held.clear()
         self.fitted = False
         self.n_samples = 0
         self.residual_s = math.nan
@@ -140,15 +142,23 @@ class ClockModel:
         if self._samples and device_time_s < self._samples[-1].device_time_s:
             self._restart()
         elif self.fitted and abs(self.device_to_host(device_time_s) - s.host_sample) > self.jump_threshold_s:
-            self._far += 1
-            if self._far < self.jump_count:
-                return True  # held back: an outlier unless the next ones agree
+            # Held back: an outlier unless the next ones agree with it (the same new offset).
+            if self._held and abs(self._offset_of(s) - self._offset_of(self._held[-1])) > self.jump_threshold_s:
+                self._held.clear()
+            self._held.append(s)
+            if len(self._held) < self.jump_count:
+                return True
+            confirming = self._held[:-1]
             self._restart()
+            self._samples.extend(confirming)  # the jump's own samples start the new window
         else:
-            self._far = 0
+            self._held.clear()
         self._samples.append(s)
         self.fit()
         return True
+
+    def _offset_of(self, s: ClockSample) -> float:
+        return s.host_sample - self.gain * s.device_time_s
 
     def _restart(self) -> None:
         self.restarts += 1

@@ -60,6 +60,26 @@ def test_clock_jump_resets_after_consistent_samples() -> None:
     assert m.device_to_host(3.0) == pytest.approx(1.00002 * 3.0 + 1.7e9 + 0.5, abs=1e-4)
 
 
+def test_confirmed_jump_is_fitted_at_once_from_its_own_samples() -> None:
+    # The samples that confirm a jump seed the new window: frame_to_host_time works right after the
+    # confirming sample (it raised "no fit yet" until min_samples more arrived).
+    m = ClockModel(frame_period_s=0.01, jump_count=3)
+    _feed(m, np.arange(50) * 0.05, noise=1e-6)
+    _feed(m, 2.5 + np.arange(3) * 0.05, offset=1.7e9 + 0.5, noise=1e-6)  # exactly jump_count far samples
+    assert m.restarts == 1 and m.fitted and m.n_samples == 3
+    assert m.frame_to_host_time(260) == pytest.approx(1.00002 * 2.6 + 1.7e9 + 0.5, abs=1e-4)
+
+
+def test_far_samples_that_disagree_do_not_restart() -> None:
+    # Three far samples, each off the model in its own way, are outliers, not a jump.
+    m = ClockModel(frame_period_s=0.01, jump_count=3)
+    _feed(m, np.arange(50) * 0.05, noise=1e-6)
+    for i, step in enumerate((0.5, -0.3, 0.9)):
+        _feed(m, [2.5 + i * 0.05], offset=1.7e9 + step, noise=1e-6)
+    assert m.restarts == 0 and m.n_samples >= 20
+    assert m.device_to_host(2.6) == pytest.approx(1.00002 * 2.6 + 1.7e9, abs=1e-4)
+
+
 def test_no_fit_is_a_clear_error() -> None:
     m = ClockModel()
     with pytest.raises(RuntimeError, match="no fit"):
