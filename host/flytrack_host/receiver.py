@@ -38,6 +38,7 @@ SEQ_MOD = 1 << 32
 _HALF = 1 << 31
 SEQ_WINDOW = 512  # recent sequence numbers remembered per camera (duplicates, reordering)
 RESTART_GAP = 10_000  # a sequence number this far behind means the edge restarted
+FORWARD_RESTART_GAP = 1_000_000  # ... and this far ahead
 
 
 @dataclass
@@ -210,11 +211,16 @@ class Receiver:
             return True
         d = (seq - s.expected) % SEQ_MOD
         if d < _HALF:
-            if d > RESTART_GAP * 100:
+            if d > FORWARD_RESTART_GAP:
+                # No link loses a million datagrams in a row: the edge restarted with other numbers.
                 cs.restarts += 1
+                s.missing.clear()
+                self.log(f"camera {cam}: sequence number jumped ahead by {d} (to {seq}); counted as an "
+                         "edge restart, not as loss")
             else:
                 cs.lost += d
-                for k in range(min(d, SEQ_WINDOW)):
+                # Remember the newest gaps: a late datagram comes from just before this one.
+                for k in range(max(0, d - SEQ_WINDOW), d):
                     s.missing[(s.expected + k) % SEQ_MOD] = None
                 while len(s.missing) > SEQ_WINDOW:
                     s.missing.popitem(last=False)

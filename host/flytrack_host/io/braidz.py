@@ -13,9 +13,11 @@ and a README, with Braid's file and column names (braid_types / flydra_types, sc
   from a "MainBrain running at F fps" line and the tracking parameters from a JSON line
   {"tracking_params": {...}}, which it requires when kalman_estimates is present.
 
-Missing values (an unknown trigger timestamp, a NaN coordinate) are written as empty fields, which
-Braid reads as None / NaN. Rows FlyTrack could not map to a trigger frame (-1) are left out: Braid's
-frame numbers are unsigned. FlyTrack's orientation (radians) is Braid's slope = tan(orientation).
+Missing values (an unknown trigger timestamp, a NaN coordinate, a zero device timestamp or camera
+frame number, which Braid keeps as NonZeroU64) are written as empty fields, which Braid reads as
+None / NaN. Rows FlyTrack could not map to a trigger frame (-1) are left out: Braid's frame numbers
+are unsigned. Braid's camera numbers are u8: a camera index above 255 is an error. FlyTrack's
+orientation (radians) is Braid's slope = tan(orientation).
 """
 
 from __future__ import annotations
@@ -65,14 +67,15 @@ def braid_tracking_params(params: dict | None) -> dict:
         "initial_position_std_meters": p.get("initial_position_std_m", 0.1),
         "initial_vel_std_meters_per_sec": p.get("initial_velocity_std_m_s", 1.0),
         "accept_observation_min_likelihood": 1e-8,
-        "ekf_observation_covariance_pixels": p.get("measurement_noise_px", 1.0),
+        # Braid's R is this value times I: a variance (px^2), where FlyTrack keeps a standard deviation.
+        "ekf_observation_covariance_pixels": float(p.get("measurement_noise_px", 1.0)) ** 2,
         "max_position_std_meters": p.get("death_position_std_m", 0.01212),
         "hypothesis_test_params": {
             "minimum_number_of_cameras": p.get("birth_min_cameras", 2),
             "hypothesis_test_max_acceptable_error": p.get("birth_max_reproj_px", 5.0),
             "minimum_pixel_abs_zscore": 0.0,
         },
-        "num_observations_to_visibility": 3,
+        "num_observations_to_visibility": int(min(max(p.get("confirm_min_frames", 3), 0), 255)),  # u8
         "mini_arena_config": "NoMiniArena",
     }
 
@@ -111,6 +114,10 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     fps = rec.fps
     names = _cam_names(rec)
 
+    big = sorted({int(i) for t in ("data2d_distorted", "data_association", "cam_info")
+                  for i in rec.table(t)["camera_index"] if i > 255})
+    if big:
+        raise BraidzError(f"camera indices {big} do not fit Braid's camera numbers (0-255)")
     d2 = rec.table("data2d_distorted")
     d2 = d2[(d2["trigger_frame"] >= 0) & ((d2["flags"] & FLAG_REJECTED) == 0)]
     d2 = d2[np.argsort(d2["trigger_frame"], kind="stable")]
@@ -136,9 +143,11 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
         "sumsqf_val": d2["sumsq_val"].astype(np.float64),
     }, columns=DATA2D_COLUMNS)
     data2d.loc[dev <= 0, "device_timestamp"] = pd.NA
+    data2d.loc[d2["camera_frame"] == 0, "block_id"] = pd.NA
     counts["data2d_distorted"] = len(data2d)
 
     k = rec.table("kalman_estimates")
+    k = k[k["trigger_frame"] >= 0]
     k = k[np.argsort(k["trigger_frame"], kind="stable")]
     kal = pd.DataFrame({
         "obj_id": k["obj_id"], "frame": k["trigger_frame"], "timestamp": k["timestamp"],
@@ -149,6 +158,8 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     counts["kalman_estimates"] = len(kal)
 
     a = rec.table("data_association")
+    a = a[a["trigger_frame"] >= 0]
+    a = a[np.argsort(a["trigger_frame"], kind="stable")]
     assoc = pd.DataFrame({"obj_id": a["obj_id"], "frame": a["trigger_frame"], "cam_num": a["camera_index"],
                           "pt_idx": np.minimum(a["pt_idx"], 255)}, columns=ASSOC_COLUMNS)
     counts["data_association"] = len(assoc)

@@ -1,8 +1,9 @@
 """Helpers for the host data-path tests: a stand-in tracker and a UDP edge simulator.
 
-The stand-in tracker exists only here, until the real tracker (flytrack_host.tracking.tracker) is
-used: it reports one object per frame at the mean of the first points, so pipeline plumbing can be
-checked without depending on tracking quality.
+The stand-in tracker isolates the data path (receive, synchronise, record, serve live) from tracking
+quality: it reports one object per frame at the mean of the first points of each camera, so a test
+can predict every estimate and needs no calibration. The real `Tracker` runs end to end over UDP in
+test_braidz_schema.py (and the tracker itself is tested in host/tests/tracking/).
 """
 
 from __future__ import annotations

@@ -106,3 +106,39 @@ def test_trigger_clock_jump_through_the_pipeline(helpers, tmp_path):
     for cam in (0, 1):  # nothing recorded is lost
         assert set(d2[d2["camera_index"] == cam]["camera_frame"].tolist()) == set(range(120))
     assert any("jumped" in r["message"] for r in rec.textlog)
+
+
+def _feed_seqs(rx, helpers, seqs):
+    e = helpers.EdgeSim(0, ("127.0.0.1", 1))
+    out: list = []
+    for k, seq in enumerate(seqs):
+        e.seq = seq
+        for d in e.datagrams(k):
+            rx.handle(d, ADDR, 1.0, out)
+    return out
+
+
+def test_late_datagrams_after_a_big_gap_are_taken_off_the_loss(helpers):
+    """After a gap longer than the remembered window, the newest missing numbers are remembered:
+    the late datagrams that arrive are those from just before the gap's end."""
+    logs: list[str] = []
+    rx = Receiver(helpers.make_rig(1), bind="127.0.0.1:0", log=logs.append)
+    try:
+        out = _feed_seqs(rx, helpers, [0, 2000, 1999, 1990])
+        cs = rx.stats.cameras[0]
+        assert len(out) == 4
+        assert cs.lost == 1999 - 2 and cs.reordered == 2 and cs.restarts == 0
+    finally:
+        rx.close()
+
+
+def test_a_forward_jump_of_millions_is_a_restart_and_logged(helpers):
+    logs: list[str] = []
+    rx = Receiver(helpers.make_rig(1), bind="127.0.0.1:0", log=logs.append)
+    try:
+        out = _feed_seqs(rx, helpers, [0, 1, 5_000_000, 5_000_001])
+        cs = rx.stats.cameras[0]
+        assert len(out) == 4 and cs.restarts == 1 and cs.lost == 0
+        assert any("jumped ahead" in m and "restart" in m for m in logs)
+    finally:
+        rx.close()
