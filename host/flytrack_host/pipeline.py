@@ -579,7 +579,10 @@ def run_command(
         None, help="Seconds to wait after opening the trigger port (default 2 for a board, 0 for a pty)."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
-    until Ctrl-C."""
+    until Ctrl-C.
+
+    Without a trigger board, pass --no-trigger (frames are timed by a fixed-rate clock anchored at the
+    first frame), or use a rig file with [trigger] kind = "software"."""
     import signal
 
     from rich.console import Console
@@ -609,6 +612,8 @@ def run_command(
         except TriggerError as exc:
             err = Console(stderr=True)
             err.print(f"[red]error[/red] trigger ({rig.trigger.kind}): {exc}", highlight=False, soft_wrap=True)
+            err.print(f"no trigger board? run without one: flytrack run {rig_path} --no-trigger", highlight=False,
+                      soft_wrap=True)
             raise typer.Exit(code=2) from None
     pipe = HostPipeline(rig, cameras, bind=bind, record=not no_record, recording_path=recording,
                         rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
