@@ -98,6 +98,7 @@ class Recorder:
         self._unsynced: set[str] = set()
         self._noted_drops: dict[str, int] = {}  # drops already written to the text log
         self._noted_log_drops = 0
+        self._last_note = 0.0
         self._failing = False  # inside an episode of write errors (log once per episode)
         self._stopped = False
         self._wake = threading.Event()
@@ -209,7 +210,7 @@ class Recorder:
             stop = self._wake.wait(min(self.poll_s, max(0.0, next_sync - time.monotonic())))
             try:
                 done = self._drain()
-                self._note_drops()
+                self._note_drops(force=done or stop)
                 if time.monotonic() >= next_sync or done or stop:
                     self._sync()
                     next_sync = time.monotonic() + self.flush_interval_s
@@ -281,8 +282,11 @@ class Recorder:
             self._failing = True
             log.error("%s", message, exc_info=exc if not isinstance(exc, OSError) else None)
 
-    def _note_drops(self) -> None:
-        """Put drops not yet noted into the text log (directly: the queue may be what is full)."""
+    def _note_drops(self, force: bool = False) -> None:
+        """Put drops not yet noted into the text log (directly: the queue may be what is full), at
+        most once a second while they go on, and at the end."""
+        if not force and time.monotonic() - self._last_note < 1.0:
+            return
         st = self.stats
         with self._put_lock:
             snap, snap_lines = dict(st.dropped_rows), st.dropped_log_lines
@@ -314,6 +318,7 @@ class Recorder:
         self._sizes[TEXTLOG_KEY] += len(data)
         self._unsynced.add(TEXTLOG_KEY)
         self._noted_drops, self._noted_log_drops = snap, snap_lines
+        self._last_note = time.monotonic()
         if not self._failing:
             log.warning("%s", line["message"])
 
