@@ -507,7 +507,8 @@ static void usage(const char *argv0) {
     fprintf(stderr,
             "usage: %s --elf FILE [--mcu atmega328p|atmega32u4] [--freq HZ] [--edges FILE]\n"
             "       [--pty-file FILE] [--realtime] [--max-seconds SIM_S] [--max-cycles N]\n"
-            "       [--event-period CYCLES --event-phase CYCLES --event-high CYCLES]\n",
+            "       [--event-period CYCLES --event-phase CYCLES --event-high CYCLES] [--irq-log]\n"
+            "       [--help]\n",
             argv0);
 }
 

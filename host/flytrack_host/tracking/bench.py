@@ -22,6 +22,7 @@ from rich.console import Console
 from rich.table import Table
 
 from flytrack_host.tracking.evaluation import score
+from flytrack_host.tracking.kernel import KernelUnavailable
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario
 from flytrack_host.tracking.tracker import Tracker, select_kernel
@@ -87,16 +88,19 @@ def _stonesoup_available() -> str | None:
 @app.command("tracker")
 def tracker_bench(
     quick: bool = typer.Option(False, "--quick", help="Fewer frames and rig sizes (about 30 s)."),
-    frames: int = typer.Option(0, help="Frames tracked per rig size (default 1000, quick 300)."),
-    stonesoup_frames: int = typer.Option(0, help="Frames Stone Soup tracks per rig size (default 100, quick 40)."),
+    frames: int | None = typer.Option(None, min=1, help="Frames tracked per rig size (default 1000, quick 300)."),
+    stonesoup_frames: int | None = typer.Option(
+        None, min=1, help="Frames Stone Soup tracks per rig size (default 100, quick 40)."),
     no_stonesoup: bool = typer.Option(False, "--no-stonesoup", help="Skip the Stone Soup comparison."),
     json_path: Path | None = typer.Option(None, "--json", help="Also write the figures to this JSON file."),
-    seed: int = typer.Option(1, help="Scenario seed."),
+    seed: int = typer.Option(1, min=0, help="Scenario seed."),
     kernel: str = typer.Option("auto", help="Tracker path: auto (C when built), c or numpy."),
     no_numpy: bool = typer.Option(False, "--no-numpy", help="Do not also time the NumPy path."),
 ) -> None:
     """Tracker latency (P50, P99) for 2, 5 and 11 cameras with 1 to 10 targets; real time at 100 and
     200 fps; speed and accuracy against Stone Soup's EKF + nearest-neighbour tracker."""
+    if kernel not in ("auto", "c", "numpy"):
+        raise typer.BadParameter(f"must be auto, c or numpy, got {kernel!r}", param_hint="--kernel")
     n = frames or (300 if quick else 1000)
     n_ss = min(n, stonesoup_frames or (40 if quick else 100))
     configs = ((2, 1), (5, 2), (5, 10), (11, 3), (11, 10)) if quick else CONFIGS
@@ -104,9 +108,11 @@ def tracker_bench(
     if ss_missing:
         console.print(f"[yellow]{ss_missing}[/yellow] Comparison skipped.", highlight=False)
     use_ss = not no_stonesoup and ss_missing is None
-    if kernel not in ("auto", "c", "numpy"):
-        raise typer.BadParameter(f"--kernel must be auto, c or numpy, got {kernel!r}")
-    path, why = select_kernel(TrackingParams(kernel=kernel))  # type: ignore[arg-type]
+    try:
+        path, why = select_kernel(TrackingParams(kernel=kernel))  # type: ignore[arg-type]
+    except (KernelUnavailable, ValueError) as exc:  # asked for C without the library; a bad env value
+        Console(stderr=True, soft_wrap=True).print(f"[red]error[/red] {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
     console.print(f"tracker path: {'C kernel' if path == 'c' else 'NumPy'} ({why})", highlight=False)
     compare_numpy = path == "c" and not no_numpy
     rows: list[dict] = []

@@ -3,22 +3,24 @@
 from __future__ import annotations
 
 import shlex
+import shutil
 import subprocess
 import time
+from pathlib import Path
 
 import typer
 from rich.console import Console
 
-from .common import TriggerError
+from .common import TriggerError, check_port_exists
 from .flash import BOARDS, avrdude_command, firmware_mcu
 
 app = typer.Typer(help="Trigger box: info, start/stop, live clock figures, pulses, flashing.", no_args_is_help=True)
 console = Console()
-err = Console(stderr=True)
+err = Console(stderr=True, soft_wrap=True)  # one line per message, whatever the terminal width
 
 PortOpt = typer.Option("/dev/ttyUSB0", "--port", "-p", help="Serial port of the trigger box.")
 KindOpt = typer.Option("flytrack", "--kind", help="flytrack (this firmware) or strawlab (triggerbox).")
-WaitOpt = typer.Option(2.0, "--reset-wait", help="Seconds to wait after opening (Arduino reset on open).")
+WaitOpt = typer.Option(2.0, "--reset-wait", min=0.0, help="Seconds to wait after opening (Arduino reset on open).")
 
 
 def _open(port: str, kind: str, reset_wait: float):  # noqa: ANN202 - either driver
@@ -86,8 +88,8 @@ def stop(port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
 @app.command()
 def watch(
     fps: float = typer.Option(100.0, "--fps", help="Frame rate (the device is restarted at it)."),
-    seconds: float = typer.Option(10.0, "--seconds", help="How long to watch (0 = until Ctrl-C)."),
-    period: float = typer.Option(0.05, "--period", help="Clock query period, s."),
+    seconds: float = typer.Option(10.0, "--seconds", min=0.0, help="How long to watch (0 = until Ctrl-C)."),
+    period: float = typer.Option(0.05, "--period", min=0.001, help="Clock query period, s."),
     port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
 ) -> None:
     """Live clock-model figures: frame, gain, offset, residual, samples."""
@@ -119,9 +121,9 @@ def watch(
 
 @app.command()
 def pulse(
-    frame: int = typer.Option(-1, "--frame", help="Frame to pulse in (-1: the earliest reachable)."),
+    frame: int = typer.Option(-1, "--frame", min=-1, help="Frame to pulse in (-1: the earliest reachable)."),
     width_ms: float = typer.Option(1.0, "--width-ms", help="Pulse width, ms."),
-    channel: int = typer.Option(0, "--channel"),
+    channel: int = typer.Option(0, "--channel", min=0),
     port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
     fps: float = typer.Option(100.0, "--fps", help="Frame rate the device runs at (to convert the width)."),
 ) -> None:
@@ -153,9 +155,19 @@ def flash(
         cmd = avrdude_command(board, port, path)
     except ValueError as exc:
         _fail(exc)
-    console.print(shlex.join(cmd), highlight=False, soft_wrap=True)
-    if dry_run:
+    if dry_run:  # the command only: nothing is checked
+        console.print(shlex.join(cmd), highlight=False, soft_wrap=True)
         return
+    # Clear messages for what avrdude would otherwise report in its own words (or a traceback).
+    try:
+        check_port_exists(port)
+    except TriggerError as exc:
+        _fail(exc)
+    if not Path(path).is_file():
+        _fail(TriggerError(f"firmware {path} is missing: run `make firmware` (or give --hex)"))
+    if shutil.which(cmd[0]) is None:
+        _fail(TriggerError("avrdude is not installed (apt-get install avrdude)"))
+    console.print(shlex.join(cmd), highlight=False, soft_wrap=True)
     if BOARDS[board][1] == "avr109":
         console.print("touching the port at 1200 baud to enter the bootloader", highlight=False)
         import serial
@@ -165,4 +177,7 @@ def flash(
         except serial.SerialException as exc:
             _fail(TriggerError(f"cannot open {port}: {exc}"))
         time.sleep(2.0)
-    raise typer.Exit(code=subprocess.run(cmd, check=False).returncode)
+    rc = subprocess.run(cmd, check=False).returncode
+    if rc != 0:
+        err.print(f"[red]error[/red] avrdude failed (exit {rc}): its output is above", highlight=False)
+    raise typer.Exit(code=rc)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -67,6 +68,17 @@ def choose_rate(
     return best
 
 
+def _no_such_port(port: str) -> TriggerError:
+    return TriggerError(f"serial port {port} does not exist (is the board plugged in?)")
+
+
+def check_port_exists(port: str) -> None:
+    """Raises the drivers' TriggerError for a serial port that is not there (before handing the port
+    to a tool such as avrdude, whose own message is far less clear)."""
+    if not os.path.exists(port):
+        raise _no_such_port(port)
+
+
 def open_serial(port: str, baudrate: int, timeout: float = 0.05) -> serial.Serial:
     """Opens a serial port exclusively, turning pyserial's errors into clear TriggerErrors."""
     try:
@@ -74,7 +86,7 @@ def open_serial(port: str, baudrate: int, timeout: float = 0.05) -> serial.Seria
     except serial.SerialException as exc:
         text = str(exc)
         if "No such file" in text or "could not open port" in text and "Errno 2" in text:
-            raise TriggerError(f"serial port {port} does not exist (is the board plugged in?)") from None
+            raise _no_such_port(port) from None
         if "exclusively lock" in text or "Resource temporarily unavailable" in text or "busy" in text.lower():
             raise TriggerError(f"serial port {port} is busy: another program has it open") from None
         if "Permission denied" in text:

@@ -270,6 +270,8 @@ class TriggerDevice(SerialTrigger):
         """Pulses `channel` during frame `frame` (None: the earliest reachable frame) for width_s.
 
         Returns the width in timer ticks actually asked for."""
+        if not width_s > 0:
+            raise TriggerError(f"pulse width must be positive, got {width_s} s")
         width_ticks = max(1, round(width_s / self._tick_s()))
         if width_ticks > 0xFFFF:
             raise TriggerError(f"pulse width {width_s} s is longer than the timer can count")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -61,3 +63,23 @@ def test_stonesoup_camera_model_matches_ours(monkeypatch: pytest.MonkeyPatch) ->
     monkeypatch.setattr(ssb.CameraMeasurementModel, "jacobian", lambda self, state, **kw: np.zeros((2, 6)))
     with pytest.raises(AssertionError, match="camera 0: Stone Soup Jacobian"):
         ssb.check_camera_model(cams)
+
+
+def _flytrack(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "flytrack_host.cli", *args], capture_output=True, text=True,
+                          timeout=60, env={**os.environ, **(env or {})})
+
+
+@pytest.mark.parametrize(("args", "opt"), [(["--frames", "-1"], "--frames"), (["--frames", "0"], "--frames"),
+                                           (["--stonesoup-frames", "0"], "--stonesoup-frames"),
+                                           (["--seed", "-1"], "--seed"), (["--kernel", "fortran"], "--kernel")])
+def test_bad_numbers_are_one_clear_error(args: list[str], opt: str) -> None:
+    r = _flytrack("bench", "tracker", "--quick", "--no-stonesoup", *args)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "Invalid value for" in r.stderr and opt in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_c_kernel_asked_but_not_built_is_one_clear_error(tmp_path: Path) -> None:
+    r = _flytrack("bench", "tracker", "--quick", "--no-stonesoup", "--kernel", "c",
+                  env={"FLYTRACK_BUILD_DIR": str(tmp_path)})
+    assert r.returncode == 2 and "make cbuild" in r.stderr and "Traceback" not in r.stderr, r.stdout + r.stderr
