@@ -1,21 +1,22 @@
 """ctypes binding to libflytrack_features, the C library the edge daemon runs.
 
 The offline tools call exactly the code the edge runs: this module loads the shared library built by
-CMake (`make build`) and mirrors its structs. Where to find it: `$FLYTRACK_BUILD_DIR/edge/
-feature_extractor/` (the Makefile exports FLYTRACK_BUILD_DIR), else `<repo>/build/edge/feature_extractor/`.
+CMake (`make build`) and mirrors its structs. Where to find it: flytrack_host.native (`edge/
+feature_extractor/` under $FLYTRACK_BUILD_DIR, else under <repo>/build).
 """
 
 from __future__ import annotations
 
 import ctypes
-import os
-from pathlib import Path
 
-LIB_NAME = "libflytrack_features.so"
+from flytrack_host.native import NativeLibraryError, library_path, load_library
+
+LIB = "flytrack_features"
+SUBDIR = "edge/feature_extractor"
 ABI_VERSION = 1
 
 
-class FeatureLibraryError(OSError):
+class FeatureLibraryError(NativeLibraryError):
     """The C library is missing or does not match these bindings (an OSError, as ctypes load failures)."""
 
 
@@ -85,15 +86,6 @@ class Result(ctypes.Structure):
     ]
 
 
-def library_dir() -> Path:
-    """Where the shared library should be."""
-    build = os.environ.get("FLYTRACK_BUILD_DIR")
-    if build:
-        return Path(build) / "edge" / "feature_extractor"
-    repo = Path(__file__).resolve().parents[3]
-    return repo / "build" / "edge" / "feature_extractor"
-
-
 _lib: ctypes.CDLL | None = None
 
 
@@ -102,16 +94,8 @@ def load() -> ctypes.CDLL:
     global _lib
     if _lib is not None:
         return _lib
-    path = library_dir() / LIB_NAME
-    if not path.is_file():
-        raise FeatureLibraryError(
-            f"the feature extractor library {path} is missing: run `make build` (or `make cbuild`) "
-            "in the repository first, or set FLYTRACK_BUILD_DIR to the CMake build directory"
-        )
-    try:
-        lib = ctypes.CDLL(str(path))
-    except OSError as exc:
-        raise FeatureLibraryError(f"cannot load {path}: {exc}; rebuild with `make build`") from exc
+    path = library_path(LIB, SUBDIR)
+    lib = load_library(LIB, SUBDIR, "feature extractor library", FeatureLibraryError)
     lib.ft_fx_abi_version.restype = ctypes.c_int
     lib.ft_fx_sizeof_params.restype = ctypes.c_size_t
     lib.ft_fx_sizeof_point.restype = ctypes.c_size_t

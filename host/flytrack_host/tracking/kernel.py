@@ -4,26 +4,26 @@ The library (host/flytrack_host/tracking/kernel/tracker_kernel.c) gathers a fram
 projects, gates, associates and updates all targets in one call; `Tracker` uses it when it is built
 and falls back to the NumPy path otherwise (tracker.py says which). Every buffer is a NumPy array owned
 here and handed over once as a pointer in the `Buffers` struct: a frame allocates nothing.
-Where the library is: `$FLYTRACK_BUILD_DIR/host/flytrack_host/tracking/kernel/` (the Makefile exports
-FLYTRACK_BUILD_DIR), else `<repo>/build/host/flytrack_host/tracking/kernel/` (`make cbuild`).
+Where the library is: flytrack_host.native (`host/flytrack_host/tracking/kernel/` under
+$FLYTRACK_BUILD_DIR, else under <repo>/build; built by `make cbuild`).
 """
 
 from __future__ import annotations
 
 import ctypes
-import os
 import sys
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from flytrack_host.native import NativeLibraryError, library_path, load_library
 from flytrack_host.tracking.association import PointSet
 from flytrack_host.tracking.birth import _SEED_GATE
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams
 
-LIB_NAME = "libflytrack_tracker_kernel.so"
+LIB = "flytrack_tracker_kernel"
+SUBDIR = "host/flytrack_host/tracking/kernel"
 ABI_VERSION = 2
 CAM_STRIDE = 46  # FTK_CAM_STRIDE: doubles per camera in the packed table
 
@@ -33,7 +33,7 @@ CAM_STRIDE = 46  # FTK_CAM_STRIDE: doubles per camera in the packed table
 _ERRORS = {-1: "invalid argument", -2: "buffer capacity exceeded"}
 
 
-class KernelUnavailable(OSError):
+class KernelUnavailable(NativeLibraryError):
     """The C library is missing or does not match these bindings."""
 
 
@@ -62,14 +62,6 @@ class Buffers(ctypes.Structure):
     ]
 
 
-def library_dir() -> Path:
-    """Where the shared library should be."""
-    build = os.environ.get("FLYTRACK_BUILD_DIR")
-    if build:
-        return Path(build) / "host" / "flytrack_host" / "tracking" / "kernel"
-    return Path(__file__).resolve().parents[3] / "build" / "host" / "flytrack_host" / "tracking" / "kernel"
-
-
 _lib: ctypes.CDLL | None = None
 
 
@@ -80,16 +72,8 @@ def load() -> ctypes.CDLL:
         return _lib
     if sys.byteorder != "little":
         raise KernelUnavailable("the tracker kernel reads little-endian protocol points; this host is big-endian")
-    path = library_dir() / LIB_NAME
-    if not path.is_file():
-        raise KernelUnavailable(
-            f"the tracker kernel {path} is not built: run `make cbuild` in the repository, or set "
-            "FLYTRACK_BUILD_DIR to the CMake build directory"
-        )
-    try:
-        lib = ctypes.CDLL(str(path))
-    except OSError as exc:
-        raise KernelUnavailable(f"cannot load {path}: {exc}; rebuild with `make cbuild`") from exc
+    path = library_path(LIB, SUBDIR)
+    lib = load_library(LIB, SUBDIR, "tracker kernel", KernelUnavailable)
     lib.ftk_abi_version.restype = ctypes.c_int
     lib.ftk_sizeof_params.restype = ctypes.c_size_t
     lib.ftk_sizeof_buffers.restype = ctypes.c_size_t

@@ -136,7 +136,7 @@ def test_missing_library_falls_back_or_refuses(monkeypatch: pytest.MonkeyPatch, 
     monkeypatch.setenv("FLYTRACK_BUILD_DIR", str(tmp_path))
     monkeypatch.delenv(KERNEL_ENV, raising=False)
     path, why = select_kernel(TrackingParams())
-    assert path == "numpy" and "make cbuild" in why
+    assert path == "numpy" and "make build" in why
     sc = make_scenario(n_cameras=2, n_targets=1, duration_s=0.1, close_pass_m=None, seed=1)
     assert Tracker(sc.cameras, TrackingParams(), 0.01).kernel_path == "numpy"
     with pytest.raises(ckernel.KernelUnavailable, match="not built"):
