@@ -31,10 +31,11 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.camera import Camera
+from flytrack_host.evaluation import FrameTracks, TrackingScores, score_tracks
 from flytrack_host.sim.flight import Arena, FlightParams, GroundTruth, simulate_flight
 from flytrack_host.sim.frames import FrameFeeder, raise_priority
 from flytrack_host.sim.goals import check_goals
-from flytrack_host.sim.metrics import FrameTracks, TrackingScores, latency_summary, score_tracks
+from flytrack_host.sim.metrics import latency_percentiles_ms
 from flytrack_host.sim.render import RenderParams
 from flytrack_host.sim.rig import make_cameras, rig_config, write_rig
 from flytrack_host.sim.trigger_source import DemoTrigger
@@ -515,7 +516,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         trigger=trig.kind_label,
         trigger_note=trig.note,
         scores=scores,
-        latency=latency_summary(lat_a),
+        latency=latency_percentiles_ms(lat_a),
         latency_parts_p50_ms=numbering["parts_p50_ms"],
         trigger_time_bias_ms=numbering["trigger_time_bias_ms"],
         latency_host=latency_host,
@@ -565,9 +566,9 @@ def _lateness(handoff: np.ndarray, fps: float) -> dict[str, float]:
     n = np.arange(handoff.size)
     ok = np.isfinite(handoff)
     if not np.any(ok):
-        return latency_summary([])
+        return latency_percentiles_ms([])
     lag = handoff[ok] - n[ok] / fps
-    return latency_summary(lag - lag.min())
+    return latency_percentiles_ms(lag - lag.min())
 
 
 def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 0,

@@ -21,7 +21,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from flytrack_host.tracking.evaluation import score
+from flytrack_host.evaluation import score_frames
 from flytrack_host.tracking.kernel import KernelUnavailable
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario
@@ -120,14 +120,15 @@ def tracker_bench(
         sc = make_scenario(n_cameras=C, n_targets=T, duration_s=n / 100.0, fps=100.0,
                            close_pass_m=0.006 if T >= 2 else None, seed=seed)
         wall, cpu, est, births = _run_ours(sc, n, path)
-        s_all = score(sc.truth[:n], est)
+        s_all = score_frames(sc.truth[:n], est)
         row: dict = {
             "cameras": C, "targets": T, "frames": n, "kernel": path,
             "p50_ms": _pct(wall, 50), "p99_ms": _pct(wall, 99), "mean_ms": float(wall.mean()),
             "cpu_p50_ms": _pct(cpu, 50), "cpu_p99_ms": _pct(cpu, 99), "cpu_mean_ms": float(cpu.mean()),
             "cpu_max_ms": float(cpu.max()),
-            "rmse_mm": s_all.rmse_m * 1e3, "mota": s_all.mota, "idf1": s_all.idf1,
-            "id_switches": s_all.id_switches, "merges": s_all.merges,
+            "rmse_mm": s_all.rmse_mm, "mota": s_all.mota, "idf1": s_all.idf1,
+            "id_switches": s_all.id_switches, "id_switches_free_flight": s_all.id_switches_free_flight,
+            "merges": s_all.merges, "merge_frames": s_all.merge_frames, "duplicates": s_all.duplicates,
         }
         for fps in (100, 200):
             period = 1e3 / fps
@@ -152,8 +153,8 @@ def tracker_bench(
 
             check_camera_model(sc.cameras)  # Stone Soup sees our cameras, or the comparison means nothing
             ss_wall, ss_cpu, ss_est = _run_stonesoup(sc, n_ss, births)
-            s_ours = score(sc.truth[:n_ss], est[:n_ss])
-            s_ss = score(sc.truth[:n_ss], ss_est)
+            s_ours = score_frames(sc.truth[:n_ss], est[:n_ss])
+            s_ss = score_frames(sc.truth[:n_ss], ss_est)
             row.update({
                 "ss_frames": n_ss,
                 "ss_p50_ms": _pct(ss_wall, 50), "ss_cpu_p50_ms": _pct(ss_cpu, 50),
@@ -162,8 +163,8 @@ def tracker_bench(
                 "speed_ratio_cpu_p50": float(_pct(ss_cpu, 50) / _pct(cpu[:n_ss], 50)),
                 **({"numpy_speed_ratio_cpu_mean": float(ss_cpu.mean() / np_cpu[:n_ss].mean())}
                    if compare_numpy else {}),
-                "same_frames_ours_rmse_mm": s_ours.rmse_m * 1e3, "same_frames_ours_mota": s_ours.mota,
-                "ss_rmse_mm": s_ss.rmse_m * 1e3, "ss_mota": s_ss.mota, "ss_idf1": s_ss.idf1,
+                "same_frames_ours_rmse_mm": s_ours.rmse_mm, "same_frames_ours_mota": s_ours.mota,
+                "ss_rmse_mm": s_ss.rmse_mm, "ss_mota": s_ss.mota, "ss_idf1": s_ss.idf1,
             })
         rows.append(row)
         _print_row(row)
@@ -185,11 +186,11 @@ def _newcomers(kernel: str, seed: int, cameras: int = 11, targets: int = 10, fps
     n = len(sc.bundles)
     wall, cpu, est, _ = _run_ours(sc, n, kernel)
     tr_confirmed = next((i for i, e in enumerate(est) if len(e) == targets), -1)
-    s = score(sc.truth[:n], est)
+    s = score_frames(sc.truth[:n], est)
     r = {"cameras": cameras, "targets": targets, "fps": fps, "frames": n, "kernel": kernel,
          "first_frame_cpu_ms": float(cpu[0]), "cpu_max_ms": float(cpu.max()), "cpu_p99_ms": _pct(cpu, 99),
          "cpu_p50_ms": _pct(cpu, 50), "wall_max_ms": float(wall.max()), "all_confirmed_at_frame": tr_confirmed,
-         "rmse_mm": s.rmse_m * 1e3, "mota": s.mota}
+         "rmse_mm": s.rmse_mm, "mota": s.mota}
     console.print(f"newcomers: {cameras} cameras x {targets} animals all new in frame 0, {fps:.0f} fps, {n} frames "
                   f"({kernel}): CPU frame 0 {r['first_frame_cpu_ms']:.2f} ms, max {r['cpu_max_ms']:.2f} ms, "
                   f"P99 {r['cpu_p99_ms']:.3f} ms, P50 {r['cpu_p50_ms']:.3f} ms; all {targets} confirmed at frame "
