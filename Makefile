@@ -35,7 +35,8 @@ setup:
 cbuild: setup
 	@mkdir -p $(BUILD) && cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -Wno-dev > $(BUILD)/cmake.log 2>&1 \
 	  || { cat $(BUILD)/cmake.log; exit 1; }
-	@set -o pipefail; cmake --build $(BUILD) -j $(JOBS) 2>&1 | { grep -vE '^\[ *[0-9]+%\]|^-- ' || true; }
+	@set -o pipefail; env -u MAKELEVEL -u MAKEFLAGS -u MFLAGS cmake --build $(BUILD) -j $(JOBS) 2>&1 \
+	  | { grep -vE '^\[ *[0-9]+%\]|^-- |^g?make\[[0-9]+\]: (Entering|Leaving)' || true; }
 
 build: cbuild firmware
 
