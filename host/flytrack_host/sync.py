@@ -13,8 +13,9 @@ model and the arrival lag of the other cameras. Afterwards the mapping is checke
   this camera's frame - median arrival of the others' frames of the same trigger frame. Stalls and
   bursts (one camera's, or every camera's at once: a GIL or scheduler stall) and steps of the trigger
   clock model never re-map a camera: a camera is re-mapped by s frames only when, over
-  `drift_frames` trigger frames, d departs from the camera's own baseline by s periods on every one
-  of them (to within 0.4 period) and its frames came in paced, not in a burst (a burst's frames
+  `drift_frames` trigger frames spanning at least `drift_min_s` (0.5 s), d departs from the camera's
+  own baseline by s periods on every one of them (to within 0.4 period, the median within 0.25) and
+  its frames came in paced, not in a burst (a burst's frames
   arrive together and their d falls by a period per frame, so they can never agree);
 - frame numbers that jump back or far ahead are suspect: such frames are not tracked (the pipeline
   still records them); when several consecutive frames agree on the new numbering it is a clock jump:
@@ -171,6 +172,7 @@ class FrameSynchronizer:
         max_gap_s: float = 10.0,
         future_tolerance_s: float = 0.5,
         drift_frames: int = 10,
+        drift_min_s: float = 0.5,
         late_tolerance_s: float = 0.25,
         tie_window_s: float = 0.5,
         drift_settle_s: float = 0.5,
@@ -185,7 +187,10 @@ class FrameSynchronizer:
         self.max_gap = max(2, int(max_gap_s * fps))
         self.future_tolerance_s = future_tolerance_s
         self.future_frames = max(2, int(future_tolerance_s * fps))
-        self.drift_frames = drift_frames
+        # Evidence for a drift must span at least drift_min_s as well as drift_frames: at high frame
+        # rates a busy host or network can shift one camera's arrivals by most of a period for a
+        # fraction of a second, which a missed pulse never does (its shift lasts for good).
+        self.drift_frames = max(drift_frames, math.ceil(drift_min_s * fps))
         self.late_tolerance_s = late_tolerance_s
         self.tie_window_s = max(tie_window_s, 0.9 * self.period)
         # A trigger frame's arrivals are compared once every live camera delivered it, or this long
@@ -482,8 +487,13 @@ class FrameSynchronizer:
                 cam.rel_base = statistics.median(ds)
             return []
         e = [x - cam.rel_base for x in ds]
-        shift = round(statistics.median(e) / self.period)
-        if shift == 0 or any(abs(x - shift * self.period) > 0.4 * self.period for x in e):
+        med = statistics.median(e)
+        shift = round(med / self.period)
+        # A missed or extra pulse moves the arrivals by whole periods: the median must sit close to
+        # one, and every sample near it.
+        if shift == 0 or abs(med - shift * self.period) > 0.25 * self.period:
+            return []
+        if any(abs(x - shift * self.period) > 0.4 * self.period for x in e):
             return []
         w.clear()
         cam.stats.drift += 1
