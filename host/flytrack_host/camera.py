@@ -135,7 +135,9 @@ class Camera:
         """Distorted pixel coordinates (N,2) -> ideal pinhole pixel coordinates (N,2).
 
         Fixed-point iteration as in OpenCV's undistortPoints, then Newton steps to reach 1e-12 in the
-        normalised plane (so undistort(distort(p)) == p to well under 1e-6 px)."""
+        normalised plane (so undistort(distort(p)) == p to well under 1e-6 px). Where the iteration
+        does not converge (far outside the field the distortion model was fitted on, where it folds
+        over) the point is NaN rather than a wrong position."""
         uv = np.atleast_2d(np.asarray(uv, dtype=np.float64))
         xd, yd = self._normalize(uv)
         if not self.has_distortion:
@@ -161,6 +163,11 @@ class Camera:
             with np.errstate(divide="ignore", invalid="ignore"):
                 x = x - (d * ex - b * ey) / det
                 y = y - (-c * ex + a * ey) / det
+        fx, fy = _distort_normalized(x, y, self.dist)
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.hypot(fx - xd, fy - yd) < 1e-6)  # ~1e-3 px at f = 1000 px; NaN counts as bad
+        x[bad] = np.nan
+        y[bad] = np.nan
         return self._pix(x, y)
 
     def _normalize(self, uv: F64) -> tuple[F64, F64]:
@@ -256,7 +263,8 @@ class Camera:
 
 
 def triangulate(cameras: Sequence[Camera], uv_ideal: Sequence[ArrayLike]) -> F64:
-    """Linear (DLT) triangulation of one point from undistorted pixels in two or more cameras."""
+    """Linear (DLT) triangulation of one point from undistorted pixels in two or more cameras.
+    NaN when the rays are (nearly) parallel, i.e. the point is at infinity."""
     if len(cameras) < 2 or len(cameras) != len(uv_ideal):
         raise ValueError("triangulation needs the same number (>= 2) of cameras and points")
     rows = []
@@ -270,4 +278,6 @@ def triangulate(cameras: Sequence[Camera], uv_ideal: Sequence[ArrayLike]) -> F64
     A /= np.linalg.norm(A, axis=1, keepdims=True)
     _, _, vt = np.linalg.svd(A)
     X = vt[-1]
+    if not abs(X[3]) > 1e-12 * np.linalg.norm(X[:3]):
+        return np.full(3, np.nan)  # rays (nearly) parallel: the point is at infinity
     return X[:3] / X[3]

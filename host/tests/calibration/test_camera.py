@@ -71,3 +71,29 @@ def test_triangulate_exact() -> None:
     X = np.array([0.05, -0.03, 0.1])
     got = triangulate(cams, [c.project_undistorted(X)[0] for c in cams])
     assert np.allclose(got, X, atol=1e-9)
+
+
+def test_undistort_gives_nan_where_the_model_folds_over_not_a_wrong_point() -> None:
+    import numpy as np
+
+    from flytrack_host.camera import Camera
+
+    # Barrel distortion: the model's image of the plane folds back beyond r ~ 1.3 (distorted radius
+    # 0.86), so points far outside the image have no preimage; inside, undistort inverts distort.
+    cam = Camera.look_at("c", [0, -1, 0], [0, 0, 0], 640, 480, 500, dist=[-0.2, 0.0, 0, 0, 0])
+    inside = np.array([[10.0, 10.0], [320.0, 240.0], [630.0, 470.0]])
+    back = cam.distort(cam.undistort(inside))
+    assert np.allclose(back, inside, atol=1e-6)
+    far = np.array([[320.0 + 5000.0, 240.0]])
+    assert np.all(np.isnan(cam.undistort(far)))
+
+
+def test_triangulating_parallel_rays_gives_nan() -> None:
+    import numpy as np
+
+    from flytrack_host.camera import Camera, triangulate
+
+    a = Camera.look_at("a", [0, -1, 0], [0, 0, 0], 640, 480, 500)
+    b = Camera.look_at("b", [0.01, -1, 0], [0.01, 0, 0], 640, 480, 500)  # same direction, side by side
+    centre = np.array([319.5, 239.5])
+    assert np.all(np.isnan(triangulate([a, b], [centre, centre])))
