@@ -601,6 +601,13 @@ def run_command(
     except Exception as exc:
         console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    if rig.actuators:
+        # The rig file describes actuators already; this host does not drive them yet. Say so
+        # rather than let a lab believe its stimulus is running.
+        names = ", ".join(f"{a.name} ({a.kind})" for a in rig.actuators)
+        Console(stderr=True).print(f"[yellow]warning[/yellow] actuators are not driven by this version of "
+                                   f"flytrack run: {names}; live estimates go to host.live_subscribers",
+                                   highlight=False, soft_wrap=True)
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
