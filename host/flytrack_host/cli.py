@@ -21,6 +21,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",  # docstrings wrap like prose instead of keeping their line breaks
 )
 console = Console()
 err_console = Console(stderr=True)
