@@ -46,11 +46,12 @@ def _clean_errors(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
-def _parse_size(s: str) -> tuple[int, int]:
+def _parse_size(s: str, what: str = "image size") -> tuple[int, int]:
     try:
         w, h = (int(v) for v in s.lower().split("x"))
     except ValueError:
-        raise InputError(f"image size {s!r} is not WIDTHxHEIGHT (e.g. 1280x1024).") from None
+        example = "1280x1024" if what == "image size" else "9x6"
+        raise InputError(f"{what} {s!r} is not two numbers AxB (e.g. {example}).") from None
     return w, h
 
 
@@ -83,6 +84,23 @@ def _print_report(cameras: dict[str, Camera], obs: Any, residuals: np.ndarray, i
         console.print(f"plot written to {plot}", highlight=False)
 
 
+def _check_intrinsics(intr: dict[str, Camera], path: Path | None, names: list[str], sizes: list[tuple[int, int]],
+                      points: Path) -> None:
+    """An intrinsics file must name cameras of the points file, for the same image size (pixels must mean
+    the same thing: intrinsics of a binned or cropped mode do not apply)."""
+    if not any(n in intr for n in names):
+        raise InputError(f"--intrinsics {path} holds camera(s) {', '.join(intr)} but {points} has "
+                         f"{', '.join(names)}: name the camera as in the points file (flytrack calibrate "
+                         "intrinsics NAME ...).")
+    for n, (w, h) in zip(names, sizes, strict=True):
+        if n in intr and (intr[n].width, intr[n].height) != (w, h):
+            raise InputError(f"--intrinsics {path}: {n} is for {intr[n].width}x{intr[n].height} images but "
+                             f"{points} says {w}x{h}: calibrate the intrinsics in the mode the rig records in.")
+    extra = [n for n in intr if n not in names]
+    if extra:
+        err.print(f"warning: {path}: camera(s) {', '.join(extra)} are not in {points}; ignored.", highlight=False)
+
+
 @app.command("selfcal")
 @_clean_errors
 def selfcal_cmd(
@@ -102,6 +120,10 @@ def selfcal_cmd(
 
     obs = load_points(points)
     intr = load_calibration(intrinsics) if intrinsics else None
+    if intr is not None:
+        _check_intrinsics(intr, intrinsics, obs.camera_names, obs.sizes, points)
+        console.print(f"starting intrinsics from {intrinsics} for "
+                      f"{', '.join(n for n in obs.camera_names if n in intr)}", highlight=False)
     res = self_calibrate(obs, focal_px=focal or None, intrinsics=intr, distortion=distortion, init=init)
     save_calibration(res.cameras, out)
     console.print(f"self-calibration of {obs.n_cameras} cameras from {len(res.point_frames)} frames in "
@@ -194,19 +216,61 @@ def align_cmd(
 @app.command("intrinsics")
 @_clean_errors
 def intrinsics_cmd(
-    name: str = typer.Argument(..., help="Camera name."),
-    images: list[Path] = typer.Argument(..., help="Images of a checkerboard."),
-    corners: str = typer.Option(..., help="Inner corners as COLSxROWS, e.g. 9x6."),
-    square: float = typer.Option(..., help="Square size in metres."),
+    name: str = typer.Argument(..., help="Camera name (as in the rig and points file)."),
+    images: list[Path] = typer.Argument(..., help="Images of the board, or folders of them (.png .jpg .tif .bmp)."),
+    board: str = typer.Option("checkerboard", help="checkerboard, or charuco (ArUco markers in the white squares; "
+                                                   "partial views count)."),
+    corners: str | None = typer.Option(None, help="Checkerboard: inner corners as COLSxROWS, e.g. 9x6."),
+    squares: str | None = typer.Option(None, help="ChArUco: squares as COLSxROWS, e.g. 7x5."),
+    square: float = typer.Option(..., help="Side of one square in metres."),
+    marker: float | None = typer.Option(None, help="ChArUco: side of one marker in metres (smaller than --square)."),
+    dictionary: str = typer.Option("DICT_4X4_50", help="ChArUco: ArUco dictionary, e.g. DICT_4X4_50, DICT_5X5_100."),
+    legacy_pattern: bool = typer.Option(False, "--legacy-pattern",
+                                        help="ChArUco: a board printed by OpenCV before 4.6 (matters for an even "
+                                             "number of rows)."),
     out: Path = typer.Option(..., "--out", "-o", help="Intrinsics file to write (.json/.xml/.toml)."),
 ) -> None:
-    """Intrinsics of one camera from checkerboard images (OpenCV): a starting point for selfcal."""
-    from flytrack_host.calibration.intrinsics import checkerboard_intrinsics
+    """Intrinsics of one camera from checkerboard or ChArUco images (OpenCV): a starting point for
+    `selfcal --intrinsics`."""
+    from flytrack_host.calibration.intrinsics import Charuco, Checkerboard, calibrate_intrinsics, find_images
 
-    cam, rms, n = checkerboard_intrinsics(name, [str(p) for p in images], _parse_size(corners), square)
+    if out.suffix.lower() not in (".json", ".xml", ".toml"):
+        raise InputError(f"--out {out}: use .json (pymvg), .xml (flydra) or .toml (anipose).")
+    kind = board.lower()
+    if kind == "checkerboard":
+        if corners is None:
+            raise InputError("--board checkerboard needs --corners COLSxROWS (inner corners, e.g. 9x6).")
+        if squares is not None or marker is not None:
+            raise InputError("--squares and --marker are for --board charuco; a checkerboard takes --corners.")
+        spec: Checkerboard | Charuco = Checkerboard(_parse_size(corners, "--corners"), square)
+    elif kind == "charuco":
+        if squares is None or marker is None:
+            raise InputError("--board charuco needs --squares COLSxROWS (squares, e.g. 7x5) and --marker (metres).")
+        if corners is not None:
+            raise InputError("--corners is for --board checkerboard; a ChArUco board takes --squares.")
+        spec = Charuco(_parse_size(squares, "--squares"), square, marker, dictionary, legacy_pattern)
+    else:
+        raise InputError(f"--board {board!r}: use checkerboard or charuco.")
+    res = calibrate_intrinsics(name, find_images(images), spec)
+    cam = res.camera
     save_calibration({name: cam}, out)
-    console.print(f"{name}: board found in {n} images, RMS {rms:.3f} px, f {cam.K[0, 0]:.1f} px, "
-                  f"dist {np.array2string(cam.dist, precision=4)}; written {out}", highlight=False)
+    n_all = len(res.used) + len(res.skipped)
+    console.print(f"{name}: {spec.describe()} usable in {len(res.used)} of {n_all} images ({res.n_points} "
+                  f"corners); RMS reprojection error {res.rms_px:.3f} px", highlight=False)
+    console.print(f"  fx {cam.K[0, 0]:.2f}  fy {cam.K[1, 1]:.2f}  cx {cam.K[0, 2]:.2f}  cy {cam.K[1, 2]:.2f} px; "
+                  f"k1 k2 p1 p2 k3 {np.array2string(cam.dist, precision=5)}", highlight=False)
+    worst = int(np.argmax(res.view_rms_px))
+    console.print(f"  worst view {Path(res.used[worst]).name}: {res.view_rms_px[worst]:.3f} px", highlight=False)
+    if res.skipped:
+        console.print(f"  not usable: {res.skipped_text()}", highlight=False)
+    if res.rms_px > 1.0:
+        console.print("warning: RMS above 1 px: check the board size options, the focus and motion blur, or "
+                      "remove the worst views.", highlight=False)
+    if len(res.used) < 10:
+        console.print(f"warning: only {len(res.used)} usable views; 15 or more, tilted and covering the image "
+                      "corners, constrain the distortion better.", highlight=False)
+    console.print(f"written {out} (start selfcal from it: flytrack calibrate selfcal POINTS --intrinsics {out} ...)",
+                  highlight=False)
 
 
 @app.command("collect")
