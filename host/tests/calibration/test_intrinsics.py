@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from flytrack_host.calibration.formats import load_calibration
+from flytrack_host.calibration.formats import load_calibration, save_calibration
 from flytrack_host.calibration.intrinsics import Charuco, Checkerboard, IntrinsicsError
 from flytrack_host.calibration.observations import save_points
 from flytrack_host.calibration.selfcal import initial_cameras
@@ -244,6 +244,10 @@ def test_checkerboard_cli_recovers_the_lens_and_feeds_selfcal(checker_dir: Path,
     s = flytrack("selfcal", tmp_path / "big.csv", "--intrinsics", out, "-o", tmp_path / "cal2.json")
     assert s.returncode == 2 and "Traceback" not in s.stderr
     assert "cam1 is for 640x480 images but" in " ".join(s.stderr.split())
+    save_calibration({"left": est}, tmp_path / "other.json")
+    s = flytrack("selfcal", tmp_path / "points.csv", "--intrinsics", tmp_path / "other.json", "-o", tmp_path / "c.json")
+    assert s.returncode == 2 and "Traceback" not in s.stderr
+    assert "holds camera(s) left but" in " ".join(s.stderr.split())
 
 
 def test_charuco_cli_with_partial_views(charuco_dir: Path, tmp_path: Path) -> None:
