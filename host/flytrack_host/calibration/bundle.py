@@ -5,6 +5,9 @@ principal point (2), and the distortion terms chosen by `distortion`:
 "none", "k1", "k1k2" (default) or "k1k2p1p2" (radial + tangential). Per point: its 3D position.
 The Jacobian is estimated by finite differences, made cheap by its sparsity pattern (jac_sparsity):
 a residual depends only on its camera's parameters and its point.
+Cameras named in `fixed_intrinsics` (e.g. measured with a calibration board) keep K and all five
+distortion terms exactly as given: only their pose is refined, and their intrinsic parameters get no
+Jacobian column at all.
 """
 
 from __future__ import annotations
@@ -80,11 +83,13 @@ def project_params(cp: F64, aspect: F64, fixed_dist: F64, X: F64, cam: NDArray[n
 def bundle_adjust(cameras: list[Camera], points: F64, cam: NDArray[np.intp], pt: NDArray[np.intp], uv: F64,
                   distortion: str = "k1k2", loss: str = "huber", f_scale: float = 1.0, max_nfev: int = 100,
                   fix_intrinsics: bool = False, ftol: float = 1e-4, gauge: tuple[int, int] | None = None,
-                  ) -> BundleResult:
+                  fixed_intrinsics: set[str] | None = None) -> BundleResult:
     """Refine cameras and points so that projections of points[pt] in cameras[cam] match uv (N, 2).
 
-    gauge=(a, b) removes the similarity freedom, which otherwise slows the sparse solver: camera a's pose and
-    one translation component of camera b are held fixed."""
+    fix_intrinsics holds every camera's K and distortion; fixed_intrinsics only those of the cameras named
+    (names that are not among `cameras` are ignored). gauge=(a, b) removes the similarity freedom, which
+    otherwise slows the sparse solver: camera a's pose and one translation component of camera b are held
+    fixed."""
     if distortion not in DISTORTION_MODELS:
         raise ValueError(f"distortion model {distortion!r} unknown; use one of {sorted(DISTORTION_MODELS)}")
     nd = DISTORTION_MODELS[distortion]
@@ -100,6 +105,8 @@ def bundle_adjust(cameras: list[Camera], points: F64, cam: NDArray[np.intp], pt:
     free = np.zeros((nc, m), dtype=bool)
     free[:, 6 if fix_intrinsics else m:] = False
     free[:, : (6 if fix_intrinsics else m)] = True
+    held = [i for i, c in enumerate(cameras) if fixed_intrinsics and c.name in fixed_intrinsics]
+    free[held, 6:] = False
     if gauge is not None:
         # Camera a's pose fixes rotation and translation; the largest component of camera b's translation
         # (in camera a's frame when a is the identity, as the initialisation makes it) fixes the scale.
@@ -133,5 +140,8 @@ def bundle_adjust(cameras: list[Camera], points: F64, cam: NDArray[np.intp], pt:
                         method="trf", tr_solver="lsmr", ftol=ftol, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
     cp, X = unpack(res.x)
     out = [_unpack_camera(cp[i], c, distortion) for i, c in enumerate(cameras)]
+    for i in held if not fix_intrinsics else range(nc):
+        # Bit-identical to the input (f * aspect need not round back to fy exactly).
+        out[i].K, out[i].dist = cameras[i].K.copy(), cameras[i].dist.copy()
     return BundleResult(out, X, res.fun[: 2 * nobs].reshape(-1, 2), float(res.cost), int(res.nfev), bool(res.success),
                         str(res.message))

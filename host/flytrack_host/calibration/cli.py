@@ -107,7 +107,12 @@ def selfcal_cmd(
     points: Path = typer.Argument(..., help="Points file (CSV or NPZ of frame, camera, u, v; see docs)."),
     out: Path = typer.Option(..., "--out", "-o", help="Calibration to write (.xml flydra, .json pymvg, .toml)."),
     focal: float = typer.Option(0.0, help="Approximate focal length in pixels (default: the image's larger side)."),
-    intrinsics: Path | None = typer.Option(None, help="Calibration file with starting intrinsics per camera."),
+    intrinsics: Path | None = typer.Option(None, help="Intrinsics file (from `calibrate intrinsics`, or any "
+                                                      "calibration file) for some or all cameras: their K and "
+                                                      "distortion are held FIXED, only their poses are adjusted."),
+    refine_intrinsics: bool = typer.Option(False, "--refine-intrinsics",
+                                           help="With --intrinsics: use the file only as a starting point and let "
+                                                "the bundle adjustment refine K and distortion too."),
     distortion: str = typer.Option("k1k2", help="none, k1, k1k2 or k1k2p1p2 (radial + tangential)."),
     init: str = typer.Option("factorization", "--init",
                              help="Start of the bundle adjustment: factorization (Svoboda: projective factorisation "
@@ -122,9 +127,17 @@ def selfcal_cmd(
     intr = load_calibration(intrinsics) if intrinsics else None
     if intr is not None:
         _check_intrinsics(intr, intrinsics, obs.camera_names, obs.sizes, points)
-        console.print(f"starting intrinsics from {intrinsics} for "
-                      f"{', '.join(n for n in obs.camera_names if n in intr)}", highlight=False)
-    res = self_calibrate(obs, focal_px=focal or None, intrinsics=intr, distortion=distortion, init=init)
+        named = ", ".join(n for n in obs.camera_names if n in intr)
+        if refine_intrinsics:
+            console.print(f"starting intrinsics from {intrinsics} for {named} (refined)", highlight=False)
+        else:
+            console.print(f"intrinsics from {intrinsics} held fixed for {named} (--refine-intrinsics to refine "
+                          "them)", highlight=False)
+    elif refine_intrinsics:
+        raise InputError("--refine-intrinsics needs --intrinsics FILE (without a file every camera's intrinsics "
+                         "are refined anyway).")
+    res = self_calibrate(obs, focal_px=focal or None, intrinsics=intr, distortion=distortion, init=init,
+                         refine_intrinsics=refine_intrinsics)
     save_calibration(res.cameras, out)
     console.print(f"self-calibration of {obs.n_cameras} cameras from {len(res.point_frames)} frames in "
                   f"{sum(res.timings.values()):.1f} s ({res.init_method} start); noise estimate "

@@ -337,12 +337,14 @@ def _default_ransac_px(obs: Observations) -> float:
 
 def factorization_cameras(obs: Observations, focal_px: float | Mapping[str, float] | None = None,
                           intrinsics: Mapping[str, Camera] | None = None, ransac_px: float | None = None,
-                          seed: int = 0, max_points: int = 1000,
+                          seed: int = 0, max_points: int = 1000, keep_intrinsics: bool = False,
                           ) -> tuple[list[Camera], F64, NDArray[np.bool_], list[str], tuple[int, int]]:
     """Svoboda-style start: fundamental-matrix RANSAC, projective factorisation, Euclidean upgrade.
 
     Same return values as `initial_cameras`: cameras, points (all frames), usable observations, warnings,
-    and the gauge pair (the first camera is made the identity, the distance to the second 1)."""
+    and the gauge pair (the first camera is made the identity, the distance to the second 1).
+    keep_intrinsics: the cameras of `intrinsics` end with its K and distortion (poses re-solved by PnP)
+    instead of the upgrade's K."""
     from flytrack_host.calibration.factorization import FactorizationError, projective_factorization
     from flytrack_host.calibration.metric_upgrade import MetricUpgradeError, metric_upgrade
 
@@ -396,6 +398,8 @@ def factorization_cameras(obs: Observations, focal_px: float | Mapping[str, floa
         # The scaled measurement matrix of points on a plane (or a line) has rank 3 (or less), not 4.
         raise SelfCalError("the LED positions are planar (or collinear): self-calibration needs points that fill a "
                            "volume. Wave the LED up and down as well as across, through the whole tracking volume.")
+    keep = {c: intrinsics[cam.name] for c, cam in enumerate(cams)
+            if keep_intrinsics and intrinsics is not None and cam.name in intrinsics}
     f0 = [c.K[0, 0] for c in cams]
     try:
         mr = metric_upgrade(rec.P, rec.X, obs.sizes, f0, seen)
@@ -420,24 +424,46 @@ def factorization_cameras(obs: Observations, focal_px: float | Mapping[str, floa
         cam.R, cam.t = m.R, m.t
     # Gauge as the pairwise start has it: the best-overlapping pair, first camera at the origin, unit baseline.
     (i0, j0), _ = max(pair_inliers.items(), key=lambda kv: kv[1])
-    base = float(np.linalg.norm(cams[j0].center - cams[i0].center))
-    sim = Similarity(1.0 / base, cams[i0].R.copy(), cams[i0].t / base)
-    cams = [sim.apply_camera(c) for c in cams]
-    xy = np.empty_like(obs.uv)
-    for c, cam in enumerate(cams):
-        sel = obs.cam == c
-        xy[sel] = _normalised(cam, obs.uv[sel])
-    Ps: list[F64 | None] = [np.hstack([c.R, c.t[:, None]]) for c in cams]
     cam_idx = obs.cam.astype(np.intp)
-    X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
-    degenerate = _degeneracy(X[np.all(np.isfinite(X), axis=1)])
-    if degenerate:
-        raise SelfCalError(f"the LED positions are {degenerate}: self-calibration needs points that fill a volume. "
-                           "Wave the LED up and down as well as across, through the whole tracking volume.")
     thr_norm = ransac_px / float(np.median([c.K[0, 0] for c in cams]))
-    err = _reproj_norm(Ps, X, cam_idx, inv, xy)
-    good &= np.isfinite(err) & (err < 3 * thr_norm)
-    X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
+
+    def place(cams: list[Camera], good: NDArray[np.bool_]) -> tuple[list[Camera], F64, NDArray[np.bool_]]:
+        """Gauge, triangulate every frame, drop observations the cameras cannot explain, triangulate again."""
+        base = float(np.linalg.norm(cams[j0].center - cams[i0].center))
+        sim = Similarity(1.0 / base, cams[i0].R.copy(), cams[i0].t / base)
+        cams = [sim.apply_camera(c) for c in cams]
+        xy = np.empty_like(obs.uv)
+        for c, cam in enumerate(cams):
+            sel = obs.cam == c
+            xy[sel] = _normalised(cam, obs.uv[sel])
+        Ps: list[F64 | None] = [np.hstack([c.R, c.t[:, None]]) for c in cams]
+        X = triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts)
+        degenerate = _degeneracy(X[np.all(np.isfinite(X), axis=1)])
+        if degenerate:
+            raise SelfCalError(f"the LED positions are {degenerate}: self-calibration needs points that fill a "
+                               "volume. Wave the LED up and down as well as across, through the whole tracking "
+                               "volume.")
+        err = _reproj_norm(Ps, X, cam_idx, inv, xy)
+        good = good & np.isfinite(err) & (err < 3 * thr_norm)
+        return cams, triangulate_frames(Ps, cam_idx[good], inv[good], xy[good], n_pts), good
+
+    cams, X, good = place(cams, good)
+    if keep:
+        # The board's K replaces the upgrade's for these cameras; their poses (found with the upgrade's K) are
+        # re-solved by PnP on the triangulated LED points, alternating with triangulation (resection-intersection).
+        for _ in range(2):
+            for c, board in keep.items():
+                cam = cams[c]
+                cam.K, cam.dist = board.K.copy(), board.dist.copy()
+                sel = np.flatnonzero(good & (obs.cam == c) & np.all(np.isfinite(X[inv]), axis=1))
+                if len(sel) < 12:
+                    continue
+                rvec0, _ = cv2.Rodrigues(cam.R)
+                ok, rvec, tvec = cv2.solvePnP(X[inv[sel]], obs.uv[sel], cam.K, cam.dist, rvec0, cam.t.reshape(3, 1),
+                                              useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+                if ok:
+                    cam.R, cam.t = cv2.Rodrigues(rvec)[0], tvec.ravel()
+            cams, X, good = place(cams, good | ~outlier)
     if int(np.sum(outlier)) > 0.2 * len(outlier):
         warns.append(f"{int(np.sum(outlier))} of {len(outlier)} detections ({100 * np.mean(outlier):.0f} %) "
                      "disagree with the epipolar geometry: check for reflections or a second bright spot.")
@@ -451,17 +477,24 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
                    intrinsics: Mapping[str, Camera] | None = None, distortion: str = "k1k2",
                    ransac_px: float | None = None, max_nfev: int = 60, seed: int = 0,
                    max_ba_points: int = 1500, final_ftol: float = 1e-5, init: str = "factorization",
-                   ) -> SelfCalResult:
+                   refine_intrinsics: bool = False) -> SelfCalResult:
     """Calibrate all cameras of obs (up to a similarity). init: "factorization" (Svoboda: projective
-    factorisation + Euclidean upgrade) or "pairwise" (essential matrices + PnP from approximate intrinsics)."""
+    factorisation + Euclidean upgrade) or "pairwise" (essential matrices + PnP from approximate intrinsics).
+
+    The cameras of `intrinsics` (a board calibration) keep its K and distortion exactly, only their poses
+    are refined; refine_intrinsics=True makes them a starting point that the bundle adjustment refines."""
     if distortion not in DISTORTION_MODELS:
         raise SelfCalError(f"distortion model {distortion!r} unknown; choose one of {', '.join(DISTORTION_MODELS)}.")
     if init not in INIT_METHODS:
         raise SelfCalError(f"initialisation {init!r} unknown; choose one of {', '.join(INIT_METHODS)}.")
     check_observations(obs)
     t0 = time.perf_counter()
-    start = factorization_cameras if init == "factorization" else initial_cameras
-    cams, X, good, warns, gauge = start(obs, focal_px, intrinsics, ransac_px, seed)
+    fixed = set() if refine_intrinsics or intrinsics is None else {n for n in obs.camera_names if n in intrinsics}
+    if init == "factorization":
+        cams, X, good, warns, gauge = factorization_cameras(obs, focal_px, intrinsics, ransac_px, seed,
+                                                            keep_intrinsics=bool(fixed))
+    else:
+        cams, X, good, warns, gauge = initial_cameras(obs, focal_px, intrinsics, ransac_px, seed)
     t1 = time.perf_counter()
     frames, inv = obs.point_index()
     init_cams = {c.name: Camera(c.name, c.width, c.height, c.K.copy(), c.R.copy(), c.t.copy(), c.dist.copy())
@@ -487,7 +520,7 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
         remap[pts] = np.arange(len(pts))
         f_scale = fs if fs is not None else max(0.3, 2.5 * sigma)
         bres = bundle_adjust(cams, X_cur[pts], obs.cam[sel], remap[inv[sel]], obs.uv[sel], distortion=distortion,
-                             loss=loss, f_scale=f_scale, max_nfev=max_nfev, gauge=gauge,
+                             loss=loss, f_scale=f_scale, max_nfev=max_nfev, gauge=gauge, fixed_intrinsics=fixed,
                              ftol=final_ftol if stage == 2 else 1e-4)
         cams = bres.cameras
         sigma = float(np.median(np.linalg.norm(bres.residuals, axis=1)) / 1.1774)  # 2D Gaussian: 1.1774 sigma

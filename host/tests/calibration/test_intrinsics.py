@@ -236,7 +236,8 @@ def test_checkerboard_cli_recovers_the_lens_and_feeds_selfcal(checker_dir: Path,
     s = flytrack("selfcal", tmp_path / "points.csv", "--intrinsics", out, "--init", "pairwise",
                  "--distortion", "k1k2p1p2", "-o", tmp_path / "cal.json")
     assert s.returncode == 0, s.stderr
-    assert f"starting intrinsics from {out} for cam1" in " ".join(s.stdout.split())
+    assert f"intrinsics from {out} held fixed for cam1" in " ".join(s.stdout.split())
+    assert np.array_equal(load_calibration(tmp_path / "cal.json")["cam1"].K, load_calibration(out)["cam1"].K)
     assert set(load_calibration(tmp_path / "cal.json")) == {"cam1", "cam2", "cam3", "cam4"}
     # Intrinsics of another image size, or of no camera in the points file, are refused.
     cams["cam1"].width, cams["cam1"].height = 1280, 960

@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 from flytrack_host.calibration.align import AlignError, align_cameras, umeyama
+from flytrack_host.calibration.bundle import bundle_adjust
 from flytrack_host.calibration.dlt import DLTError, dlt_camera
 from flytrack_host.calibration.evaluate import centre_error, reprojection_error
 from flytrack_host.calibration.observations import Observations, load_points, save_points
 from flytrack_host.calibration.selfcal import SelfCalError, self_calibrate
 from flytrack_host.calibration.synthetic import make_rig, observe, synthetic_rig
+from flytrack_host.camera import Camera
 
 
 @pytest.mark.parametrize(("n_cams", "seed", "focal_error", "init"),
@@ -195,3 +197,86 @@ def test_collect_over_udp_keeps_single_point_frames() -> None:
     obs: Observations = col.observations()
     assert len(obs.frame) == 9 and col.rejected_multi == 1 and col.bad_datagrams == 1
     assert np.allclose(obs.uv[obs.cam == 0][:, 0], [100, 101, 102, 103, 104])
+
+
+def _board_intrinsics(rig_cams: dict[str, Camera], names: list[str], seed: int = 5) -> dict[str, Camera]:
+    """The true intrinsics with a board calibration's realistic error: 0.1 % in fx and fy, 0.5 px in cx, cy."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for n in names:
+        c = rig_cams[n]
+        K = c.K.copy()
+        K[0, 0] *= 1 + rng.choice([-1, 1]) * 0.001
+        K[1, 1] *= 1 + rng.choice([-1, 1]) * 0.001
+        K[:2, 2] += rng.choice([-0.5, 0.5], 2)
+        out[n] = Camera(n, c.width, c.height, K, np.eye(3), np.zeros(3), c.dist.copy())
+    return out
+
+
+def test_board_intrinsics_are_held_fixed() -> None:
+    # 4 cameras, 1500 LED frames, 0.5 px noise, 30 % missing, 2 % outliers; a board file for every camera.
+    rig = synthetic_rig(4, n_points=1500, seed=0)
+    intr = _board_intrinsics(rig.cameras, list(rig.cameras))
+    truth_inliers = ~rig.outlier
+    floor = reprojection_error(rig.cameras, rig.obs, truth_inliers)
+    free = self_calibrate(rig.obs, seed=0)
+    fixed = self_calibrate(rig.obs, intrinsics=intr, seed=0)
+    for n, c in fixed.cameras.items():
+        assert np.array_equal(c.K, intr[n].K) and np.array_equal(c.dist, intr[n].dist), n
+    assert abs(reprojection_error(fixed.cameras, rig.obs, truth_inliers) / floor - 1.0) < 0.2
+    assert centre_error(fixed.cameras, rig.cameras) <= centre_error(free.cameras, rig.cameras)
+    assert centre_error(fixed.cameras, rig.cameras) < 0.01 * rig.arena_size
+    # --refine-intrinsics: the file is only a start, the bundle adjustment moves K (the old behaviour).
+    refined = self_calibrate(rig.obs, intrinsics=intr, seed=0, refine_intrinsics=True)
+    assert all(not np.array_equal(c.K, intr[n].K) for n, c in refined.cameras.items())
+    assert abs(reprojection_error(refined.cameras, rig.obs, truth_inliers) / floor - 1.0) < 0.2
+    assert centre_error(refined.cameras, rig.cameras) < 0.01 * rig.arena_size
+
+
+@pytest.mark.parametrize("init", ["factorization", "pairwise"])
+def test_board_intrinsics_for_some_cameras_fix_only_those(init: str) -> None:
+    rig = synthetic_rig(4, n_points=1500, seed=0)
+    intr = _board_intrinsics(rig.cameras, ["cam1", "cam3"])
+    focal = {k: c.K[0, 0] * 1.1 for k, c in rig.cameras.items()}
+    res = self_calibrate(rig.obs, focal_px=focal, intrinsics=intr, seed=0, init=init)
+    for n in ("cam1", "cam3"):
+        assert np.array_equal(res.cameras[n].K, intr[n].K) and np.array_equal(res.cameras[n].dist, intr[n].dist)
+    for n in ("cam2", "cam4"):  # refined from the LED data, close to the truth
+        assert not np.array_equal(res.cameras[n].K, res.initial_cameras[n].K)
+        assert abs(res.cameras[n].K[0, 0] / rig.cameras[n].K[0, 0] - 1) < 0.01
+    floor = reprojection_error(rig.cameras, rig.obs, ~rig.outlier)
+    assert abs(reprojection_error(res.cameras, rig.obs, ~rig.outlier) / floor - 1.0) < 0.2
+    assert centre_error(res.cameras, rig.cameras) < 0.01 * rig.arena_size
+
+
+def test_bundle_holds_only_the_named_cameras_intrinsics() -> None:
+    rig = synthetic_rig(3, n_points=300, noise_px=0.3, outliers=0.0, seed=4)
+    cams = list(rig.cameras.values())
+    frames, inv = rig.obs.point_index()
+    start = [Camera(c.name, c.width, c.height, c.K * [[1.02], [1.02], [1]], c.R, c.t, c.dist) for c in cams]
+    res = bundle_adjust(start, rig.points[frames], rig.obs.cam, inv, rig.obs.uv, fixed_intrinsics={"cam2", "nope"},
+                        max_nfev=5)
+    assert np.array_equal(res.cameras[1].K, start[1].K) and np.array_equal(res.cameras[1].dist, start[1].dist)
+    assert not np.array_equal(res.cameras[0].K, start[0].K) and not np.array_equal(res.cameras[2].K, start[2].K)
+
+
+def test_cli_refine_intrinsics(tmp_path: Path) -> None:
+    from flytrack_host.calibration.formats import load_calibration, save_calibration
+
+    rig = synthetic_rig(4, n_points=800, seed=3)
+    pts = tmp_path / "pts.npz"
+    save_points(rig.obs, pts)
+    intr = _board_intrinsics(rig.cameras, ["cam2"])
+    save_calibration(intr, tmp_path / "intr.json")
+    board = load_calibration(tmp_path / "intr.json")["cam2"]
+    r = _run_cli("selfcal", str(pts), "-o", str(tmp_path / "a.json"), "--intrinsics", str(tmp_path / "intr.json"))
+    assert r.returncode == 0, r.stderr
+    assert "held fixed for cam2" in " ".join(r.stdout.split())
+    assert np.array_equal(load_calibration(tmp_path / "a.json")["cam2"].K, board.K)
+    r = _run_cli("selfcal", str(pts), "-o", str(tmp_path / "b.json"), "--intrinsics", str(tmp_path / "intr.json"),
+                 "--refine-intrinsics")
+    assert r.returncode == 0, r.stderr
+    assert "starting intrinsics from" in r.stdout
+    assert not np.array_equal(load_calibration(tmp_path / "b.json")["cam2"].K, board.K)
+    r = _run_cli("selfcal", str(pts), "-o", str(tmp_path / "c.json"), "--refine-intrinsics")
+    assert r.returncode == 2 and "needs --intrinsics" in r.stderr and "Traceback" not in r.stderr
