@@ -24,6 +24,9 @@ A focal length guess in pixels (lens focal length / pixel pitch, or an intrinsic
 image's larger side, ~53 deg) is needed by "pairwise"; "factorization" uses it only to normalise pixels
 and as a weak prior (the upgrade finds the focal lengths). Lens distortion is ignored until the bundle
 adjustment unless an intrinsics file gives it (its pixels are then undistorted first).
+The cameras of an intrinsics file (a board calibration) keep its K and distortion exactly: the
+factorisation start swaps them in after the upgrade and re-solves those poses by PnP, and the bundle
+adjustment holds them (unless refine_intrinsics).
 """
 
 from __future__ import annotations
