@@ -106,7 +106,9 @@ def test_clock_model_residual_and_bias_realtime(built, figures) -> None:
     assert abs(m.gain - 1) < 2e-3
     assert m.residual_s < 100e-6
     assert abs(err.mean()) < 100e-6
-    assert abs(predicted - m.sample_host_time(r.host_t0, r.host_t1)) < 2e-3  # within the round trip
+    # One fresh query places its sample only within its own round trip (long when the host is
+    # loaded): the prediction must fall within that, or 2 ms when the round trip is shorter.
+    assert abs(predicted - m.sample_host_time(r.host_t0, r.host_t1)) < max(2e-3, r.host_t1 - r.host_t0)
 
 
 def test_pulse_at_frame_has_its_width(built, figures) -> None:
