@@ -56,6 +56,16 @@ class EdgeLineParser:
         self.next_frame = 0
         self.bad_lines = 0
         self.f_cpu: float | None = None
+        # A paced harness states when cycle 0 was due on the host clock: with it, an edge's cycle
+        # gives the true host time of the pulse (what the host's clock model should reproduce).
+        self.anchor: float | None = None
+        self.last_cycle: int | None = None
+
+    def true_time(self) -> float:
+        """Host time of the last trigger edge by its cycle (NaN when the run is not paced)."""
+        if self.anchor is None or self.f_cpu is None or self.last_cycle is None:
+            return math.nan
+        return self.anchor + self.last_cycle / self.f_cpu
 
     def feed(self, line: str) -> int | None:
         s = line.strip()
@@ -66,6 +76,9 @@ class EdgeLineParser:
                 if tok.startswith("f_cpu="):
                     with contextlib.suppress(ValueError):
                         self.f_cpu = float(tok[6:])
+                elif tok.startswith("t0_realtime="):
+                    with contextlib.suppress(ValueError):
+                        self.anchor = float(tok[len("t0_realtime="):])
             return None
         parts = s.split()
         if len(parts) == 1:
@@ -77,6 +90,7 @@ class EdgeLineParser:
             if parts[1] == "trigger" and parts[2] == "1":
                 n = self.next_frame
                 self.next_frame += 1
+                self.last_cycle = int(parts[0])
                 return n
             return None
         self.bad_lines += 1
@@ -89,6 +103,7 @@ class FrameFeedStats:
     frames_rendered: int
     handoff_time: np.ndarray  # (n_frames,) host time (s) the last camera's frame was handed over, NaN if not
     edge_time: np.ndarray  # (n_frames,) host time the trigger edge was read
+    edge_true_time: np.ndarray  # (n_frames,) host time the edge happened (paced simavr), else NaN
     render_s: float  # CPU seconds spent rendering
     write_s: float  # seconds spent handing frames to the cameras' links
     bad_lines: int = 0  # edge-stream lines that could not be read
@@ -118,13 +133,14 @@ class FrameFeeder:
         self.n_cams = len(cameras)
         self._written = ctx.RawArray("d", [math.nan] * (gt.n_frames * self.n_cams))
         self._edge_t = ctx.RawArray("d", [math.nan] * gt.n_frames)
+        self._edge_true = ctx.RawArray("d", [math.nan] * gt.n_frames)
         # edges, rendered, render_s, write_s, done, bad lines, priority raised, pre-roll frames
         self._counters = ctx.RawArray("d", 8)
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
             target=_feed,
             args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format, warmup_frames,
-                  self._handoff, self._edge_t, self._counters, self._written),
+                  self._handoff, self._edge_t, self._counters, self._written, self._edge_true),
             name="flytrack-sim-frames",
             daemon=True,
         )
@@ -188,6 +204,7 @@ class FrameFeeder:
             handoff_time=np.frombuffer(self._handoff, dtype=np.float64).copy(),
             written_time=np.frombuffer(self._written, dtype=np.float64).reshape(-1, self.n_cams).copy(),
             edge_time=np.frombuffer(self._edge_t, dtype=np.float64).copy(),
+            edge_true_time=np.frombuffer(self._edge_true, dtype=np.float64).copy(),
             render_s=float(self._counters[2]),
             write_s=float(self._counters[3]),
             bad_lines=int(self._counters[5]),
@@ -315,6 +332,7 @@ def _feed(
     edge_t,
     counters,
     written_t,
+    edge_true,
 ) -> None:
     counters[6] = raise_priority()
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
@@ -381,6 +399,7 @@ def _feed(
                         done = True
                         break
                     edge_t[n] = t_edge
+                    edge_true[n] = parser.true_time()
                     # The frames of pulse n were rendered ahead (the flight is known in advance), so a
                     # pulse costs only handing them to the cameras' links: every camera's frame n is
                     # available at (nearly) one time, right after the pulse, as with real cameras.

@@ -98,7 +98,7 @@ class DemoReport:
     scores: TrackingScores
     latency: dict[str, float]  # hand-over to 3D estimate (exposure and transfer are simulated)
     latency_parts_p50_ms: dict[str, float]
-    trigger_time_bias_ms: float  # host's trigger time (clock model) minus when the cameras saw the pulse
+    trigger_time_bias_ms: float  # host's trigger time (clock model) minus when the pulse happened
     latency_host: dict[str, float]  # the host's own figure: trigger time (clock model) -> estimate
     frames_triggered: int
     frames_rendered: int
@@ -473,7 +473,10 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
                           match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
     recording = host_summary.get("recording")
-    numbering = _frame_numbering(recording, fs.written_time, preroll, fs.edge_time)
+    # The clock model's bias is judged against when each pulse happened (paced simavr states it);
+    # with the software trigger, against when the cameras read it.
+    truth_edges = fs.edge_true_time if np.any(np.isfinite(fs.edge_true_time)) else fs.edge_time
+    numbering = _frame_numbering(recording, fs.written_time, preroll, truth_edges)
     if numbering["misnumbered"]:
         notes.append(f"the host's synchroniser gave {numbering['misnumbered']} of {numbering['camera_frames']} "
                      "camera frames a wrong trigger frame number (scores use the host's numbers)")

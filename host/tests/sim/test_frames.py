@@ -1,3 +1,4 @@
+import math
 import os
 import threading
 import time
@@ -17,6 +18,15 @@ def test_parser_reads_the_simavr_edge_log_and_plain_numbers():
              "100 trigger 1", "140 trigger 0", "150 pulse0 1", "20100 trigger 1", "garbage here", "7"]
     assert [p.feed(s) for s in lines] == [None, None, 0, None, None, 1, None, 7]
     assert p.f_cpu == 16e6 and p.bad_lines == 1
+    assert math.isnan(p.true_time())  # not paced: no anchor
+
+
+def test_parser_gives_the_true_host_time_of_a_paced_edge():
+    p = EdgeLineParser()
+    for s in ["# flytrack-trigger-sim 1 mcu=atmega328p f_cpu=16000000",
+              "# paced t0_monotonic=5.0 t0_realtime=1000.5", "160000 trigger 1"]:
+        p.feed(s)
+    assert p.true_time() == pytest.approx(1000.5 + 160000 / 16e6)
 
 
 def _reader(fd, nbytes, out):
