@@ -1,7 +1,9 @@
 /* GenICam cameras through Aravis 0.8 (GigE Vision and USB3 Vision). Tested against Aravis's own
  * fake GigE camera (arv-fake-gv-camera-0.8) on loopback; the camera is named as Aravis lists it
  * ("Aravis-Fake-<serial>", "<vendor>-<serial>") or by its IP address. */
+#include <arpa/inet.h>
 #include <arv.h>
+#include <netinet/in.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -9,6 +11,9 @@
 
 #include "flytrack/features.h"
 #include "source.h"
+
+#include <sys/socket.h>
+#include <unistd.h>
 
 #define N_BUFFERS 8
 
@@ -89,6 +94,78 @@ static void arv_close(ft_source *s) {
     arv_shutdown();
 }
 
+/* The local address the kernel sends from to reach `dev`; the camera's stream packets come back to
+ * it. Returns 0 or -1. */
+static int route_source(GInetAddress *dev, struct in_addr *out) {
+    if (g_inet_address_get_family(dev) != G_SOCKET_FAMILY_IPV4)
+        return -1;
+    struct sockaddr_in to = {.sin_family = AF_INET, .sin_port = htons(3956)}; /* GVCP port */
+    memcpy(&to.sin_addr, g_inet_address_to_bytes(dev), 4);
+    int fd = socket(AF_INET, SOCK_DGRAM, 0);
+    if (fd < 0)
+        return -1;
+    struct sockaddr_in me;
+    socklen_t len = sizeof me;
+    int rc = connect(fd, (struct sockaddr *)&to, sizeof to) == 0 &&
+                     getsockname(fd, (struct sockaddr *)&me, &len) == 0
+                 ? 0
+                 : -1;
+    close(fd);
+    if (rc == 0)
+        *out = me.sin_addr;
+    return rc;
+}
+
+/* A GigE camera found by name is bound to the host interface whose discovery socket got its answer,
+ * and Aravis sets the stream destination (GevSCDA) to that interface's address and receives with a
+ * packet socket (AF_PACKET) on that interface. When the camera lives on this host (Aravis's fake
+ * camera on 127.0.0.1, answering broadcasts on every interface), discovery can answer through eth0:
+ * the camera then streams to eth0's address, the kernel delivers that through `lo`, and the packet
+ * socket on eth0 never sees a frame (issue 4; `arv-camera-test-0.8 -n NAME` shows the same: 0
+ * packets). So: when the kernel's route to the camera leaves from another local address than the
+ * one discovery chose, reopen the device with that address as the host interface, as opening by
+ * address does. On a real rig the two agree and the camera is used as opened. */
+static ArvCamera *rebind_to_route(ArvCamera *cam, const char *camera) {
+    if (!arv_camera_is_gv_device(cam))
+        return cam;
+    ArvGvDevice *gv = ARV_GV_DEVICE(arv_camera_get_device(cam));
+    GInetAddress *dev = g_inet_socket_address_get_address(
+        G_INET_SOCKET_ADDRESS(arv_gv_device_get_device_address(gv)));
+    GInetAddress *itf = g_inet_socket_address_get_address(
+        G_INET_SOCKET_ADDRESS(arv_gv_device_get_interface_address(gv)));
+    struct in_addr route;
+    if (route_source(dev, &route) != 0 || g_inet_address_get_family(itf) != G_SOCKET_FAMILY_IPV4 ||
+        memcmp(g_inet_address_to_bytes(itf), &route, 4) == 0)
+        return cam;
+    GInetAddress *local =
+        g_inet_address_new_from_bytes((const guint8 *)&route, G_SOCKET_FAMILY_IPV4);
+    GInetAddress *remote = g_object_ref(dev);
+    gchar *itf_s = g_inet_address_to_string(itf), *local_s = g_inet_address_to_string(local),
+          *dev_s = g_inet_address_to_string(dev);
+    fprintf(stderr,
+            "flytrack-edge: camera %s at %s was discovered through %s, but this host reaches it "
+            "from %s: reopening it there so its stream comes back to a socket that sees it\n",
+            camera, dev_s, itf_s, local_s);
+    g_free(itf_s);
+    g_free(local_s);
+    g_free(dev_s);
+    g_object_unref(cam); /* leaves control of the camera before the new device takes it */
+    GError *err = NULL;
+    ArvCamera *out = NULL;
+    ArvDevice *d = arv_gv_device_new(local, remote, &err);
+    if (d) {
+        out = arv_camera_new_with_device(d, &err); /* takes its own reference */
+        g_object_unref(d);
+    }
+    if (err) {
+        fprintf(stderr, "flytrack-edge: reopening camera %s: %s\n", camera, err->message);
+        g_clear_error(&err);
+    }
+    g_object_unref(local);
+    g_object_unref(remote);
+    return out;
+}
+
 #define TRY(call, what)                                                                            \
     do {                                                                                           \
         GError *e_ = NULL;                                                                         \
@@ -115,6 +192,11 @@ int ft_source_open_aravis(ft_source *s, const char *camera, const ft_source_req 
     if (!a->cam) {
         aerr(s, "cannot open camera %s: %s", camera, err ? err->message : "not found");
         g_clear_error(&err);
+        goto fail;
+    }
+    a->cam = rebind_to_route(a->cam, camera);
+    if (!a->cam) {
+        aerr(s, "cannot open camera %s on the host address that reaches it", camera);
         goto fail;
     }
     int fmt = req->pixel_format < 0 ? FT_FX_MONO8 : req->pixel_format;
