@@ -83,13 +83,14 @@ def project_params(cp: F64, aspect: F64, fixed_dist: F64, X: F64, cam: NDArray[n
 def bundle_adjust(cameras: list[Camera], points: F64, cam: NDArray[np.intp], pt: NDArray[np.intp], uv: F64,
                   distortion: str = "k1k2", loss: str = "huber", f_scale: float = 1.0, max_nfev: int = 100,
                   fix_intrinsics: bool = False, ftol: float = 1e-4, gauge: tuple[int, int] | None = None,
-                  fixed_intrinsics: set[str] | None = None) -> BundleResult:
+                  fixed_intrinsics: set[str] | None = None, lsmr_tol: float = 1e-6) -> BundleResult:
     """Refine cameras and points so that projections of points[pt] in cameras[cam] match uv (N, 2).
 
     fix_intrinsics holds every camera's K and distortion; fixed_intrinsics only those of the cameras named
     (names that are not among `cameras` are ignored). gauge=(a, b) removes the similarity freedom, which
     otherwise slows the sparse solver: camera a's pose and one translation component of camera b are held
-    fixed."""
+    fixed. lsmr_tol: LSMR's atol and btol for each trust-region step (scipy's default 1e-6 is cheap but leaves
+    the ill-conditioned directions, e.g. focal length vs distance, under-solved; 1e-10 converges them)."""
     if distortion not in DISTORTION_MODELS:
         raise ValueError(f"distortion model {distortion!r} unknown; use one of {sorted(DISTORTION_MODELS)}")
     nd = DISTORTION_MODELS[distortion]
@@ -137,7 +138,8 @@ def bundle_adjust(cameras: list[Camera], points: F64, cam: NDArray[np.intp], pt:
         A[2 * rows + 1, n_cam_cols + pt * 3 + k] = 1
     x0 = np.concatenate([cp0.ravel()[free_flat], np.asarray(points, dtype=np.float64).ravel()])
     res = least_squares(fun, x0, jac_sparsity=A.tocsr(), x_scale="jac", loss=loss, f_scale=f_scale,
-                        method="trf", tr_solver="lsmr", ftol=ftol, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+                        method="trf", tr_solver="lsmr", tr_options={"atol": lsmr_tol, "btol": lsmr_tol},
+                        ftol=ftol, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
     cp, X = unpack(res.x)
     out = [_unpack_camera(cp[i], c, distortion) for i, c in enumerate(cameras)]
     for i in held if not fix_intrinsics else range(nc):

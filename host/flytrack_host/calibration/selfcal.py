@@ -480,7 +480,7 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
                    intrinsics: Mapping[str, Camera] | None = None, distortion: str = "k1k2",
                    ransac_px: float | None = None, max_nfev: int = 60, seed: int = 0,
                    max_ba_points: int = 1500, final_ftol: float = 1e-5, init: str = "factorization",
-                   refine_intrinsics: bool = False) -> SelfCalResult:
+                   refine_intrinsics: bool = False, final_lsmr_tol: float = 1e-10) -> SelfCalResult:
     """Calibrate all cameras of obs (up to a similarity). init: "factorization" (Svoboda: projective
     factorisation + Euclidean upgrade) or "pairwise" (essential matrices + PnP from approximate intrinsics).
 
@@ -524,7 +524,11 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
         f_scale = fs if fs is not None else max(0.3, 2.5 * sigma)
         bres = bundle_adjust(cams, X_cur[pts], obs.cam[sel], remap[inv[sel]], obs.uv[sel], distortion=distortion,
                              loss=loss, f_scale=f_scale, max_nfev=max_nfev, gauge=gauge, fixed_intrinsics=fixed,
-                             ftol=final_ftol if stage == 2 else 1e-4)
+                             ftol=final_ftol if stage == 2 else 1e-4,
+                             # The final stage solves each step's linear system to high accuracy: with scipy's
+                             # default (1e-6) LSMR stops early along the weakly determined directions (focal
+                             # length vs depth), so the solver creeps there and ftol stops it short (issue 6).
+                             lsmr_tol=final_lsmr_tol if stage == 2 else 1e-6)
         cams = bres.cameras
         sigma = float(np.median(np.linalg.norm(bres.residuals, axis=1)) / 1.1774)  # 2D Gaussian: 1.1774 sigma
         # Every frame (also those outside the bundle sample) is triangulated from the current inliers and
