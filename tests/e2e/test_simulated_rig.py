@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
-from flytrack_host.sim.run import DemoConfig, find_edge_binary, run_demo, write_json
+from flytrack_host.sim.run import PREROLL_FRAMES, DemoConfig, find_edge_binary, run_demo, write_json
 
 
 @pytest.fixture(scope="module")
@@ -49,9 +49,9 @@ def test_loopback_loses_nothing_and_the_host_publishes(demo):
     assert r.camera_frames_sent == 3 * 200
     assert r.camera_frames_received == r.camera_frames_sent
     rx = r.host_summary["receiver"]
-    # Every frame reached the host: the 200 triggered ones and the 3 pre-roll frames (background,
+    # Every frame reached the host: the 200 triggered ones and the pre-roll frames (background,
     # taken before START) of each camera.
-    assert sum(c["frames"] for c in rx["cameras"].values()) == 3 * (200 + 3)
+    assert sum(c["frames"] for c in rx["cameras"].values()) == 3 * (200 + PREROLL_FRAMES)
     assert rx["errors_by_name"] == {}
     assert r.live_frames > 100  # LIVE_ESTIMATES reached the rig's live subscriber
     lat = r.latency

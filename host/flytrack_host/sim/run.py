@@ -41,6 +41,8 @@ from flytrack_host.sim.rig import make_cameras, rig_config, write_rig
 from flytrack_host.sim.trigger_source import DemoTrigger
 
 ROOT = Path(__file__).resolve().parents[3]
+# Frames each camera sends before the trigger starts: the edges take their background from them.
+PREROLL_FRAMES = 3
 
 
 class DemoError(RuntimeError):
@@ -254,7 +256,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     render_params = cfg.render or RenderParams(noise_sigma=cfg.noise)
     # The edges take their background from pre-roll frames sent before the trigger starts, so the
     # animals are in the picture from trigger frame 0.
-    preroll = 3
+    preroll = PREROLL_FRAMES
     warmup = 0
     trig = DemoTrigger(cfg.trigger, cfg.fps, out, firmware=cfg.firmware)
     notes.append(trig.note)
