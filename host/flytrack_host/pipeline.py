@@ -24,7 +24,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import typer
@@ -68,6 +68,22 @@ TrackerFactory = Callable[[Mapping[int, Camera], TrackingParams, float], Any]
 _POINT_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff", "orientation",
                  "eccentricity", "cur_val", "mean_val", "sumsq_val")
 _FLOAT_FIELDS = tuple(f for f in _POINT_FIELDS if f != "cur_val")
+
+
+class ResultSink(Protocol):
+    """A consumer of every tracked frame: a live output (event stream, VR pose) or the actuation rules.
+
+    `on_frame` runs on the tracking thread right after the tracker, so it must only hand the frame on
+    (append to a bounded queue, a non-blocking send) and return: a slow sink would delay tracking.
+    `frame_time` is the host time of the frame's trigger pulse (the clock model's), `estimate_time` the
+    host time the estimate was made; their difference is the trigger-to-estimate latency. An exception
+    is caught, counted in `sink_errors` and logged (rate-limited); the sink stays attached. `close` is
+    called once when the pipeline stops.
+    """
+
+    def on_frame(self, result: FrameResult, frame_time: float, estimate_time: float) -> None: ...
+
+    def close(self) -> None: ...
 
 
 def default_tracker_factory(cameras: Mapping[int, Camera], params: TrackingParams, period: float) -> Any:
@@ -145,6 +161,7 @@ class HostPipeline:
         params: TrackingParams | None = None,
         fps: float | None = None,
         hold_until_synchronized: bool = False,
+        sinks: list[ResultSink] | None = None,
     ):
         self.rig = rig
         self.cameras = dict(cameras) if cameras else {}
@@ -170,6 +187,8 @@ class HostPipeline:
         self.tracker_resets = 0
         self.n_objects = 0
         self.callback_errors = 0
+        self.sinks: list[ResultSink] = list(sinks or [])  # live outputs and actuation, fed per frame
+        self.sink_errors = 0
         self.recording_error: str | None = None  # finalising the recording failed (raw files kept)
         self.loop_errors = 0  # exceptions caught per item in the tracking thread (it goes on)
         self.recorder: Recorder | None = None
@@ -246,6 +265,11 @@ class HostPipeline:
             self.receiver.close()
         if self.live is not None:
             self.live.close()
+        for sink in self.sinks:
+            try:
+                sink.close()
+            except Exception as exc:
+                self.log(f"closing output {type(sink).__name__} failed: {exc!r}")
         self._summary = self.summary(recording_h5=h5)
         if self._error is not None:
             raise RuntimeError(f"tracking thread failed: {self._error}") from self._error
@@ -446,6 +470,13 @@ class HostPipeline:
             self.n_objects = len(result.estimates)
             if self.live is not None:
                 self.live.send(result, bundle.timestamp)
+            for sink in self.sinks:
+                try:
+                    sink.on_frame(result, bundle.timestamp, t_est)
+                except Exception as exc:  # an output's bug must not stop tracking
+                    self.sink_errors += 1
+                    if self.sink_errors <= 10:
+                        self.log(f"output {type(sink).__name__} failed on frame {bundle.trigger_frame}: {exc!r}")
         lat_row = self.latency.row(bundle.trigger_frame, bundle.timestamp, sb.first_arrival, sb.last_arrival,
                                    t_est, len(sb.frames), len(bundle.missing_cameras))
         if self.recorder is not None:
@@ -522,6 +553,7 @@ class HostPipeline:
             "tracker_errors": self.tracker_errors,
             "tracker_resets": self.tracker_resets,
             "loop_errors": self.loop_errors,
+            "sink_errors": self.sink_errors,
             "latency": self.latency.summary(),
             "latency_text": self.latency.format(),
             "recording": str(recording_h5) if recording_h5 else (str(self.recording_path) if self.record else None),

@@ -164,3 +164,41 @@ def test_camera_stops_mid_run_and_comes_back(helpers, tmp_path):
     assert set(cam1["trigger_frame"].tolist()) == set(range(40)) | set(range(100, 160))
     msgs = [r["message"] for r in rec.textlog]
     assert any("marked dead" in m for m in msgs) and any("sending again" in m for m in msgs)
+
+
+class _CollectingSink:
+    def __init__(self) -> None:
+        self.frames: list[tuple[int, float, float]] = []
+        self.closed = 0
+
+    def on_frame(self, result, frame_time: float, estimate_time: float) -> None:
+        self.frames.append((result.trigger_frame, frame_time, estimate_time))
+
+    def close(self) -> None:
+        self.closed += 1
+
+
+class _BrokenSink(_CollectingSink):
+    def on_frame(self, result, frame_time: float, estimate_time: float) -> None:
+        raise ValueError("broken output")
+
+
+def test_sinks_get_every_tracked_frame_and_a_broken_one_stops_nothing(helpers, tmp_path):
+    rig = helpers.make_rig(2, fps=100.0)
+    good, bad = _CollectingSink(), _BrokenSink()
+    pipe = HostPipeline(rig, cameras={0: None, 1: None}, tracker_factory=helpers.factory,
+                        recording_path=tmp_path / "r", bind="127.0.0.1:0", sinks=[bad, good])
+    pipe.start()
+    edges = [helpers.EdgeSim(i, pipe.address) for i in range(2)]
+    try:
+        run_frames(edges, range(30), 100.0)
+        time.sleep(0.1)
+    finally:
+        summary = pipe.stop()
+    assert [f for f, _, _ in good.frames] == list(range(30))
+    # Latency as a sink sees it: the estimate is made after its frame's trigger time.
+    assert all(0.0 <= t_est - t_frame < 1.0 for _, t_frame, t_est in good.frames)
+    assert summary["sink_errors"] == 30 and summary["frames_tracked"] == 30
+    assert good.closed == 1 and bad.closed == 1
+    rec = load_recording(summary["recording"])
+    assert sum("BrokenSink failed" in r["message"] for r in rec.textlog) == 10  # rate-limited
