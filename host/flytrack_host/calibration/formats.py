@@ -6,6 +6,8 @@ so the tracker, the simulator and the calibration never see a file format.
 flydra XML (`multi_camera_reconstructor`): per camera a `calibration_matrix` P (3x4, for undistorted pixels,
 rows separated by ';'), `resolution` (width height) and optional `non_linear_parameters` (Bouguet's
 model: fc1 fc2 cc1 cc2 k1 k2 p1 p2 alpha_c, optionally k3 and the rectified intrinsics fc1p fc2p cc1p cc2p).
+An optional `<water>n</water>` in the root (Braid) puts every camera above a water surface at z = 0 of
+refractive index n (Camera.interface = refraction.FlatInterface.water_surface(n)); we write it back.
 A per-camera `scale_factor` multiplies the last column of P (old files in mm -> m). We write P = K[R|t]
 with 17 significant digits and fc1p.. equal to fc1.., so a file we write reads back exactly.
 
@@ -16,6 +18,7 @@ R the rectification (identity for us) and P the rectified projection.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import tomllib
@@ -26,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from flytrack_host.camera import Camera, distort_normalized
+from flytrack_host.refraction import FlatInterface
 
 __all__ = [
     "CalibrationFormatError",
@@ -116,6 +120,10 @@ def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str |
     writers = {"flydra-xml": save_flydra_xml, "pymvg-json": save_pymvg_json, "anipose-toml": save_anipose_toml}
     if fmt not in writers:
         raise CalibrationFormatError(f"cannot write format {fmt!r}; FlyTrack writes {sorted(writers)}.")
+    if fmt != "flydra-xml" and any(c.interface is not None for c in cameras.values()):
+        raise CalibrationFormatError(
+            f"{path}: {fmt} has no place for refraction (these cameras look through water); write flydra XML "
+            "(.xml), whose <water> element keeps it.")
     writers[fmt](cameras, path)
 
 
@@ -303,11 +311,42 @@ def load_flydra_xml(path: str | Path, warnings: list[str] | None = None) -> dict
     if not cams:
         raise _fail(path, "has no <single_camera_calibration> element", "Give at least one camera.")
     _check_unique([c.name for c in cams], path)
+    water = _flydra_water(mcr, path)
+    if water is not None:
+        cams = [dataclasses.replace(c, interface=water) for c in cams]
     return {c.name: c for c in cams}
+
+
+def _flydra_water(mcr: ET.Element, path: Path | str) -> FlatInterface | None:
+    el = mcr.find("water")
+    if el is None:
+        return None
+    text = (el.text or "").strip()
+    try:
+        n = float(text)
+    except ValueError:
+        raise _fail(path, f"<water> is {text!r}, not a refractive index", "Write e.g. <water>1.333</water>.") from None
+    if not (math.isfinite(n) and n >= 1.0):
+        raise _fail(path, f"<water> is {n!r}; a refractive index is finite and >= 1", "Fix the file.")
+    return FlatInterface.water_surface(n)
+
+
+def _common_water(cameras: Mapping[str, Camera], path: Path | str) -> FlatInterface | None:
+    """The one water surface all cameras share (what <water> can hold), or None; anything else is an error."""
+    ifcs = {c.interface for c in cameras.values()}
+    if ifcs == {None}:
+        return None
+    (ifc,) = ifcs if len(ifcs) == 1 else (None,)
+    if ifc is None or not ifc.is_braid_water:
+        raise CalibrationFormatError(
+            f"{path}: flydra XML can only hold one water surface at z = 0 shared by every camera (<water>); "
+            "these cameras have other refractive interfaces, which no format FlyTrack writes can hold.")
+    return ifc
 
 
 def save_flydra_xml(cameras: Mapping[str, Camera], path: str | Path, minimum_eccentricity: float = 1.4) -> None:
     """Write flydra's `multi_camera_reconstructor` XML (world units: metres, scale_factor absent)."""
+    water = _common_water(cameras, path)
     root = ET.Element("multi_camera_reconstructor")
     for name, cam in cameras.items():
         sc = ET.SubElement(root, "single_camera_calibration")
@@ -328,6 +367,8 @@ def save_flydra_xml(cameras: Mapping[str, Camera], path: str | Path, minimum_ecc
         for tag, v in vals.items():
             ET.SubElement(nl, tag).text = _fmt(v)
     ET.SubElement(root, "minimum_eccentricity").text = _fmt(minimum_eccentricity)
+    if water is not None:
+        ET.SubElement(root, "water").text = _fmt(water.n_far)
     ET.indent(root)
     Path(path).write_text(ET.tostring(root, encoding="unicode") + "\n")
 
