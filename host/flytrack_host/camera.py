@@ -6,6 +6,10 @@ edge extractor's undistortion all use this model, so a point means the same thin
 Conventions: a world point Xw maps to camera coordinates Xc = R @ Xw + t; the camera looks along +z;
 pixel (0, 0) is the centre of the top-left pixel, as in OpenCV.
 Distortion coefficients are in OpenCV order (k1, k2, p1, p2, k3).
+With `K_dist` set (flydra's `intrinsic_linear` / XML `non_linear_parameters` fc, cc, alpha_c) the lens
+distortion is applied about that K instead of K: ideal pixel p = K (x/z, y/z) (so P = K [R|t] still holds),
+q = K_dist^-1 p, distorted pixel = K_dist D(q). This is flydra's model exactly (its helper's undistort is
+the inverse of it); with K_dist None it is OpenCV's, K_dist = K.
 With `interface` set (a `refraction.FlatInterface`: Braid's `<water>`, a tank wall) points beyond the
 plane are seen through it: they project as their refraction point on the plane does (refraction.py).
 """
@@ -53,6 +57,7 @@ class Camera:
     t: F64
     dist: F64 = field(default_factory=lambda: np.zeros(5))
     interface: FlatInterface | None = None
+    K_dist: F64 | None = None
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
@@ -64,6 +69,14 @@ class Camera:
             raise ValueError(f"camera {self.name}: at most 5 distortion coefficients (k1 k2 p1 p2 k3)")
         d[: given.size] = given
         self.dist = d
+        if self.K_dist is not None:
+            Kd = np.asarray(self.K_dist, dtype=np.float64).reshape(3, 3)
+            if not (np.all(np.isfinite(Kd)) and Kd[0, 0] > 0 and Kd[1, 1] > 0 and Kd[2, 2] == 1.0
+                    and Kd[1, 0] == 0 and Kd[2, 0] == 0 and Kd[2, 1] == 0):
+                raise ValueError(f"camera {self.name}: K_dist must be an upper-triangular intrinsic matrix "
+                                 "with positive focal lengths and K_dist[2, 2] = 1")
+            # The same K as the pinhole's (to rounding) is no separate distortion frame.
+            self.K_dist = None if np.allclose(Kd, self.K, rtol=1e-13, atol=0) else Kd
         if not (np.all(np.isfinite(self.K)) and np.all(np.isfinite(self.R)) and np.all(np.isfinite(self.t))):
             raise ValueError(f"camera {self.name}: calibration contains NaN or infinity")
         if self.interface is not None and not float(self.interface.height(self.center)) > 0:
@@ -102,8 +115,19 @@ class Camera:
         S = refraction_point(self.center, X, self.interface)
         return np.where(beyond[:, None], S, X)
 
-    def _pix(self, xn: F64, yn: F64) -> F64:
-        K = self.K
+    @property
+    def Kd(self) -> F64:
+        """The K about which the distortion is applied (K_dist, or K)."""
+        return self.K if self.K_dist is None else self.K_dist
+
+    def _to_dist_frame(self, xn: F64, yn: F64) -> tuple[F64, F64]:
+        """Pinhole normalised coordinates -> the coordinates the distortion acts on (K_dist^-1 K x)."""
+        if self.K_dist is None:
+            return xn, yn
+        return self._normalize(self._pix(xn, yn), self.K_dist)
+
+    def _pix(self, xn: F64, yn: F64, K: F64 | None = None) -> F64:
+        K = self.K if K is None else K
         u = K[0, 0] * xn + K[0, 1] * yn + K[0, 2]
         v = K[1, 1] * yn + K[1, 2]
         return np.stack([u, v], axis=-1)
@@ -115,8 +139,9 @@ class Camera:
         with np.errstate(divide="ignore", invalid="ignore"):
             xn = np.where(z > 0, Xc[:, 0] / z, np.nan)
             yn = np.where(z > 0, Xc[:, 1] / z, np.nan)
+        xn, yn = self._to_dist_frame(xn, yn)
         xd, yd = _distort_normalized(xn, yn, self.dist)
-        return self._pix(xd, yd)
+        return self._pix(xd, yd, self.Kd)
 
     def project_undistorted(self, Xw: ArrayLike) -> F64:
         Xc = self.to_camera(Xw)
@@ -136,7 +161,11 @@ class Camera:
             X = S
         Xc = self.R @ X + self.t
         z = Xc[2]
-        x, y = Xc[0] / z, Xc[1] / z
+        x0, y0 = Xc[0] / z, Xc[1] / z
+        # The distortion acts on q = A (x0, y0) + b, A = (K_dist^-1 K)[:2, :2].
+        A = np.linalg.solve(self.Kd, self.K)[:2, :2] if self.K_dist is not None else np.eye(2)
+        x, y = self._to_dist_frame(np.array([x0]), np.array([y0]))
+        x, y = float(x[0]), float(y[0])
         k1, k2, p1, p2, k3 = self.dist
         r2 = x * x + y * y
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -150,20 +179,21 @@ class Camera:
         dyd_dy = radial + y * dradial_dr2 * 2.0 * y + p1 * 6.0 * y + 2.0 * p2 * x
         Dd = np.array([[dxd_dx, dxd_dy], [dyd_dx, dyd_dy]])
         # d(x, y) / d Xc
-        Dn = np.array([[1.0 / z, 0.0, -x / z], [0.0, 1.0 / z, -y / z]])
-        Kp = self.K[:2, :2]
-        J = Kp @ Dd @ Dn @ self.R
+        Dn = np.array([[1.0 / z, 0.0, -x0 / z], [0.0, 1.0 / z, -y0 / z]])
+        Kd = self.Kd
+        Kp = Kd[:2, :2]
+        J = Kp @ Dd @ A @ Dn @ self.R
         if dS is not None:
             J = J @ dS
-        uv = np.array([Kp[0, 0] * xd + Kp[0, 1] * yd + self.K[0, 2], Kp[1, 1] * yd + self.K[1, 2]])
+        uv = np.array([Kp[0, 0] * xd + Kp[0, 1] * yd + Kd[0, 2], Kp[1, 1] * yd + Kd[1, 2]])
         return uv, J
 
     def distort(self, uv_ideal: ArrayLike) -> F64:
         """Ideal (undistorted) pixel coordinates (N,2) -> distorted pixel coordinates (N,2)."""
         uv = np.atleast_2d(np.asarray(uv_ideal, dtype=np.float64))
-        xn, yn = self._normalize(uv)
+        xn, yn = self._normalize(uv, self.Kd)
         xd, yd = _distort_normalized(xn, yn, self.dist)
-        return self._pix(xd, yd)
+        return self._pix(xd, yd, self.Kd)
 
     def undistort(self, uv: ArrayLike, iterations: int = 20) -> F64:
         """Distorted pixel coordinates (N,2) -> ideal pinhole pixel coordinates (N,2).
@@ -173,9 +203,10 @@ class Camera:
         does not converge (far outside the field the distortion model was fitted on, where it folds
         over) the point is NaN rather than a wrong position."""
         uv = np.atleast_2d(np.asarray(uv, dtype=np.float64))
-        xd, yd = self._normalize(uv)
+        Kd = self.Kd
+        xd, yd = self._normalize(uv, Kd)
         if not self.has_distortion:
-            return self._pix(xd, yd)
+            return self._pix(xd, yd, Kd)
         k1, k2, p1, p2, k3 = self.dist
         x, y = xd.copy(), yd.copy()
         for _ in range(iterations):
@@ -202,10 +233,10 @@ class Camera:
             bad = ~(np.hypot(fx - xd, fy - yd) < 1e-6)  # ~1e-3 px at f = 1000 px; NaN counts as bad
         x[bad] = np.nan
         y[bad] = np.nan
-        return self._pix(x, y)
+        return self._pix(x, y, Kd)
 
-    def _normalize(self, uv: F64) -> tuple[F64, F64]:
-        K = self.K
+    def _normalize(self, uv: F64, K: F64 | None = None) -> tuple[F64, F64]:
+        K = self.K if K is None else K
         yn = (uv[:, 1] - K[1, 2]) / K[1, 1]
         xn = (uv[:, 0] - K[0, 2] - K[0, 1] * yn) / K[0, 0]
         return xn, yn
@@ -264,6 +295,7 @@ class Camera:
         height: int,
         dist: ArrayLike = (0.0, 0.0, 0.0, 0.0, 0.0),
         interface: FlatInterface | None = None,
+        K_dist: ArrayLike | None = None,
     ) -> Camera:
         """Decompose a 3x4 projection matrix (any scale and sign) into K, R, t (RQ decomposition).
 
@@ -291,7 +323,7 @@ class Camera:
         t = np.linalg.solve(K, Pm[:, 3])  # with the unscaled K, so the overall scale of P cancels
         K = K / K[2, 2]
         return cls(name=name, width=width, height=height, K=K, R=R, t=t, dist=np.asarray(dist, dtype=float),
-                   interface=interface)
+                   interface=interface, K_dist=None if K_dist is None else np.asarray(K_dist, dtype=float))
 
     @classmethod
     def look_at(

@@ -37,7 +37,14 @@ class CameraArray:
         self.R = np.stack([c.R for c in cams])  # (C, 3, 3)
         self.t = np.stack([c.t for c in cams])  # (C, 3)
         self.RT = np.ascontiguousarray(np.swapaxes(self.R, 1, 2))
-        K = np.stack([c.K for c in cams])
+        # The distortion's K (Camera.Kd: flydra's intrinsic_linear when it differs from P's K): output
+        # pixels use it; the distortion acts on q = A q0 + b with (A, b) from K_dist^-1 K.
+        K = np.stack([c.Kd for c in cams])
+        self.dist_frame = any(c.K_dist is not None for c in cams)
+        Adf = np.stack([np.linalg.solve(c.Kd, c.K) for c in cams])
+        self._dfA = Adf[:, None, :2, :2]  # (C, 1, 2, 2)
+        self._dfAT = np.ascontiguousarray(np.swapaxes(self._dfA, -1, -2))
+        self._dfb = Adf[:, None, :2, 2]  # (C, 1, 2)
         # (C, 1) columns broadcast against (C, T) target arrays.
         self.fx = K[:, 0, 0, None].copy()
         self.skew = K[:, 0, 1, None].copy()
@@ -135,6 +142,9 @@ class CameraArray:
         front = z > 1e-9
         zi = 1.0 / np.where(front, z, 1.0)
         q = Xc[..., :2] * zi[..., None]  # normalised (x, y), (C, T, 2)
+        q0 = q
+        if self.dist_frame:
+            q = (q[..., None, :] @ self._dfAT)[..., 0, :] + self._dfb
         qq = q * q
         r2 = qq[..., 0] + qq[..., 1]
         radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
@@ -151,7 +161,9 @@ class CameraArray:
         Dd += self._p2s_col * q[..., None, :]
         Dd.reshape(Dd.shape[:-2] + (4,))[..., ::3] += radial[..., None] + self._p4s * q
         # Chain rule: d(x, y)/dX = (R[:2] - q R[2]) / z, pixels = Kp (xd, yd) + c.
-        G = self._R2 - q[..., :, None] * self._Rz  # (C, T, 2, 3)
+        G = self._R2 - q0[..., :, None] * self._Rz  # (C, T, 2, 3)
+        if self.dist_frame:
+            G = self._dfA @ G
         J = (self._Kp @ Dd) @ G
         J *= zi[..., None, None]
         if dS is not None:
