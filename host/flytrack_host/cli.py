@@ -38,6 +38,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.pipeline", "run_command", "run"),
     ("flytrack_host.io.cli", "export_command", "export"),
     ("flytrack_host.io.cli", "retrack_command", "retrack"),
+    ("flytrack_host.io.cli", "compare_command", "compare"),
     ("flytrack_host.sim.cli", "demo_command", "demo"),
 ]
 
