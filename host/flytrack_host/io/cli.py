@@ -30,10 +30,21 @@ def export_command(
         raise typer.Exit(code=2) from None
     if braidz is not None:
         counts = export_braidz(rec, braidz)
-        console.print(f"wrote {braidz}: " + ", ".join(f"{k} {v} rows" for k, v in counts.items()), highlight=False)
+        _print_braidz_counts(braidz, counts)
     if csv is not None:
         files = export_csv(rec, csv)
         console.print(f"wrote {len(files)} CSV files to {csv}", highlight=False)
+
+
+def _print_braidz_counts(path: Path, counts: dict[str, int]) -> None:
+    tables = ("kalman_estimates", "data2d_distorted", "data_association")
+    console.print(f"wrote {path}: " + ", ".join(f"{k} {counts[k]} rows" for k in tables if k in counts)
+                  + f", {counts.get('images', 0)} images, "
+                  + ", ".join(k for k in counts if k.endswith(".hlog")), highlight=False)
+    left = {k: v for k, v in counts.items() if "not exported" in k and v}
+    if left:
+        console.print("[yellow]warning[/yellow] rows Braid has no place for were left out: "
+                      + ", ".join(f"{k} {v}" for k, v in left.items()), highlight=False)
 
 
 def retrack_command(
@@ -89,8 +100,7 @@ def retrack_command(
         from flytrack_host.io.braidz import export_braidz
         from flytrack_host.recording import load_recording
 
-        export_braidz(load_recording(res.out), braidz)
-        console.print(f"wrote {braidz}", highlight=False)
+        _print_braidz_counts(braidz, export_braidz(load_recording(res.out), braidz))
 
 
 def compare_command(

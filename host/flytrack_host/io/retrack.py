@@ -40,11 +40,13 @@ def data2d_from_recording(path: Path) -> Data2D:
 
 
 def load_2d(path: Path | str) -> Data2D:
-    """2D data from a FlyTrack recording, a .braidz or a flydra .h5 (chosen by content)."""
+    """2D data from a FlyTrack recording, a .braidz or Braid's .braid folder, or a flydra .h5 (by content)."""
     path = Path(path)
     if not path.exists():
         raise RetrackError(f"{path}: no such file or folder")
-    if path.suffix == ".braidz" or (path.is_file() and path.read_bytes()[:2] == b"PK"):
+    is_braid_folder = path.is_dir() and (path.suffix == ".braid" or any(
+        (path / n).exists() for n in ("data2d_distorted.csv.gz", "data2d_distorted.csv")))
+    if path.suffix == ".braidz" or is_braid_folder or (path.is_file() and path.read_bytes()[:2] == b"PK"):
         from flytrack_host.io.braidz import read_braidz
 
         return read_braidz(path)
