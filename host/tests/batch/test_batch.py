@@ -153,3 +153,15 @@ def test_a_worker_killed_mid_batch_loses_and_duplicates_nothing(recordings, clus
     assert lost and lost <= set(done)
     redone = df[df["output"].map(lambda o: Path(o).relative_to(out).as_posix() in lost)]
     assert len(redone) == len(lost) and not redone["worker"].str.endswith(f":{victim.pid}").any()
+
+
+def test_braidz_and_flytrack_sources_in_one_batch(recordings, tmp_path):
+    from flytrack_host.io.braidz import export_braidz
+
+    bz = tmp_path / "lab.braidz"
+    export_braidz(load_recording(recordings[2]), bz)
+    tasks = plan_retracks([bz, recordings[3]], param_sets(), tmp_path / "out")
+    rep = run_batch(tasks, progress=False, serial=True)
+    assert not rep.failures and rep.ran == 2
+    rows = {r["name"]: r for r in rep.rows}
+    assert set(rows) == {"lab", "rec3"} and rows["lab"]["objects"] == 2 and rows["lab"]["coverage"] > 0.97
