@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import sys
 import threading
 import time
 from pathlib import Path
@@ -37,6 +38,7 @@ from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
 log = logging.getLogger("flytrack.actuation")
+SWITCH_INTERVAL_S = 0.0005
 
 
 def estimates_arrays(result: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -91,6 +93,10 @@ class ActuationEngine:
     def start(self) -> None:
         if not self._started:
             self._started = True
+            if self.workers and sys.getswitchinterval() > SWITCH_INTERVAL_S:
+                # A device thread waiting for the GIL would otherwise run only when the tracking thread
+                # blocks or after Python's 5 ms switch interval: 1-2 ms added to every action.
+                sys.setswitchinterval(SWITCH_INTERVAL_S)
             for w in self.workers.values():
                 w.start()
 

@@ -69,7 +69,8 @@ class RuleEvaluator:
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
         states = np.asarray(states, dtype=np.float64).reshape(-1, 6)
         if r.predict:
-            judged = predict_states(states, (target_frame - frame) * self.period_s)
+            ahead = min((target_frame - frame) * self.period_s, r.max_predict_ms / 1e3)
+            judged = predict_states(states, ahead)
             at = target_frame
         else:
             judged = states

@@ -195,6 +195,9 @@ class Rule(_Strict):
     armed_until_s: float | None = Field(None, gt=0, description="... until this many seconds (none: forever)")
     dry_run: bool = Field(False, description="record when the rule would fire; send nothing")
     predict: bool = Field(True, description="evaluate on the state predicted to the frame the action reaches")
+    max_predict_ms: float = Field(
+        50.0, ge=0, le=1000, description="predict at most this far ahead; when the action can only land later "
+        "(a stalled host), the rule is judged at this horizon rather than on a long extrapolation")
 
     @model_validator(mode="after")
     def _window(self) -> Rule:

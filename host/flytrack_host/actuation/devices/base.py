@@ -14,6 +14,7 @@ import math
 import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,6 +25,8 @@ from flytrack_host.rig import ActuatorConfig
 log = logging.getLogger("flytrack.actuation")
 
 RECONNECT_S = 0.5
+LEAD_SAMPLES = 50
+LEAD_MARGIN_S = 0.5e-3
 
 
 class OutputError(RuntimeError):
@@ -74,11 +77,14 @@ class Output:
     kind = "?"
     arm_frames = 0  # frames ahead the device must have the command (the trigger firmware: 1)
 
+    initial_lead_s = 0.0  # until measured: time from queueing a command to its acknowledgement
+
     def __init__(self, cfg: ActuatorConfig, context: dict[str, Any] | None = None):
         self.cfg = cfg
         self.context = context or {}
         self.connected = False
-        self.ack_ewma_s = 0.0  # measured send -> acknowledgement time
+        self._lead: deque[float] = deque(maxlen=LEAD_SAMPLES)  # measured queued -> acknowledged times
+        self._lead_s = self.initial_lead_s
 
     @property
     def name(self) -> str:
@@ -86,9 +92,10 @@ class Output:
 
     @property
     def lead_s(self) -> float:
-        """How long before its frame an action must be sent: the device's stated latency plus the
-        measured time to an acknowledgement (frame-scheduled devices need the command in time)."""
-        return self.cfg.latency_ms / 1e3 + self.ack_ewma_s
+        """How long before its frame an action must be queued: the device's stated latency plus the
+        90th percentile of the measured time from queueing to acknowledgement (waiting for the worker
+        thread, for a serial link busy with a clock query, the round trip) and a margin."""
+        return self.cfg.latency_ms / 1e3 + self._lead_s
 
     def connect(self) -> None:
         self._connect()
@@ -96,9 +103,10 @@ class Output:
 
     def perform(self, job: Job) -> Done:
         done = self._perform(job)
-        if math.isfinite(done.time_ack) and math.isfinite(done.time_sent):
-            dt = done.time_ack - done.time_sent
-            self.ack_ewma_s = dt if self.ack_ewma_s == 0 else 0.8 * self.ack_ewma_s + 0.2 * dt
+        if math.isfinite(done.time_ack):
+            self._lead.append(max(0.0, done.time_ack - job.queued_at))
+            v = sorted(self._lead)
+            self._lead_s = max(self.initial_lead_s, v[int(0.9 * (len(v) - 1))] + LEAD_MARGIN_S)
         return done
 
     def close(self) -> None:

@@ -14,6 +14,7 @@ from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 class ModbusOutput(Output):
     kind = "modbus"
+    initial_lead_s = 0.002
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]

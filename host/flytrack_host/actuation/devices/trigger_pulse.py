@@ -25,6 +25,8 @@ DEFAULT_WIDTH_MS = 1.0
 class TriggerPulseOutput(Output):
     kind = "trigger_pulse"
     arm_frames = 1
+    # PULSE + ACK at 115200 baud (~22 bytes with framing, ~1.9 ms) and a clock query it may wait behind.
+    initial_lead_s = 0.006
 
     def _device(self) -> Any:
         get = self.context.get("trigger")
