@@ -62,6 +62,10 @@ def summary_table(r: DemoReport) -> Table:
             f"{k.replace('simulated ', 'sim ')} {v:.1f}" for k, v in r.cpu_seconds.items()))
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
+    if r.actuation:
+        from flytrack_host.sim.closed_loop import closed_loop_line
+
+        t.add_row("closed loop", *closed_loop_line(r.actuation))
     return t
 
 
@@ -77,12 +81,16 @@ def demo_command(
     json_path: Path | None = typer.Option(None, "--json", help="Write every figure of the summary here."),
     trigger: str = typer.Option("auto", "--trigger", help="auto | simavr | software"),
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    rules: Path | None = typer.Option(
+        None, "--rules", help="Closed-loop rules file (e.g. examples/closed_loop.toml): its rules drive the "
+        "firmware's high-speed camera line, a Modbus TCP server and a CAN bus on loopback, scored against the "
+        "flight's ground truth (JSON `actuation`)."),
 ) -> None:
     """Simulated rig end to end: flight model, firmware trigger in simavr, rendered cameras, real edge
     extractors, UDP on loopback, the real host; scores against ground truth."""
     console = Console()
     cfg = DemoConfig(cameras=cameras, animals=animals, fps=fps, seconds=seconds, noise=noise, seed=seed,
-                     out=out, trigger=trigger, progress=not no_progress)
+                     out=out, trigger=trigger, progress=not no_progress, rules=rules)
     try:
         report = run_demo(cfg, console)
     except DemoError as exc:
