@@ -117,15 +117,36 @@ def clock_from_samples(data: Data2D, fps: float) -> tuple[np.ndarray | None, lis
     frac = (np.asarray(c["fraction"], dtype=np.float64) if "fraction" in names
             else np.asarray(c["tcnt"], dtype=np.float64) / 255.0)
     corr = correct_clock_counts(np.asarray(c["framecount"], dtype=np.float64), frac, 0.5 * (t0 + t1))
-    model = ClockModel(frame_period_s=1.0 / fps, window=max(len(c), 2), max_rtt_s=0.02)
-    for a, b, f in zip(t0, t1, corr.frames, strict=True):
-        model.add_sample(float(a), float(b), float(f) / fps)
+
+    def fit(frames: np.ndarray) -> ClockModel:
+        m = ClockModel(frame_period_s=1.0 / fps, window=max(len(c), 2), max_rtt_s=0.02)
+        for a, b, f in zip(t0, t1, frames, strict=True):
+            m.add_sample(float(a), float(b), float(f) / fps)
+        return m
+
+    model = fit(corr.frames)
+    # A constant count offset (firmware numbering: the count of the pulse under way rather than of the
+    # frame) shows against the 2D rows' own trigger timestamps: frame f's timestamp sits at sample count
+    # f + k on the fit. Detected when the rows agree on one integer k to within 0.2 frames.
+    offset_line = ""
+    rows = data.rows
+    ts_ok = np.isfinite(rows["timestamp"]) & (rows["trigger_frame"] >= 0)
+    if model.fitted and ts_ok.sum() >= 3:
+        sel = np.flatnonzero(ts_ok)[:: max(1, int(ts_ok.sum()) // 2000)]
+        lag = np.array([model.host_time_to_frame(float(t)) for t in rows["timestamp"][sel]])
+        lag -= rows["trigger_frame"][sel]
+        k = int(np.round(np.median(lag)))
+        if k != 0 and np.percentile(np.abs(lag - k), 90) < 0.2:
+            corr.frames = corr.frames - k
+            model = fit(corr.frames)
+            offset_line = (f"; count offset {k:+d} frame(s) against the 2D rows' trigger timestamps detected and "
+                           "removed")
     out = np.zeros(len(c), dtype=TRIGGER_CLOCK)
     out["start_timestamp"], out["stop_timestamp"] = t0, t1
     out["framecount"] = np.floor(corr.frames).astype(np.int64)
     out["fraction"] = corr.frames - np.floor(corr.frames)
     lines = [f"trigger clock: {len(c)} samples, {corr.early_fixed} taken early in a frame (count not yet "
-             "incremented) corrected by one frame"]
+             f"incremented) corrected by one frame{offset_line}"]
     if model.fitted:
         lines[0] += (f"; fit residual {model.residual_s * 1e6:.0f} us, gain {model.gain:.8f}")
         rows = data.rows

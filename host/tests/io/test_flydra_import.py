@@ -81,7 +81,8 @@ def _paths_mm(rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def write_flydra_h5(path: Path, seed: int = 0, scale_in_file: bool = True, noise_px: float = 0.3) -> dict:
+def write_flydra_h5(path: Path, seed: int = 0, scale_in_file: bool = True, noise_px: float = 0.3,
+                    clock_count_offset: int = 0) -> dict:
     rng = np.random.default_rng(seed)
     cams = _rig_mm(rng)
     X = _paths_mm(rng)  # (3, F, 3) mm
@@ -116,6 +117,7 @@ def write_flydra_h5(path: Path, seed: int = 0, scale_in_file: bool = True, noise
     count, frac = np.floor(fpos), np.round((fpos - np.floor(fpos)) * 255) / 255
     early = frac < 0.08
     count[early] -= 1
+    count += clock_count_offset  # a firmware that numbers the pulse under way (Braid's count offset)
     host = 1.7e9 + fpos / FPS
     clock = np.zeros(len(fpos), dtype=[("start_timestamp", "<f8"), ("framecount", "<i8"), ("tcnt", "u1"),
                                        ("stop_timestamp", "<f8")])
@@ -231,3 +233,18 @@ def test_a_calibration_in_millimetres_says_why_nothing_tracked(tmp_path: Path) -
     print(r.output)
     assert "0 estimates of 0 objects" in _flat(r.output)
     assert "no estimates:" in _flat(r.output) and "metres?" in _flat(r.output)
+
+
+def test_a_constant_clock_count_offset_is_detected(tmp_path: Path) -> None:
+    path = tmp_path / "off.h5"
+    truth = write_flydra_h5(path, seed=2, clock_count_offset=1)
+    out = tmp_path / "o.flytrack"
+    r = CliRunner().invoke(app, ["retrack", str(path), "--out", str(out), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    text = _flat(r.output)
+    assert "count offset +1 frame(s)" in text and f"{truth['early']} taken early" in text
+    clock = load_recording(out).table("trigger_clock_info")
+    # After both corrections every sample lies on host = t0 + frame / fps (the file's truth) within 0.5 ms.
+    frames = clock["framecount"] + clock["fraction"]
+    mid = 0.5 * (clock["start_timestamp"] + clock["stop_timestamp"])
+    assert np.abs(mid - (1.7e9 + frames / FPS)).max() < 5e-4
