@@ -91,3 +91,19 @@ def test_warnings_reach_the_user_and_convert_refuses_an_inexact_model(
     p.write_text(_xml(P, nl2))
     r = CliRunner().invoke(app, ["calibrate", "convert", str(p), str(tmp_path / "ok.xml")])
     assert r.exit_code == 0 and "largest difference from the source's projection" in " ".join(r.output.split())
+
+
+def test_edge_undistortion_with_the_distortion_K_gives_Ps_ideal_pixels() -> None:
+    """The edge extractor gets Camera.Kd and the coefficients (one-K undistortion); with flydra's model
+    that yields P's ideal pixels, the ones the tracker's rays expect."""
+    P = _P()
+    base = Camera.from_P("c", P, 1280, 1024)
+    Kd = base.K.copy()
+    Kd[0, 2] += 27.0
+    Kd[1, 2] -= 22.0
+    cam = Camera.from_P("c", P, 1280, 1024, dist=(-0.2, 0.05, 1e-3, 2e-4, 0.0), K_dist=Kd)
+    edge_model = Camera("c", 1280, 1024, cam.Kd, cam.R, cam.t, cam.dist)  # what the edge is configured with
+    X = _pts(cam)
+    uv = cam.project(X)
+    h = np.hstack([X, np.ones((len(X), 1))]) @ P.T
+    assert np.abs(edge_model.undistort(uv) - h[:, :2] / h[:, 2:]).max() < 1e-6
