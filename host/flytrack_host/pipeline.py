@@ -226,9 +226,9 @@ class HostPipeline:
             deadline_fraction=self.rig.host.sync_deadline_fraction,
             dead_timeout_s=self.dead_timeout_s, start_time=time.time(),
         )
-        self._make_tracker()
         if self.record:
             self._start_recorder()
+        self._make_tracker(first=True)  # after the recorder: what it says goes into the text log too
         self._started_at = time.time()
         self.log(f"pipeline started: {len(self.rig.cameras)} cameras, {self.fps:g} fps, "
                  f"listening on {self.receiver.address[0]}:{self.receiver.address[1]}")
@@ -332,11 +332,11 @@ class HostPipeline:
             self.recorder.append("trigger_clock_info", r)
 
     # --- setup --------------------------------------------------------------------------------
-    def _make_tracker(self) -> None:
+    def _make_tracker(self, first: bool = False) -> None:
         self.tracker = None
         if self.tracker_factory is None:
             return
-        for problem in calibration_problems(self.rig, self.cameras):
+        for problem in calibration_problems(self.rig, self.cameras) if first else []:
             self.log(problem, level=logging.WARNING)
         if not self.cameras:
             return
