@@ -254,3 +254,26 @@ def test_a_constant_clock_count_offset_is_detected(tmp_path: Path) -> None:
     frames = clock["framecount"] + clock["fraction"]
     mid = 0.5 * (clock["start_timestamp"] + clock["stop_timestamp"])
     assert np.abs(mid - (1.7e9 + frames / FPS)).max() < 5e-4
+
+
+def test_h5_refractive_interface_is_the_water_surface(tmp_path: Path) -> None:
+    """flydra's calibration/refractive_interfaces row (n1, n2, plane z = 0) becomes Camera.interface."""
+    path = tmp_path / "w.h5"
+    write_flydra_h5(path, seed=3)
+    ri = np.array([(b"water1", 1.0, 1.333, 0.0, 0.0, 1.0, 0.0)],
+                  dtype=[("name", "S20"), ("n1", "<f8"), ("n2", "<f8"), ("plane_normal_x", "<f8"),
+                         ("plane_normal_y", "<f8"), ("plane_normal_z", "<f8"), ("plane_dist_from_origin", "<f8")])
+    with h5py.File(path, "a") as h5:
+        h5["calibration/refractive_interfaces"] = ri
+    cams = load_calibration(path)
+    assert all(c.interface is not None and c.interface.n_far == 1.333 and c.interface.is_braid_water
+               for c in cams.values())
+    r = CliRunner().invoke(app, ["calibrate", "convert", str(path), str(tmp_path / "w.xml")])
+    assert r.exit_code == 0, r.output
+    assert "<water>1.333</water>" in (tmp_path / "w.xml").read_text()
+    with h5py.File(path, "a") as h5:
+        del h5["calibration/refractive_interfaces"]
+        ri["plane_normal_x"], ri["plane_normal_z"] = 1.0, 0.0
+        h5["calibration/refractive_interfaces"] = ri
+    r = CliRunner().invoke(app, ["calibrate", "convert", str(path), str(tmp_path / "w2.xml")])
+    assert r.exit_code == 2 and "only the plane z = 0" in _flat(r.output)
