@@ -2,7 +2,8 @@
 
 A track set is 3D estimates (obj_id, frame, x, y, z in metres) plus, where known, which 2D points each
 estimate used, the 2D points and the calibration. Sources: a FlyTrack recording, a .braidz, a flydra .h5
-(its `kalman_estimates` are flydra's own tracks).
+(its `kalman_estimates` are flydra's own tracks, the 2D points they used are in `ML_estimates` and
+`ML_estimates_2d_idxs`).
 
 Reported: frames each set covers and both cover; per frame, the estimates of A and B paired one-to-one
 (scipy's linear_sum_assignment on 3D distance, pairs farther than `match_m` left unpaired) and the
@@ -70,12 +71,13 @@ def load_tracks(path: Path | str, calibration: Path | None = None) -> TrackSet:
         try:
             rec = load_recording(path)
         except RecordingError:
-            from flytrack_host.io.flydra_h5 import read_flydra_kalman
+            from flytrack_host.io.flydra_h5 import read_flydra_association, read_flydra_kalman
 
             k = read_flydra_kalman(path)
             if k is None or not len(k):
                 raise CompareError(f"{path}: no kalman_estimates table") from None
             est = k[["obj_id", "frame", "x", "y", "z"]].copy()
+            assoc = read_flydra_association(path)
         else:
             k = rec.table("kalman_estimates")
             est = pd.DataFrame({"obj_id": k["obj_id"], "frame": k["trigger_frame"], "x": k["x"], "y": k["y"],

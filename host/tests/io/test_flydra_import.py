@@ -83,7 +83,7 @@ def _paths_mm(rng: np.random.Generator) -> np.ndarray:
 
 
 def write_flydra_h5(path: Path, seed: int = 0, scale_in_file: bool = True, noise_px: float = 0.3,
-                    clock_count_offset: int = 0) -> dict:
+                    clock_count_offset: int = 0, association: bool = False) -> dict:
     rng = np.random.default_rng(seed)
     cams = _rig_mm(rng)
     X = _paths_mm(rng)  # (3, F, 3) mm
@@ -134,6 +134,19 @@ def write_flydra_h5(path: Path, seed: int = 0, scale_in_file: bool = True, noise
         h5["textlog"] = textlog
         h5["kalman_estimates"] = kal
         h5["trigger_clock_info"] = clock
+        if association:  # flydra's ML_estimates + ML_estimates_2d_idxs (flattened camn, frame_pt_idx pairs)
+            used: dict[tuple[int, int], list[int]] = {}
+            for camn, f, j, k in truth_uv:
+                used.setdefault((k + 1, f), []).extend([camn, j])
+            keys = sorted(used)
+            ml = np.zeros(len(keys), dtype=[("obj_id", "<u4"), ("frame", "<i8"), ("x", "<f4"), ("y", "<f4"),
+                                            ("z", "<f4"), ("obs_2d_idx", "<u8")])
+            ml["obj_id"], ml["frame"] = [k for k, _ in keys], [f for _, f in keys]
+            ml["obs_2d_idx"] = np.arange(len(keys))
+            h5["ML_estimates"] = ml
+            vl = h5.create_dataset("ML_estimates_2d_idxs", (len(keys),), dtype=h5py.vlen_dtype(np.uint16))
+            for i, key in enumerate(keys):
+                vl[i] = np.asarray(used[key], dtype=np.uint16)
         for c in cams:
             h5[f"calibration/pmat/{c['name']}"] = c["P"]
             h5[f"calibration/resolution/{c['name']}"] = np.array([c["w"], c["h"]])
@@ -147,7 +160,7 @@ def write_flydra_h5(path: Path, seed: int = 0, scale_in_file: bool = True, noise
 @pytest.fixture(scope="module")
 def flydra_file(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     p = tmp_path_factory.mktemp("flydra") / "DATA20260101_120000.mainbrain.h5"
-    return p, write_flydra_h5(p)
+    return p, write_flydra_h5(p, association=True)
 
 
 def test_import_reproduces_flydra_projection_at_every_2d_point(flydra_file: tuple[Path, dict]) -> None:
