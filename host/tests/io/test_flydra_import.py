@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import re
+import zipfile
 from pathlib import Path
 
 import h5py
@@ -198,12 +199,19 @@ def test_retrack_agrees_with_the_files_own_tracks(flydra_file: tuple[Path, dict]
     path, truth = flydra_file
     out = tmp_path / "rt.flytrack"
     runner = CliRunner()
-    r = runner.invoke(app, ["retrack", str(path), "--out", str(out), "--no-progress"])  # no --fps: textlog
+    bz = tmp_path / "rt.braidz"
+    # No --fps: the frame rate comes from the textlog.
+    r = runner.invoke(app, ["retrack", str(path), "--out", str(out), "--no-progress", "--braidz", str(bz)])
     assert r.exit_code == 0, r.output
     assert "tracker: C kernel path" in _flat(r.output) or "tracker: NumPy path" in _flat(r.output)  # says which
     assert f"{truth['early']} taken early in a frame" in _flat(r.output) and truth["early"] > 0
     rec = load_recording(out)
     assert rec.calibration is not None and rec.calibration[0] == "calibration.xml"  # retrackable again
+    with zipfile.ZipFile(bz) as z:  # the .braidz carries the same calibration: flydra's model, exactly
+        (tmp_path / "bz.xml").write_bytes(z.read("calibration.xml"))
+    src, got = load_calibration(path), load_calibration(tmp_path / "bz.xml")
+    X = truth["X_mm"][:, ::20].reshape(-1, 3) * SCALE
+    assert max(float(np.abs(src[k].project(X) - got[k].project(X)).max()) for k in src) < 1e-6
     clock = rec.table("trigger_clock_info")
     assert len(clock) == 12
     a, b = load_tracks(path), load_tracks(out)
