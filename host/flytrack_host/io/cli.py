@@ -72,6 +72,8 @@ def retrack_command(
         console.print(f"[red]error[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
     for w in [*data.notes, *warns]:
+        if w.startswith("braid tracking_params"):
+            continue  # information kept in the output's text log, not a problem
         console.print(f"[yellow]warning[/yellow] {w}", highlight=False)
     data.notes = [*data.notes, *warns]
     rate = fps or data.fps
