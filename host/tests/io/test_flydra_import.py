@@ -250,6 +250,10 @@ def test_calibration_from_the_h5_converts_and_serves_retrack(flydra_file: tuple[
     cams = cameras_for(data, xml)
     res = retrack(data, cams, TrackingParams(), data.fps, progress=False)
     assert res.objects == 3
+    # --calibration FILE.h5: the .h5 itself serves as a calibration file.
+    r = CliRunner().invoke(app, ["retrack", str(path), "--calibration", str(path), "--out",
+                                 str(tmp_path / "c.flytrack"), "--no-progress"])
+    assert r.exit_code == 0 and "of 3 objects" in _flat(r.output), r.output
 
 
 def test_a_calibration_in_millimetres_says_why_nothing_tracked(tmp_path: Path) -> None:
