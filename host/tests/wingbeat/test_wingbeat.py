@@ -110,3 +110,23 @@ def test_no_fly_is_a_clear_error():
         track_wings(noise)
     with pytest.raises(WingbeatError, match="too few"):
         track_wings(noise[:50])
+
+
+def test_cli_simulates_tracks_prints_and_plots(tmp_path):
+    from typer.testing import CliRunner
+
+    from flytrack_host.cli import app
+
+    f = tmp_path / "fly.npy"
+    r = CliRunner().invoke(app, ["wingbeat", str(f), "--simulate", "0.5", "--plot", str(tmp_path / "wb.png"),
+                                 "--json", str(tmp_path / "wb.json")])
+    assert r.exit_code == 0, r.output
+    assert "EKF wing 0" in r.output and "WRA wing 1" in r.output
+    assert "wing 0 against the simulation: frequency error" in r.output
+    assert (tmp_path / "wb.png").stat().st_size > 30_000
+    import json
+
+    beats = json.loads((tmp_path / "wb.json").read_text())["ekf"]["wings"][0]
+    assert len(beats["freq_hz"]) > 80 and abs(np.median(beats["freq_hz"]) - 200.0) < 1.0
+    bad = CliRunner().invoke(app, ["wingbeat", str(tmp_path / "missing.npy")])
+    assert bad.exit_code == 2 and "missing.npy" in bad.output
