@@ -75,7 +75,10 @@ _UNTRACKED_WHY = {
     "future": "claims a trigger frame in the future",
     "discontinuity": "breaks its camera's numbering (jump back or far ahead)",
     "unknown_camera": "is from a camera the synchroniser does not know",
+    "late": "came after its trigger frame was tracked (late)",
 }
+MAX_BACKLOG_S = 0.5  # a frame this far behind real time is recorded, not tracked: the host catches up
+STALL_S = 0.2  # a turn of the tracking thread this late means the host was not scheduled
 
 
 class ResultSink(Protocol):
@@ -224,6 +227,10 @@ class HostPipeline:
         self.recording_error: str | None = None  # finalising the recording failed (raw files kept)
         self.range_errors = 0  # camera frames with a value the recording's column cannot hold
         self.warn = RateLimitedLog(lambda m: self.log(m, "sync"))
+        self.stalls = 0  # turns of the tracking thread that came STALL_S late or more
+        self._last_turn = 0.0
+        self.behind_skipped = 0  # frames recorded but not tracked because the host was too far behind
+        self.max_backlog_s = MAX_BACKLOG_S
         self.wall_steps = 0  # wall-clock steps seen (labels moved; timing did not)
         self._wall_checked = 0.0
         self.loop_errors = 0  # exceptions caught per item in the tracking thread (it goes on)
@@ -287,6 +294,9 @@ class HostPipeline:
         if self.sync is not None:
             self._handle(self.sync.flush())
         self._stopped_at = hostclock.now()
+        self.warn.flush()
+        if self.receiver is not None:
+            self.receiver.warn.flush()
         self.log("pipeline stopped")
         self.log(self.latency.format(), "latency")
         h5 = None
@@ -417,6 +427,11 @@ class HostPipeline:
             self._do_resync()
         d = self.sync.next_deadline()
         now = hostclock.now()
+        if self._last_turn and now - self._last_turn > STALL_S:
+            self.stalls += 1
+            self.warn("stall", f"host stalled for {now - self._last_turn:.2f} s (not scheduled: overloaded, "
+                      "stopped or swapping); catching up")
+        self._last_turn = now
         timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
         for item in self.receiver.receive(timeout):
             self._guarded(self._item, item)
@@ -510,6 +525,17 @@ class HostPipeline:
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
+        behind = hostclock.now() - bundle.timestamp
+        if behind > self.max_backlog_s and self.tracker is not None:
+            # Bounded backlog: after a stall or an overload, frames this old are recorded, not tracked,
+            # until the host is back near real time (the tracker predicts across the gap).
+            self.behind_skipped += 1
+            self.warn("behind", f"host {behind:.2f} s behind real time: frames recorded, not tracked, to "
+                      f"catch up ({self.behind_skipped} so far)")
+            if self.recorder is not None:
+                self.recorder.append_many([("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp,
+                                                                           FLAG_LATE)) for fr in sb.frames.values()])
+            return
         if self.tracker is not None:
             try:
                 result = self.tracker.process(bundle)
@@ -613,6 +639,8 @@ class HostPipeline:
             "tracker_resets": self.tracker_resets,
             "loop_errors": self.loop_errors,
             "wall_clock_steps": self.wall_steps,
+            "stalls": self.stalls,
+            "behind_skipped": self.behind_skipped,
             "range_errors": self.range_errors,
             "log_counts": self.warn.counts,
             "sink_errors": self.sink_errors,

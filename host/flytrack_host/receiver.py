@@ -97,6 +97,7 @@ class _SeqState:
     recent_set: set = field(default_factory=set)
     missing: OrderedDict = field(default_factory=OrderedDict)
     last_time: float = 0.0  # host time of the last datagram
+    before_jump: int | None = None  # what was expected before the last sequence jump
 
 
 def parse_host_port(value: str) -> tuple[str, int]:
@@ -271,6 +272,7 @@ class Receiver:
                 # numbering jumped (a misbehaving or replaying edge), nothing was lost.
                 cs.seq_jumps += 1
                 s.missing.clear()
+                s.before_jump = s.expected
                 self.warn(f"seq_jump:{cam}", f"camera {cam}: sequence number jumped ahead by {d} in "
                           f"{elapsed * 1e3:.0f} ms (to {seq}): not counted as loss")
             elif d > FORWARD_RESTART_GAP:
@@ -297,6 +299,13 @@ class Receiver:
             del s.missing[seq]
             cs.lost -= 1
             cs.reordered += 1
+            self._remember(s, seq)
+            return True
+        if behind > RESTART_GAP and s.before_jump is not None and 0 <= (seq - s.before_jump) % SEQ_MOD < 1000:
+            # Back to the numbering from before the last jump: two streams interleave (a misbehaving
+            # or replaying sender on the edge's port), not a restart.
+            cs.seq_jumps += 1
+            s.before_jump, s.expected = s.expected, (seq + 1) % SEQ_MOD
             self._remember(s, seq)
             return True
         if behind > RESTART_GAP:
