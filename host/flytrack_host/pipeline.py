@@ -77,6 +77,7 @@ _UNTRACKED_WHY = {
     "unknown_camera": "is from a camera the synchroniser does not know",
     "late": "came after its trigger frame was tracked (late)",
 }
+RECORDING_INCOMPLETE_EXIT = 3  # `flytrack run` exit code when the recording lost data (a full disk)
 MAX_BACKLOG_S = 0.5  # a frame this far behind real time is recorded, not tracked: the host catches up
 STALL_S = 0.2  # a turn of the tracking thread this late means the host was not scheduled
 
@@ -806,4 +807,6 @@ def run_command(
     if rs.get("write_errors") or lost or summary.get("recording_error"):
         console.print(f"[red]recording incomplete[/red]: {rs.get('write_errors', 0)} write errors, {lost} rows lost"
                       + (f"; not finalised ({summary['recording_error']}): run `flytrack recording recover`"
+                         " (its --out writes the file on another disk)"
                          if summary.get("recording_error") else ""), highlight=False)
+        raise typer.Exit(code=RECORDING_INCOMPLETE_EXIT)  # scripts must not take this run for a good one

@@ -196,6 +196,7 @@ class FrameSynchronizer:
         drift_settle_s: float = 0.5,
         early_fraction: float = 1.5,
         early_slack_s: float = 0.005,
+        early_confirm_s: float = 0.2,
         reanchor_s: float = 0.2,
         on_event: Callable[[SyncEvent], None] | None = None,
     ):
@@ -220,6 +221,7 @@ class FrameSynchronizer:
         # Host scheduling jitter makes a camera's lag vary by a few ms: only a frame early by more
         # than that and by more than a period counts (a number more than one ahead).
         self.early_s = early_fraction * self.period + early_slack_s
+        self.early_confirm_s = early_confirm_s  # early frames confirm a jump only over this long
         self.lag_window_s = 1.0
         self.reanchor_frames = max(5, int(reanchor_s * fps))
         self._late_run: deque = deque()  # (first arrival, lag, frame) of recent bundles (fixed-rate re-anchor)
@@ -284,7 +286,10 @@ class FrameSynchronizer:
         reason = self._suspect_reason(cam, frame, tf, now)
         if reason is not None:
             cam.suspects.append((frame, tf))
-            if self._confirmed(cam):
+            # A good stream with wrong frames mixed in breaks every streak of suspects; a short gap
+            # in the good one (a stalled edge) must not let the wrong ones confirm a jump.
+            span = frame.recv_time - cam.suspects[0][0].recv_time
+            if (reason != "early" or span >= self.early_confirm_s) and self._confirmed(cam):
                 out.extend(self._accept_jump(cam, frame, now))
                 # Earlier confirming frames were reported as suspect; tracking resumes next frame.
                 out.append(UntrackedFrame(frame, cam.last_tf if cam.last_tf is not None else tf, "clock_jump"))
