@@ -39,6 +39,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.pipeline", "run_command", "run"),
     ("flytrack_host.io.cli", "export_command", "export"),
     ("flytrack_host.io.cli", "retrack_command", "retrack"),
+    ("flytrack_host.io.cli", "compare_command", "compare"),
     ("flytrack_host.sim.cli", "demo_command", "demo"),
     ("flytrack_host.wingbeat.cli", "wingbeat_command", "wingbeat"),
 ]
@@ -70,6 +71,15 @@ def rig_check(
                   f"trigger {rig.trigger.kind} at {rig.trigger.fps:g} fps", highlight=False)
     for cam in rig.cameras:
         console.print(f"  camera {cam.index}: {cam.name} from {cam.edge}", highlight=False)
+    from flytrack_host.pipeline import calibration_problems, load_cameras
+
+    try:
+        cameras = load_cameras(rig)
+    except Exception as exc:  # a calibration that does not load is an error of the rig
+        err_console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
+    for problem in calibration_problems(rig, cameras):
+        err_console.print(f"[yellow]warning[/yellow] {problem}", highlight=False, soft_wrap=True)
 
 
 def _register_groups() -> None:

@@ -21,6 +21,11 @@ from flytrack_host.recording.schema import dtype_from_json
 from flytrack_host.recording.writer import H5_NAME, META_NAME, RAW_SUFFIX, TEXTLOG_NAME
 
 ATTACHED = ("rig.toml", "rig.json")  # rig.json: a rig given without its TOML text
+
+
+def is_attached(name: str) -> bool:
+    """Small files a recording carries: the rig, the calibration, background images (background_<camera>.*)."""
+    return name in ATTACHED or (name.startswith(("calibration.", "background_")) and not name.endswith(".tmp"))
 CHUNK_BYTES = 8 << 20  # raw bytes copied per step when finalising
 H5_CHUNK_BYTES = 64 << 10  # HDF5 storage chunk of the tables
 
@@ -147,7 +152,7 @@ def _write_h5(folder: Path, meta: dict, report: FinalizeReport, tmp: Path) -> No
                 g.attrs[k] = v
         files = h5.create_group("files")
         for p in sorted(folder.iterdir()):
-            if p.name in ATTACHED or (p.name.startswith("calibration.") and not p.name.endswith(".tmp")):
+            if is_attached(p.name):
                 files.create_dataset(p.name, data=np.frombuffer(p.read_bytes(), dtype=np.uint8))
         for k, v in meta.items():
             if k == "tables":
