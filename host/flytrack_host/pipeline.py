@@ -610,6 +610,9 @@ def run_command(
     trigger_port: str | None = typer.Option(None, help="Serial port of the trigger instead of the rig's trigger.port."),
     trigger_reset_wait: float | None = typer.Option(
         None, help="Seconds to wait after opening the trigger port (default 2 for a board, 0 for a pty)."),
+    rules: Path | None = typer.Option(
+        None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
+        "[[actuators]]."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
     until Ctrl-C.
@@ -634,13 +637,9 @@ def run_command(
     except Exception as exc:
         console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
-    if rig.actuators:
-        # The rig file describes actuators already; this host does not drive them yet. Say so
-        # rather than let a lab believe its stimulus is running.
-        names = ", ".join(f"{a.name} ({a.kind})" for a in rig.actuators)
-        Console(stderr=True).print(f"[yellow]warning[/yellow] actuators are not driven by this version of "
-                                   f"flytrack run: {names}; live estimates go to host.live_subscribers",
-                                   highlight=False, soft_wrap=True)
+    from flytrack_host.actuation.cli import rules_for_run
+
+    run_rules = rules_for_run(rig, rules)  # a bad rules file exits 2 here, before anything starts
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
@@ -659,6 +658,10 @@ def run_command(
                         rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
                         clock=session.clock if session else None, fps=session.fps if session else None,
                         hold_until_synchronized=session is not None)
+    if run_rules is not None:
+        engine = run_rules.engine(pipe.fps, session)
+        engine.attach(pipe)
+        engine.start()
     try:
         pipe.start()
     except OSError as exc:

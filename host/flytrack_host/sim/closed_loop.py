@@ -31,7 +31,7 @@ from flytrack_host.actuation.rules import load_rules
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
-MATCH_WINDOW_FRAMES = 10  # a firing further than this from every true entry is a false fire
+MATCH_WINDOW_S = 0.3  # a firing further than this from every true entry is a false fire
 
 
 def expected_firings(rule: Any, gt: Any) -> list[tuple[int, int]]:
@@ -45,7 +45,7 @@ def expected_firings(rule: Any, gt: Any) -> list[tuple[int, int]]:
     return out
 
 
-def match(fired: list[int], expected: list[int], window: int = MATCH_WINDOW_FRAMES) -> tuple[list[int], int, int]:
+def match(fired: list[int], expected: list[int], window: int) -> tuple[list[int], int, int]:
     """Pairs firings with true entries, closest first; returns (signed frame errors, missed, false fires)."""
     pairs = sorted((abs(f - e), i, j) for i, f in enumerate(fired) for j, e in enumerate(expected)
                    if abs(f - e) <= window)
@@ -102,11 +102,12 @@ class ClosedLoopLab:
             exp = [f for f, _ in expected_firings(ev.rule, gt)]
             fired = [f.scheduled_frame for f in engine.fires if f.rule == name]
             shadow = [f.scheduled_frame for f in engine.shadow_fires if f.rule == name]
-            errs, missed, false = match(fired, exp)
-            errs_np, _, _ = match(shadow, exp)
+            w = round(MATCH_WINDOW_S * gt.fps)
+            errs, missed, false = match(fired, exp, w)
+            errs_np, _, _ = match(shadow, exp, w)
             if pulse_frames is not None and len(pulse_frames):
                 # Frame errors of the high-speed camera pulse as the simulated pin saw it.
-                errs, _, _ = match([int(x) for x in pulse_frames], exp)
+                errs, _, _ = match([int(x) for x in pulse_frames], exp, w)
             rr = rows[rows["rule"] == name.encode()]
             exact = (rr["flags"] & FIRING_FRAME_EXACT) != 0
             # Latency: the frame's trigger time (clock model) -> the device's acknowledgement, per firing
@@ -148,7 +149,8 @@ class ClosedLoopLab:
                 d["pulse_frames_on_pin"] = [int(x) for x in pulse_frames]
                 d["pulse_frames_recorded"] = recorded
                 d["pulse_frames_exact"] = int(np.sum((pulse["flags"] & FIRING_FRAME_EXACT) != 0))
-                d["pulse_frames_match_recording"] = sorted(int(x) for x in pulse_frames) == recorded
+                exact = {int(f) for f in pulse["scheduled_frame"][(pulse["flags"] & FIRING_FRAME_EXACT) != 0]}
+                d["pulse_frames_match_recording"] = exact <= {int(x) for x in pulse_frames}
             out_rules[name] = d
         return {
             "rules_file": str(self.rules_src),

@@ -20,6 +20,7 @@ from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 from flytrack_host.trigger.common import TriggerError
 
 DEFAULT_WIDTH_MS = 1.0
+ACK_WIRE_S = 0.75e-3  # an ACK frame (~8 bytes with framing) at 115200 baud, and the firmware's dispatch
 
 
 class TriggerPulseOutput(Output):
@@ -60,7 +61,9 @@ class TriggerPulseOutput(Output):
         clock = self.context.get("clock")
         est = -1
         if clock is not None:
-            f = clock.host_time_to_frame(t1)
+            # The PULSE reached the firmware about an ACK's wire time before the ACK came back; it
+            # then takes the frame after next (the next one's arming point is 100 us into this frame).
+            f = clock.host_time_to_frame(t1 - ACK_WIRE_S)
             if math.isfinite(f):
                 est = int(math.floor(f)) + 2
         return Done(t0, t1, est, False, note=f"late: frame {job.scheduled_frame} had passed; pulsed at the "
