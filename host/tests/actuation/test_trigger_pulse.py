@@ -33,12 +33,14 @@ def _entry_run(act, dev: TriggerDevice, predict: bool, v: float = 1.0) -> tuple[
     model = dev.model
     assert model.fitted
     rule = {"name": "enter", "predict": predict, "when": {"inside": {"box": {"min": [1, -1, -1], "max": [2, 1, 1]}}}}
-    eng = act.engine([{"output": "hscam", "width_ms": 0.5}], [ActuatorConfig(name="hscam", kind="trigger_pulse")],
+    # latency_ms: margin for a loaded machine (the PULSE must reach the firmware before the frame ahead of
+    # its own starts); the object flies straight, so predicting further is exact here.
+    hscam = ActuatorConfig(name="hscam", kind="trigger_pulse", latency_ms=15.0)
+    eng = act.engine([{"output": "hscam", "width_ms": 0.5}], [hscam],
                      FPS, context={"trigger": dev, "clock": model}, rule=rule)
     eng.start()
     f0 = int(dev.query_clock().frame_count) + 5
     n = 40
-    # x(f) = 1 - 0.0155 * (20 - (f - f0)) + ...: crosses 1.0 between frames f0+19 and f0+20... computed below
     xs = 0.7 + v / FPS * np.arange(n) + 0.003
     entry = f0 + int(np.argmax(xs >= 1.0))
     for k in range(n):
