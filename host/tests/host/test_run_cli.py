@@ -32,4 +32,4 @@ def test_run_without_the_board_says_to_use_no_trigger(tmp_path):
     assert "does not exist" in err and f"flytrack run {path} --no-trigger" in err
     assert not (tmp_path / "rec").exists()  # nothing recorded
     # The example rig names an actuator but no rules file: nothing drives it, and it says so.
-    assert "no rules file" in err and "highspeed (trigger_pulse)" in err and "not driven" in err
+    assert "no rules file" in err and "hscam (trigger_pulse)" in err and "not driven" in err
