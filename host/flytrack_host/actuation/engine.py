@@ -38,7 +38,7 @@ from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
 log = logging.getLogger("flytrack.actuation")
-SWITCH_INTERVAL_S = 0.0005
+SWITCH_INTERVAL_S = 0.0002
 
 
 def estimates_arrays(result: Any) -> tuple[np.ndarray, np.ndarray]:

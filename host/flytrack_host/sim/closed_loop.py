@@ -1,5 +1,6 @@
 """The demo's closed loop: the rules file drives the simulated rig's trigger firmware (its high-speed
-camera line), a real pymodbus TCP server on loopback (a coil) and a python-can virtual bus (a frame),
+camera line), a real pymodbus TCP server on loopback in its own process (a coil) and a python-can
+virtual bus (a frame),
 and the firings are scored against the simulated flight's ground truth.
 
     lab = ClosedLoopLab(rules_path, out)     # starts the Modbus server and the CAN listener
@@ -26,7 +27,7 @@ import numpy as np
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.firings import percentiles_ms
 from flytrack_host.actuation.history import RuleEvaluator
-from flytrack_host.actuation.peers import CanListener, ModbusPeer
+from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
@@ -73,7 +74,7 @@ class ClosedLoopLab:
         self.rules = load_rules(self.rules_src)  # a bad file stops the demo before anything starts
         self.rules_copy = Path(out) / "rules.toml"
         shutil.copyfile(self.rules_src, self.rules_copy)
-        self.modbus = ModbusPeer().start()
+        self.modbus = ModbusPeerProcess(log_dir=str(out)).start()  # a process of its own, as a PLC
         self.can_channel = f"flytrack-demo-{uuid.uuid4().hex[:8]}"
         self.can = CanListener("virtual", self.can_channel)
 
@@ -113,13 +114,15 @@ class ClosedLoopLab:
             # Latency: the frame's trigger time (clock model) -> the device's acknowledgement, per firing
             # the latest of its loopback devices (Modbus, CAN...). The firmware pulse is scheduled for a
             # later frame; its serial round trip is reported apart (pulse_ack_ms).
-            lat = []
+            lat, est, ack = [], [], []
             keys = {(int(o), int(c)) for o, c in zip(rr["obj_id"], rr["condition_frame"], strict=True)}
             for o, c in keys:
                 g = rr[(rr["obj_id"] == o) & (rr["condition_frame"] == c) & ~exact
                        & (rr["kind"] != b"trigger_pulse")]
                 if len(g) and np.all(np.isfinite(g["time_ack"])):
                     lat.append(float(np.max(g["time_ack"]) - g["frame_time"][0]))
+                    est.append(float(g["estimate_time"][0] - g["frame_time"][0]))
+                    ack.append(float(np.max(g["time_ack"]) - g["estimate_time"][0]))
             lp = percentiles_ms(lat)
             pulse = rr[rr["kind"] == b"trigger_pulse"]
             pp = percentiles_ms(pulse["time_ack"] - pulse["frame_time"])
@@ -135,6 +138,9 @@ class ClosedLoopLab:
                 "latency_ms_p50": lp.get("p50", math.nan),
                 "latency_ms_p99": lp.get("p99", math.nan),
                 "latency_n": lp["n"],
+                # Where it went: the host's trigger -> estimate, then estimate -> the devices' acknowledgement.
+                "latency_parts_ms_p50": {"trigger_to_estimate": percentiles_ms(est).get("p50", math.nan),
+                                         "estimate_to_ack": percentiles_ms(ack).get("p50", math.nan)},
                 "pulse_ack_ms_p50": pp.get("p50", math.nan),
                 "pulse_ack_ms_p99": pp.get("p99", math.nan),
                 "expected_frames": exp,
