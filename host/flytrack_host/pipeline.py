@@ -613,6 +613,9 @@ def run_command(
     rules: Path | None = typer.Option(
         None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
         "[[actuators]]."),
+    skip_bad_rules: bool = typer.Option(
+        False, "--skip-bad-rules", help="Run with the rules that are valid; each bad one is reported, logged in "
+        "the recording and counted (default: a bad rules file stops the run before it starts)."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
     until Ctrl-C.
@@ -639,7 +642,7 @@ def run_command(
         raise typer.Exit(code=2) from None
     from flytrack_host.actuation.cli import rules_for_run
 
-    run_rules = rules_for_run(rig, rules)  # a bad rules file exits 2 here, before anything starts
+    run_rules = rules_for_run(rig, rules, skip_bad_rules)  # a bad rules file exits 2 here unless skipped
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
@@ -658,10 +661,7 @@ def run_command(
                         rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
                         clock=session.clock if session else None, fps=session.fps if session else None,
                         hold_until_synchronized=session is not None)
-    if run_rules is not None:
-        engine = run_rules.engine(pipe.fps, session)
-        engine.attach(pipe)
-        engine.start()
+    engine = run_rules.engine(pipe.fps, session) if run_rules is not None else None
     try:
         pipe.start()
     except OSError as exc:
@@ -669,6 +669,9 @@ def run_command(
             session.close()
         console.print(f"[red]error[/red] cannot listen on {bind or rig.host.listen}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    if engine is not None:  # after start: its messages go into the recording's log too
+        engine.attach(pipe)
+        engine.start()
     if session is not None:
         session.attach(pipe)
         try:

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from flytrack_host.actuation.rules import RulesError, RuleSet, bind_rules, load_rules
+from flytrack_host.actuation.rules import RulesError, RuleSet, bind_rules, load_rules, load_rules_skipping
 from flytrack_host.rig import RigConfig, RigError, load_rig
 
 app = typer.Typer(help="Closed-loop rules: check a rules file, replay it on a recording.", no_args_is_help=True)
@@ -106,6 +106,7 @@ class RunRules:
 
     def __init__(self, rig: RigConfig, path: Path, rules: RuleSet):
         self.rig, self.path, self.rules = rig, path, rules
+        self.problems: list[str] = []  # rules left out (--skip-bad-rules)
 
     def engine(self, fps: float, session: Any) -> Any:
         from flytrack_host.actuation.engine import ActuationEngine
@@ -113,12 +114,16 @@ class RunRules:
         ctx = {"base_dir": self.rig.base_dir,
                "trigger": (lambda: session.device) if session is not None else None,
                "clock": session.clock if session is not None else None}
-        return ActuationEngine(self.rules, self.rig.actuators, fps, ctx, self.path)
+        eng = ActuationEngine(self.rules, self.rig.actuators, fps, ctx, self.path)
+        eng.rule_problems = list(self.problems)
+        return eng
 
 
-def rules_for_run(rig: RigConfig, rules: Path | None) -> RunRules | None:
+def rules_for_run(rig: RigConfig, rules: Path | None, skip_bad: bool = False) -> RunRules | None:
     """--rules, else the rig's `rules`; a bad file (or an action naming an unknown actuator) exits 2
-    with every problem listed. None when there are no rules (actuators then drive nothing: said once)."""
+    with every problem listed, unless `skip_bad`: then the run goes on with the good rules, and each
+    problem is printed, logged in the recording and counted (`RunRules.problems`). None when there are
+    no rules (actuators then drive nothing: said once)."""
     path = rules or rig.rules_path
     if path is None:
         if rig.actuators:
@@ -126,9 +131,21 @@ def rules_for_run(rig: RigConfig, rules: Path | None) -> RunRules | None:
             err.print(f"[yellow]note[/yellow] no rules file (rig `rules = ...` or --rules): the actuators "
                       f"{names} are not driven", highlight=False, soft_wrap=True)
         return None
+    if skip_bad:
+        rs, problems = load_rules_skipping(path, rig.actuators)
+        for p in problems:
+            err.print(f"[yellow]rule left out[/yellow] {p}", highlight=False, soft_wrap=True)
+        if rs is None:
+            err.print(f"[yellow]note[/yellow] no usable rule in {path}: tracking and recording without rules",
+                      highlight=False, soft_wrap=True)
+            return None
+        out = RunRules(rig, Path(path), rs)
+        out.problems = problems
+        return out
     try:
         rs = load_rules(path)
         bind_rules(rs, rig.actuators, path)
     except RulesError as exc:
+        err.print("(or run with --skip-bad-rules to track and record with the good rules only)", highlight=False)
         raise _fail(exc) from None
     return RunRules(rig, Path(path), rs)

@@ -71,6 +71,7 @@ class ActuationEngine:
         self.warn = RateLimitedLog(self._log)
         self.workers = {n: OutputWorker(o, self._done, self.warn) for n, o in self.outputs.items()}
         self._dry = {r.name: r.dry_run for r in rules.rules}
+        self.rule_problems: list[str] = []  # rules left out at start (flytrack run --skip-bad-rules)
         self._started = False
         self._closed = False
         self._lock = threading.Lock()
@@ -89,6 +90,8 @@ class ActuationEngine:
         pipe.status_sources.append(self.status)
         names = ", ".join(f"{r.name}{' (dry run)' if r.dry_run else ''}" for r in self.rules.rules)
         self._log(f"rules from {self.rules_path}: {names}")
+        for p in self.rule_problems:
+            self._log(f"rule left out: {p}")
 
     def start(self) -> None:
         if not self._started:
@@ -165,6 +168,8 @@ class ActuationEngine:
             bad = s.errors + s.dropped
             state = "" if w.output.connected else " DOWN"
             parts.append(f"{name} ok {s.ok}" + (f" ERR {bad}" if bad else "") + state)
+        if self.rule_problems:
+            parts.append(f"{len(self.rule_problems)} rule problems")
         return "rules: " + ", ".join(parts)
 
     def summary(self) -> dict[str, Any]:
@@ -186,6 +191,7 @@ class ActuationEngine:
             "outputs": {n: {**w.stats.__dict__, "connected": w.output.connected,
                             "lead_ms": w.output.lead_s * 1e3} for n, w in self.workers.items()},
             "firing_rows": int(len(rows)),
+            "rule_problems": list(self.rule_problems),
         }
 
     def close(self) -> None:

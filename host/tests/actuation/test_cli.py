@@ -45,3 +45,26 @@ def test_run_with_a_bad_rules_file_exits_before_starting(tmp_path: Path) -> None
     err = " ".join(p.stderr.split())
     assert f"{bad}: rules[0] 'door'.cooldown_s: Input should be a valid number" in err
     assert not (tmp_path / "rec").exists()
+
+
+def test_run_skip_bad_rules_goes_on_and_logs_them(tmp_path: Path) -> None:
+    from flytrack_host.recording import load_recording
+
+    rig = (ROOT / "examples" / "rig.toml").read_text()
+    (tmp_path / "rig.toml").write_text(rig)
+    rules = tmp_path / "rules.toml"
+    rules.write_text('[[rules]]\nname = "watch"\ndry_run = true\n[rules.when]\nspeed_m_s = [0, 1]\n\n'
+                     '[[rules]]\nname = "door"\n[rules.when]\nspeed_m_s = [0, 1]\n'
+                     '[[rules.actions]]\noutput = "lazer"\n\n'
+                     '[[rules]]\nname = "typo"\ncooldwn_s = 1\ndry_run = true\n[rules.when]\nspeed_m_s = [0, 1]\n')
+    p = subprocess.run([sys.executable, "-m", "flytrack_host.cli", "run", str(tmp_path / "rig.toml"), "--rules",
+                        str(rules), "--skip-bad-rules", "--no-trigger", "--seconds", "1", "--bind", "127.0.0.1:0",
+                        "--recording", str(tmp_path / "rec")], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    err = " ".join(p.stderr.split())
+    assert "rule left out" in err and "rules[1] 'door'.actions[0].output: 'lazer' is not an actuator" in err
+    assert "rules[2] 'typo'.cooldwn_s: Extra inputs are not permitted" in err
+    assert "rules: watch 0 dry, 2 rule problems" in " ".join(p.stdout.split())  # the final status line
+    log = [r["message"] for r in load_recording(tmp_path / "rec").textlog if r["source"] == "actuation"]
+    assert any("rules from" in m and "watch (dry run)" in m for m in log)
+    assert sum("rule left out" in m for m in log) == 2
