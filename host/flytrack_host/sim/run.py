@@ -24,7 +24,8 @@ import socket
 import subprocess
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +70,8 @@ class DemoConfig:
     flight: FlightParams = field(default_factory=FlightParams)
     render: RenderParams | None = None
     rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)
+    # Called with the host pipeline before it starts: live outputs join its sinks (`--serve`).
+    attach: list[Callable[[Any], object]] = field(default_factory=list)
 
     def check(self) -> None:
         if not 2 <= self.cameras <= 64:
@@ -331,6 +334,11 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
                 engine = lab.engine(rig, fps, session)
             except RulesError as exc:
                 raise DemoError(str(exc)) from None
+        for fn in cfg.attach:
+            try:
+                fn(host)
+            except OSError as exc:
+                raise DemoError(f"a live output could not start: {exc}") from None
         host.start()
         if engine is not None:  # after start: its messages go into the recording's log too
             engine.attach(host)
@@ -542,8 +550,8 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
     frames_triggered = max(fs.edges, fs.frames_rendered)
     return DemoReport(
-        config={k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()
-                if k not in ("flight", "render")},
+        config={f.name: (str(v) if isinstance(v := getattr(cfg, f.name), Path) else v) for f in fields(cfg)
+                if f.name not in ("flight", "render", "attach")},
         trigger=trig.kind_label,
         trigger_note=trig.note,
         scores=scores,
