@@ -74,6 +74,7 @@ class ActuationEngine:
         self.rule_problems: list[str] = []  # rules left out at start (flytrack run --skip-bad-rules)
         self._started = False
         self._closed = False
+        self._last_frame = -1
         self._lock = threading.Lock()
 
     @classmethod
@@ -119,6 +120,11 @@ class ActuationEngine:
         t0 = time.perf_counter()
         now = time.time()
         frame = int(result.trigger_frame)
+        if frame < self._last_frame:  # the trigger was re-armed (frame 0 again, a new tracker)
+            self._log(f"trigger frames restarted ({self._last_frame} -> {frame}): rule histories cleared")
+            for ev in (*self.evals, *self.shadow):
+                ev.reset()
+        self._last_frame = frame
         ids, states = estimates_arrays(result)
         self.frames += 1
         for ev, sh, outs in zip(self.evals, self.shadow, self.rule_outputs, strict=True):

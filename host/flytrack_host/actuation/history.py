@@ -59,6 +59,12 @@ class RuleEvaluator:
         self._hold = self.rule.when.hold_ms / 1e3
         self._after = self.rule.when.after_false_ms / 1e3
 
+    def reset(self) -> None:
+        """Forget every object and the last firing (trigger frames start again from 0)."""
+        self.objs.clear()
+        self.last_fire_frame = None
+        self.recent.clear()
+
     def _select(self, ids: np.ndarray) -> np.ndarray:
         o = self.rule.objects
         if o == "any" or len(ids) == 0:
