@@ -24,6 +24,7 @@ import math
 import sys
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,7 @@ from flytrack_host.rig import ActuatorConfig, RigConfig
 
 log = logging.getLogger("flytrack.actuation")
 SWITCH_INTERVAL_S = 0.0002
+MAX_KEPT_FIRES = 100_000
 
 
 def estimates_arrays(result: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -61,8 +63,10 @@ class ActuationEngine:
         self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) for r in rules.rules]
         self.rule_outputs = [[self.outputs[a.output] for a in r.actions] for r in rules.rules]
         self.firings = FiringLog(record=self._record)
-        self.shadow_fires: list[Fire] = []
-        self.fires: list[Fire] = []
+        # The latest firings (the recording keeps them all), and counts per rule.
+        self.shadow_fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
+        self.fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
+        self.fired: dict[str, int] = {r.name: 0 for r in rules.rules}
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
@@ -141,6 +145,7 @@ class ActuationEngine:
 
     def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float) -> None:
         self.fires.append(f)
+        self.fired[f.rule] += 1
         pos = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
         rule = ev.rule
         if rule.dry_run or not rule.actions:
@@ -167,8 +172,7 @@ class ActuationEngine:
     def status(self) -> str:
         parts = []
         for ev in self.evals:
-            n = sum(1 for f in self.fires if f.rule == ev.rule.name)
-            parts.append(f"{ev.rule.name} {n}{' dry' if ev.rule.dry_run else ''}")
+            parts.append(f"{ev.rule.name} {self.fired[ev.rule.name]}{' dry' if ev.rule.dry_run else ''}")
         for name, w in self.workers.items():
             s = w.stats
             bad = s.errors + s.dropped
@@ -184,7 +188,7 @@ class ActuationEngine:
         out_rules = {}
         for ev in self.evals:
             d = per_rule.get(ev.rule.name, {"fired": 0, "latency_ms": {"n": 0}, "outputs": {}})
-            d["fired"] = sum(1 for f in self.fires if f.rule == ev.rule.name)
+            d["fired"] = self.fired[ev.rule.name]
             d["suppressed"] = dict(ev.suppressed)
             d["dry_run"] = ev.rule.dry_run
             out_rules[ev.rule.name] = d

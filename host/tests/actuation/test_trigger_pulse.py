@@ -59,12 +59,14 @@ def test_pulse_lands_on_the_entry_frame(act, built) -> None:  # noqa: ANN001
         dev = TriggerDevice(sim.pty, reset_wait_s=0)
         dev.set_rate(FPS)
         dev.start()
+        dev.start_clock_thread(0.1)  # the clock model stays fed, as in a live run (the PULSEs share the link)
         try:
             entry, eng = _entry_run(act, dev, predict=True)
             time.sleep(0.05)
             entry2, eng2 = _entry_run(act, dev, predict=False)
             time.sleep(0.05)
         finally:
+            dev.stop_clock_thread()
             dev.stop()
             dev.close()
     _, edges = sim.edges()
