@@ -149,6 +149,8 @@ class _Handler(BaseHTTPRequestHandler):
 
     def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
         self.server.live._count_error(int(code))
+        if getattr(self, "request_version", "HTTP/0.9") == "HTTP/0.9":
+            self.request_version = "HTTP/1.0"  # HTTP/0.9 is not served: every error gets a status line
         super().send_error(code, message, explain)
 
     def log_message(self, format: str, *args: Any) -> None:
@@ -185,7 +187,7 @@ class _Handler(BaseHTTPRequestHandler):
         if not ok:
             live.counts["unauthorised"] += 1
             self.send_error(HTTPStatus.UNAUTHORIZED, "wrong or missing token: open the URL printed at start "
-                                                     "(…/?token=…)")
+                                                     "(.../?token=...)")
             return
         self._cookie = f"{COOKIE}={live.token}; Path=/; HttpOnly; SameSite=Strict" if set_cookie else None
         path = url.path
