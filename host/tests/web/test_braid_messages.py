@@ -56,3 +56,13 @@ def test_calibration_event_and_sse_parser_rules():
     assert ev.json()["msg"] == {"CalibrationFlydraXml": "<multi_camera_reconstructor/>\n"}
     text = b": comment\r\nevent: x\r\ndata: a\r\ndata: b\r\n\r\ndata: c\n\n"
     assert [(e.event, e.data) for e in braid.iter_sse(io.BytesIO(text))] == [("x", "a\nb"), ("message", "c")]
+
+
+def test_fast_encoder_writes_the_same_bytes_as_the_message_model():
+    r = make_result(11, 4, born=[1, 3], died=[7, 8])
+    r.estimates[2].state[0] = np.inf
+    r.estimates[1].covariance[0, 0] = -0.0
+    slow = b"".join(braid.sse_event(braid.envelope(m, 11, 50.0, 50.5)) for m in braid.frame_messages(r))
+    assert braid.encode_frame(r, 50.0, now=50.5) == slow
+    slow_nan = b"".join(braid.sse_event(braid.envelope(m, 11, math.nan, 1.0)) for m in braid.frame_messages(r))
+    assert braid.encode_frame(r, math.nan, now=1.0) == slow_nan
