@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import multiprocessing as mp
 import re
 import socket
@@ -167,14 +168,14 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
 
             pose_reader = threading.Thread(target=read_pose, daemon=True)
             pose_reader.start()
-            pose = PoseStream([("127.0.0.1", pose_client.port)], rate_hz=200.0, lock="all")
+            pose = PoseStream([("127.0.0.1", pose_client.port)], rate_hz=200.0, lock="all", start=not a.no_pose)
             timed = TimedSinks([server, pose])
             proc = cctx.Process(target=clients_process,
-                                args=(("127.0.0.1", server.port), a.clients, child, True, None))
+                                args=(("127.0.0.1", server.port), a.clients, child, not a.no_page, None))
             proc.start()
             parent.recv()
             end = time.monotonic() + 10
-            while server.clients.count() < a.clients + 1 and time.monotonic() < end:
+            while server.clients.count() < a.clients + (0 if a.no_page else 1) and time.monotonic() < end:
                 time.sleep(0.01)
         elif mode == "sync":
             lp = _free_port()
@@ -242,6 +243,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=float, default=100.0)
     ap.add_argument("--clients", type=int, default=10)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--no-pose", action="store_true", help="Leave the pose sender thread out (to see its share).")
+    ap.add_argument("--no-page", action="store_true", help="No page client (to see its share).")
+    ap.add_argument("--rounds", type=int, default=2, help="Rounds of the modes, interleaved.")
+    ap.add_argument("--modes", default="ours,sync,none", help="Which runs, comma separated.")
     ap.add_argument("--verbose", action="store_true", help="Print the worst frames of the first client.")
     a = ap.parse_args(argv)
     sc = make_scenario(n_cameras=a.cameras, n_targets=a.targets, duration_s=a.seconds, fps=a.fps, seed=5)
@@ -254,11 +259,12 @@ def main(argv: list[str] | None = None) -> int:
             for dg in encode_features(ff):
                 plan.append((b.trigger_frame, cam, dg))
                 seq[cam] += 1
-    runs = [run_once(m, a, sc, plan) for m in ("ours", "sync", "none")]
+    # Rounds interleave the modes, so a burst of load from elsewhere on the machine hits all of them.
+    runs = [run_once(m, a, sc, plan) | {"round": k} for k in range(a.rounds) for m in a.modes.split(",")]
     print(f"live outputs on the tracking thread: {a.cameras} cameras x {a.targets} targets, {a.fps:g} fps, "
           f"{len(sc.bundles)} frames, real tracker over loopback UDP, {a.clients} Braid clients (+1 page, "
           f"+ pose at 200 Hz for 'ours') in another process")
-    print(f"{'run':6} {'sink mean':>10} {'P50':>8} {'P99':>8} {'max':>9} {'tracking P50/P99':>18} "
+    print(f"{'run':8} {'sink mean':>10} {'P50':>8} {'P99':>8} {'max':>9} {'tracking P50/P99':>18} "
           f"{'client P50/P99 (trigger->EndOfFrame)':>38}")
     for r in runs:
         sink = (f"{r['sink_mean_us']:8.1f}us {r['sink_p50_us']:6.1f}us {r['sink_p99_us']:6.1f}us "
@@ -266,12 +272,20 @@ def main(argv: list[str] | None = None) -> int:
         trk = f"{r['tracking_p50_ms']:.2f}/{r['tracking_p99_ms']:.2f} ms" if r.get("tracking_p50_ms") else "-"
         cl = (f"{r['client_p50_ms']:.2f}/{r['client_p99_ms']:.2f} ms ({r['client_eof']} frames)"
               if r.get("client_eof") else "-")
-        print(f"{r['mode']:6} {sink} {trk:>18} {cl:>38}")
-    ours, sync = runs[0], runs[1]
-    if ours.get("sink_frames") and sync.get("sink_frames"):
-        print(f"time added to the tracking thread per frame (mean, all frames): ours {ours['sink_mean_us']:.1f} us "
-              f"(goal < 50 us), synchronous peer {sync['sink_mean_us']:.1f} us: "
-              f"{sync['sink_mean_us'] / ours['sink_mean_us']:.1f}x less with ours")
+        print(f"{r['mode'] + ' ' + str(r['round'] + 1):8} {sink} {trk:>18} {cl:>38}")
+    def mean_of(mode: str, key: str) -> float:
+        v = [r[key] for r in runs if r["mode"] == mode and r.get(key) is not None]
+        return float(np.mean(v)) if v else float("nan")
+
+    o, sy = mean_of("ours", "sink_mean_us"), mean_of("sync", "sink_mean_us")
+    ours = next((r for r in runs if r["mode"] == "ours"), {})
+    if math.isfinite(o) and math.isfinite(sy):
+        print(f"time added to the tracking thread per frame (mean over every frame of {a.rounds} rounds): "
+              f"ours {o:.1f} us (goal < 50 us), synchronous peer {sy:.1f} us: {sy / o:.0f}x less with ours")
+        print(f"tracking part P50 (mean of rounds): ours {mean_of('ours', 'tracking_p50_ms'):.2f} ms, "
+              f"sync {mean_of('sync', 'tracking_p50_ms'):.2f} ms, none {mean_of('none', 'tracking_p50_ms'):.2f} ms; "
+              f"client trigger->EndOfFrame P50: ours {mean_of('ours', 'client_p50_ms'):.2f} ms, "
+              f"sync {mean_of('sync', 'client_p50_ms'):.2f} ms")
         print(f"ours: {ours.get('dropped_slow', 0)} clients dropped; pose {ours.get('pose_ticks', 0)} ticks "
               f"({ours.get('pose_late_ticks', 0)} late), {ours.get('pose_datagrams_received', 0)} object datagrams "
               f"received, estimate age P50 {ours.get('pose_age_p50_ms', float('nan')):.1f} ms; "
