@@ -118,3 +118,37 @@ def test_udp_sender_keeps_its_rate_and_the_client_counts_garbage():
     assert all(0 <= m.age_s < 0.5 for m in objs)
     assert client.stats.malformed == 1 and "7 bytes" in client.stats.errors[0]
     assert [m.seq for m in msgs] == sorted(m.seq for m in msgs)
+
+
+def test_virtual_post_example_holds_the_post_ahead_of_the_animal():
+    """examples/virtual_post.py, run as a user runs it, fed by a real PoseStream over UDP."""
+    import json
+    import socket
+    import subprocess
+
+    root = Path(__file__).resolve().parents[3]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, str(root / "examples" / "virtual_post.py"), "--port", str(port),
+                             "--seconds", "2.5", "--distance", "0.1", "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.8)  # its interpreter starts and binds the port
+    s = PoseStream([("127.0.0.1", port)], rate_hz=200.0, lock="auto")
+    try:
+        for f in range(100):
+            now = time.time()
+            s.on_frame(make_result(f, 1, t=now), now, now)
+            time.sleep(0.01)
+    finally:
+        s.close()
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    lines = [json.loads(x) for x in out.splitlines() if x.startswith("{")]
+    assert len(lines) > 50, out[-500:]
+    for d in lines:
+        a, p = d["animal"], d["post"]
+        assert math.isclose(math.hypot(p[0] - a[0], p[1] - a[1]), 0.1, rel_tol=1e-9) and p[2] == a[2]
+        v = d["velocity"]  # ahead: along the horizontal velocity
+        assert (p[0] - a[0]) * v[0] + (p[1] - a[1]) * v[1] > 0.999 * 0.1 * math.hypot(v[0], v[1])
+    assert "summary:" in out and "0 malformed" in out
