@@ -17,6 +17,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from flytrack_host.tracking.types import FrameResult
 
 TRAIL_SECONDS = 3.0
@@ -119,10 +121,17 @@ class LiveState:
                                "sink_errors": getattr(p, "sink_errors", 0)}
         out["cameras"] = self._cameras(p)
         counts, edges = p.latency.histogram()
-        nz = [i for i, c in enumerate(counts.tolist()) if c]
-        last = (nz[-1] + 1) if nz else 0
+        c = counts.tolist()
+        total = sum(c)
+        # Show up to a little past the P99.5 bin (the last bin also holds everything beyond the
+        # histogram's range); what is cut off is one "beyond" count.
+        n_show = 10
+        if total:
+            cum = np.cumsum(c)
+            k = int(np.searchsorted(cum, 0.995 * total))
+            n_show = max(10, int(k * 1.25) + 2)
         out["latency"] = {"bin_ms": float(edges[1] - edges[0]) if len(edges) > 1 else 0.0,
-                          "counts": counts[: max(last, 1)].tolist(), **_lat_summary(p.latency)}
+                          "counts": c[:n_show], "beyond": int(sum(c[n_show:])), **_lat_summary(p.latency)}
         out["recording"] = self._recording(p)
         out["trigger"] = [s for f in p.status_sources for s in _safe(lambda f=f: [f()])]
         out["log"] = list(p.events)[-LOG_LINES:]
