@@ -116,6 +116,16 @@ def parse_lock(value: str | int | None) -> str | int:
     return i
 
 
+def check_settings(rate_hz: float, lead_s: float, drop_after_s: float) -> None:
+    """A clear ValueError for a setting out of range."""
+    if not (math.isfinite(rate_hz) and 1.0 <= rate_hz <= 2000.0):
+        raise ValueError(f"pose rate must be 1..2000 Hz, got {rate_hz}")
+    if not (math.isfinite(lead_s) and -1.0 <= lead_s <= 1.0):
+        raise ValueError(f"pose lead must be -1..1 s, got {lead_s}")
+    if not (math.isfinite(drop_after_s) and drop_after_s > 0):
+        raise ValueError(f"drop_after_s must be > 0, got {drop_after_s}")
+
+
 @dataclass
 class PoseStats:
     frames: int = 0
@@ -142,12 +152,7 @@ class PoseStream:
 
     def __init__(self, destinations: Sequence[tuple[str, int]], rate_hz: float = 200.0, lead_s: float = 0.0,
                  lock: str | int | None = "auto", drop_after_s: float = 0.5, start: bool = True):
-        if not (math.isfinite(rate_hz) and 1.0 <= rate_hz <= 2000.0):
-            raise ValueError(f"pose rate must be 1..2000 Hz, got {rate_hz}")
-        if not (math.isfinite(lead_s) and -1.0 <= lead_s <= 1.0):
-            raise ValueError(f"pose lead must be -1..1 s, got {lead_s}")
-        if not (math.isfinite(drop_after_s) and drop_after_s > 0):
-            raise ValueError(f"drop_after_s must be > 0, got {drop_after_s}")
+        check_settings(rate_hz, lead_s, drop_after_s)
         self.destinations = list(destinations)
         self.period = 1.0 / rate_hz
         self.lead_s = lead_s
