@@ -255,6 +255,12 @@ class HostPipeline:
         self._stopped_at = time.time()
         self.log("pipeline stopped")
         self.log(self.latency.format(), "latency")
+        # Outputs first: what they still record (actuation firings) gets into the recording.
+        for sink in self.sinks:
+            try:
+                sink.close()
+            except Exception as exc:
+                self.log(f"closing output {type(sink).__name__} failed: {exc!r}")
         h5 = None
         if self.recorder is not None:
             try:
@@ -267,11 +273,6 @@ class HostPipeline:
             self.receiver.close()
         if self.live is not None:
             self.live.close()
-        for sink in self.sinks:
-            try:
-                sink.close()
-            except Exception as exc:
-                self.log(f"closing output {type(sink).__name__} failed: {exc!r}")
         self._summary = self.summary(recording_h5=h5)
         if self._error is not None:
             raise RuntimeError(f"tracking thread failed: {self._error}") from self._error

@@ -69,6 +69,7 @@ class DemoConfig:
     progress: bool = True
     flight: FlightParams = field(default_factory=FlightParams)
     render: RenderParams | None = None
+    rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)
     # Called with the host pipeline before it starts: live outputs join its sinks (`--serve`).
     attach: list[Callable[[Any], object]] = field(default_factory=list)
 
@@ -130,6 +131,7 @@ class DemoReport:
     notes: list[str] = field(default_factory=list)
     host_summary: dict[str, Any] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=dict)  # per part of the simulated rig
+    actuation: dict[str, Any] = field(default_factory=dict)  # closed loop vs ground truth (with --rules)
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -266,7 +268,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     cpu = CpuSampler()
     cpu.add("host", os.getpid())
-    edges = feeder = host = live = session = None
+    edges = feeder = host = live = session = lab = engine = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
     live_frames = [0]
@@ -295,6 +297,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             calibration=calib_path.name if calib_path else None, recording_folder="recordings",
             live_subscribers=[f"127.0.0.1:{live_port}"], name="simulated-rig",
         )
+        if cfg.rules is not None:  # the closed loop: lab devices on loopback, the rules in the rig file
+            from flytrack_host.actuation.rules import RulesError
+            from flytrack_host.sim.closed_loop import ClosedLoopLab
+
+            try:
+                lab = ClosedLoopLab(cfg.rules, out)
+            except RulesError as exc:
+                raise DemoError(str(exc)) from None
+            rig = lab.rig(rig)
         write_rig(rig, rig_path)
         from flytrack_host.pipeline import HostPipeline
         from flytrack_host.rig import load_rig
@@ -318,6 +329,13 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         host = HostPipeline(rig, cameras_for_host, clock=session.clock, fps=fps, hold_until_synchronized=True,
                             on_result=on_result, rig_text=rig_path.read_text(),
                             recording_path=out / "recording.flytrack")
+        if lab is not None:
+            try:
+                engine = lab.engine(rig, fps, session)
+            except RulesError as exc:
+                raise DemoError(str(exc)) from None
+            engine.attach(host)
+            engine.start()
         for fn in cfg.attach:
             try:
                 fn(host)
@@ -371,11 +389,18 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         if feeder is not None:
             feeder.stop()
         trig.close()
+        if lab is not None and engine is None:
+            lab.close()
 
     fs = feeder.stats()
     report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
                      notes, wall0, cams, warmup, trigger_summary, preroll)
     report.cpu_seconds = cpu.totals()
+    if lab is not None and engine is not None:
+        try:
+            report.actuation = lab.report(engine, gt, fs.pulse_frames if trig.mode == "simavr" else None)
+        finally:
+            lab.close()
     return report
 
 
