@@ -108,6 +108,7 @@ class LiveState:
             "deaths": self.deaths,
             "tracks": tracks,
             "rules": list(self.rule_firings) + [s for f in self.rule_sources for s in _safe(f)],
+            "rules_fired": [],
             "server": server_stats or {},
         }
         if self.pipe is not None:
@@ -135,6 +136,9 @@ class LiveState:
         out["recording"] = self._recording(p)
         out["trigger"] = [s for f in p.status_sources for s in _safe(lambda f=f: [f()])]
         out["log"] = list(p.events)[-LOG_LINES:]
+        fired = _actuation_firings(p)
+        if fired:
+            out["rules_fired"] = fired
         return out
 
     def _cameras(self, p: Any) -> list[dict[str, Any]]:
@@ -207,6 +211,29 @@ class LiveState:
             self._disk = (mono, d)
         rec["disk"] = self._disk[1]
         return rec
+
+
+def _actuation_firings(p: Any) -> list[str]:
+    """The last firings of the actuation rules, read from any sink that keeps a `firings` log of rows
+    (flytrack_host.actuation's FiringLog: FIRINGS rows) - duck-typed, so the page needs no actuation."""
+    lines: list[str] = []
+    for sink in list(getattr(p, "sinks", [])):
+        log = getattr(sink, "firings", None)
+        rows = getattr(log, "rows", None)
+        if not isinstance(rows, list):
+            continue
+        lines.append(f"{getattr(log, 'count', len(rows))} actions fired, {getattr(log, 'failed', 0)} failed")
+        for r in rows[-RULE_LINES:]:
+            try:
+                r0 = r[0]
+                lat = (float(r0["time_ack"]) - float(r0["frame_time"])) * 1e3
+                err = r0["error"].decode(errors="replace")
+                lines.append(f"{r0['rule'].decode(errors='replace')} obj {int(r0['obj_id'])} -> "
+                             f"{r0['output'].decode(errors='replace')} frame {int(r0['scheduled_frame'])}"
+                             + (f" {lat:.1f} ms" if math.isfinite(lat) else "") + (f" ({err})" if err else ""))
+            except (IndexError, KeyError, TypeError, ValueError):
+                lines.append("(a firing row this page cannot read)")
+    return lines
 
 
 def _lat_summary(lat: Any) -> dict[str, float | None]:

@@ -114,7 +114,8 @@ function render(s) {
   const sv = s.server || {};
   $("server").textContent = `clients ${sv.clients ?? 0} (${JSON.stringify(sv.clients_by_kind || {})}), ` +
     `dropped slow ${sv.clients_dropped_slow ?? 0}, frames published ${sv.frames_published ?? 0}`;
-  $("rules").textContent = (s.rules && s.rules.length) ? s.rules.join("\n") : "none yet";
+  const rules = [...(s.rules_fired || []), ...(s.rules || [])];
+  $("rules").textContent = rules.length ? rules.join("\n") : "none yet";
   $("log").textContent = (s.log || []).join("\n");
 }
 
