@@ -23,7 +23,9 @@ import argparse
 import json
 import math
 import multiprocessing as mp
+import os
 import re
+import resource
 import socket
 import sys
 import tempfile
@@ -45,6 +47,8 @@ from flytrack_host.tracking.types import FrameResult
 from flytrack_host.web.server import LiveServer, calibration_xml_of
 
 _EOF = re.compile(rb'"EndOfFrame":(\d+)')
+_UI = re.compile(rb'event: state\ndata: \{"time":[^,]+,"final":(?:true|false),"frame":(-?\d+),'
+                 rb'.*?"last_estimate_time":([0-9.eE+-]+|null)')
 
 
 class TimedSinks:
@@ -93,8 +97,11 @@ def send_all(plan: list, dest: tuple[str, int], t_start: float, fps: float) -> N
         sock.sendto(dg, dest)
 
 
-def _client(sock: socket.socket, out: list) -> None:
+def _client(sock: socket.socket, out: list, page: bool = False) -> None:
+    """Reads until the server ends the stream. Braid: (frame, received) per EndOfFrame. Page:
+    (frame, received, its estimate time) per state whose frame is new."""
     buf = b""
+    last_frame = None
     while True:
         try:
             chunk = sock.recv(1 << 20)
@@ -106,7 +113,14 @@ def _client(sock: socket.socket, out: list) -> None:
         buf += chunk
         cut = buf.rfind(b"\n\n")  # events end with a blank line; TCP may split anywhere
         if cut >= 0:
-            out.extend((int(m.group(1)), now) for m in _EOF.finditer(buf, 0, cut))
+            if page:
+                for m in _UI.finditer(buf, 0, cut):
+                    f = int(m.group(1))
+                    if f != last_frame and m.group(2) != b"null":
+                        out.append((f, now, float(m.group(2))))
+                        last_frame = f
+            else:
+                out.extend((int(m.group(1)), now) for m in _EOF.finditer(buf, 0, cut))
             buf = buf[cut + 2:]
 
 
@@ -119,23 +133,38 @@ def clients_process(addr: tuple[str, int] | None, n: int, conn: Any, page: bool,
         srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         srv.bind(("127.0.0.1", listen_port))
         srv.listen(n)
-        conn.send("ready")
+        conn.send(("ready", 0))
         socks = [srv.accept()[0] for _ in range(n)]
-    else:
+    pose_ages: list[float] = []
+    pose_thread = None
+    if listen_port is None:
         assert addr is not None
         for i in range(n + (1 if page else 0)):
             s = socket.create_connection(addr)
             path = "/ui/events" if i == n else "/events"
             s.sendall(f"GET {path} HTTP/1.0\r\n\r\n".encode())
             socks.append(s)
-        conn.send("ready")
+        # The pose stream's receiver lives here too, not in the measured host process.
+        pose_client = PoseClient(0)
+
+        def read_pose() -> None:
+            for m in pose_client.messages(2.0):
+                if not m.no_object:
+                    pose_ages.append(m.age_s)
+
+        pose_thread = threading.Thread(target=read_pose, daemon=True)
+        pose_thread.start()
+        conn.send(("ready", pose_client.port))
     results: list[list] = [[] for _ in socks]
-    threads = [threading.Thread(target=_client, args=(s, r), daemon=True) for s, r in zip(socks, results, strict=True)]
+    threads = [threading.Thread(target=_client, args=(s, r, i == n), daemon=True)
+               for i, (s, r) in enumerate(zip(socks, results, strict=True))]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    conn.send(results[:n])
+    if pose_thread is not None:
+        pose_thread.join(5)
+    conn.send((results, pose_ages))
 
 
 def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str, Any]:
@@ -150,7 +179,7 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
     parent, child = cctx.Pipe()
     proc = None
     timed = None
-    pose_client = None
+    pose = None
     with tempfile.TemporaryDirectory() as d:
         pipe = HostPipeline(rig, sc.cameras, clock=FixedRateClock(a.fps, start_time=t_start),
                             recording_path=Path(d) / "bench.flytrack", bind="127.0.0.1:0")
@@ -158,22 +187,12 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
             server = LiveServer("127.0.0.1", 0, calibration_xml=calibration_xml_of(pipe))
             server.start()
             server.state.pipe = pipe
-            pose_client = PoseClient(0)
-            pose_ages: list[float] = []
-
-            def read_pose() -> None:
-                for m in pose_client.messages(2.0):
-                    if not m.no_object:
-                        pose_ages.append(m.age_s)
-
-            pose_reader = threading.Thread(target=read_pose, daemon=True)
-            pose_reader.start()
-            pose = PoseStream([("127.0.0.1", pose_client.port)], rate_hz=200.0, lock="all", start=not a.no_pose)
-            timed = TimedSinks([server, pose])
             proc = cctx.Process(target=clients_process,
                                 args=(("127.0.0.1", server.port), a.clients, child, not a.no_page, None))
             proc.start()
-            parent.recv()
+            _, pose_port = parent.recv()
+            pose = PoseStream([("127.0.0.1", pose_port)], rate_hz=200.0, lock="all", start=not a.no_pose)
+            timed = TimedSinks([server, pose])
             end = time.monotonic() + 10
             while server.clients.count() < a.clients + (0 if a.no_page else 1) and time.monotonic() < end:
                 time.sleep(0.01)
@@ -186,16 +205,27 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
             timed = TimedSinks([SyncBraidSink(socks)])
         if timed is not None:
             pipe.sinks.append(timed)
+        ru0 = resource.getrusage(resource.RUSAGE_SELF)
+        w0 = time.monotonic()
         pipe.start()
         sender = ctx.Process(target=send_all, args=(plan, pipe.address, t_start, a.fps))
         sender.start()
         sender.join()
         time.sleep(0.2)
+        threads_cpu = _thread_cpu()
+        if a.verbose:
+            print(f"  {mode}: CPU s per thread: {threads_cpu}")
         summary = pipe.stop()  # closes the sinks: the clients see their streams end
+        ru1 = resource.getrusage(resource.RUSAGE_SELF)
+        wall = time.monotonic() - w0
     client_lat: list[float] = []
+    page_rows: list = []
+    pose_ages: list[float] = []
     if proc is not None:
-        got = parent.recv() if parent.poll(20) else []
+        got, pose_ages = parent.recv() if parent.poll(20) else ([], [])
         proc.join(5)
+        page_rows = got[a.clients] if len(got) > a.clients else []
+        got = got[:a.clients]
         for per_client in got:
             client_lat += [t - (t_start + f / a.fps) for f, t in per_client]
         if got and a.verbose:
@@ -203,9 +233,7 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
             print(f"  {mode}: worst client-0 frames (ms, frame): {[(round(x), f) for x, f in worst]}")
     pose_n = 0
     pose_age = float("nan")
-    if pose_client is not None:
-        pose_reader.join(5)
-        pose_client.close()
+    if pose is not None:
         pose_n = len(pose_ages)
         pose_age = float(np.median(pose_ages)) * 1e3 if pose_ages else float("nan")
     lat = summary["latency"]
@@ -214,6 +242,11 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
         "mode": mode, "frames_tracked": summary["frames_tracked"],
         "tracking_p50_ms": lat.get("tracking_p50_ms"), "tracking_p99_ms": lat.get("tracking_p99_ms"),
         "sink_frames": int(t.size), "sink_errors": summary.get("sink_errors", 0),
+        # CPU of the whole host process (tracking, receiver, recorder, and the outputs) over the run
+        "host_cpu_pct": 100.0 * (ru1.ru_utime + ru1.ru_stime - ru0.ru_utime - ru0.ru_stime) / wall,
+        # the outputs' own threads (their whole life: set-up, 1.5 s before the trigger, the run)
+        "publisher_cpu_pct": 100.0 * threads_cpu.get("flytrack-web-publish", 0.0) / wall,
+        "pose_cpu_pct": 100.0 * threads_cpu.get("flytrack-pose", 0.0) / wall,
     }
     if t.size:
         out.update(sink_mean_us=float(t.mean()), sink_p50_us=float(np.median(t)),
@@ -221,11 +254,29 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
     if client_lat:
         c = np.asarray(client_lat) * 1e3
         out.update(client_eof=int(c.size), client_p50_ms=float(np.median(c)), client_p99_ms=float(np.percentile(c, 99)))
+    if mode == "ours" and len(page_rows) > 2:
+        # The page's stream: new states a second while frames came, and estimate -> state received.
+        d = np.asarray([t - e for _, t, e in page_rows]) * 1e3
+        span = page_rows[-1][1] - page_rows[0][1]
+        out.update(page_updates_per_s=(len(page_rows) - 1) / span if span > 0 else float("nan"),
+                   page_delay_p50_ms=float(np.median(d)), page_delay_p99_ms=float(np.percentile(d, 99)))
     if mode == "ours":
         st = server.stats()
         out.update(dropped_slow=st["clients_dropped_slow"], pose_datagrams_received=pose_n,
                    pose_age_p50_ms=pose_age, pose_ticks=pose.stats.ticks, pose_late_ticks=pose.stats.late_ticks,
                    ui_snapshots=st["ui_snapshots"])
+    return out
+
+
+def _thread_cpu() -> dict[str, float]:
+    """CPU seconds of each live thread of this process (Linux /proc), by thread name."""
+    out: dict[str, float] = {}
+    for t in threading.enumerate():
+        try:
+            f = Path(f"/proc/self/task/{t.native_id}/stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, TypeError):
+            continue
+        out[t.name] = round(out.get(t.name, 0.0) + (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK"), 2)
     return out
 
 
@@ -264,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"live outputs on the tracking thread: {a.cameras} cameras x {a.targets} targets, {a.fps:g} fps, "
           f"{len(sc.bundles)} frames, real tracker over loopback UDP, {a.clients} Braid clients (+1 page, "
           f"+ pose at 200 Hz for 'ours') in another process")
-    print(f"{'run':8} {'sink mean':>10} {'P50':>8} {'P99':>8} {'max':>9} {'tracking P50/P99':>18} "
+    print(f"{'run':8} {'host CPU':>8} {'sink mean':>10} {'P50':>8} {'P99':>8} {'max':>9} {'tracking P50/P99':>18} "
           f"{'client P50/P99 (trigger->EndOfFrame)':>38}")
     for r in runs:
         sink = (f"{r['sink_mean_us']:8.1f}us {r['sink_p50_us']:6.1f}us {r['sink_p99_us']:6.1f}us "
@@ -272,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         trk = f"{r['tracking_p50_ms']:.2f}/{r['tracking_p99_ms']:.2f} ms" if r.get("tracking_p50_ms") else "-"
         cl = (f"{r['client_p50_ms']:.2f}/{r['client_p99_ms']:.2f} ms ({r['client_eof']} frames)"
               if r.get("client_eof") else "-")
-        print(f"{r['mode'] + ' ' + str(r['round'] + 1):8} {sink} {trk:>18} {cl:>38}")
+        print(f"{r['mode'] + ' ' + str(r['round'] + 1):8} {r['host_cpu_pct']:7.0f}% {sink} {trk:>18} {cl:>38}")
     def mean_of(mode: str, key: str) -> float:
         v = [r[key] for r in runs if r["mode"] == mode and r.get(key) is not None]
         return float(np.mean(v)) if v else float("nan")
@@ -286,6 +337,13 @@ def main(argv: list[str] | None = None) -> int:
               f"sync {mean_of('sync', 'tracking_p50_ms'):.2f} ms, none {mean_of('none', 'tracking_p50_ms'):.2f} ms; "
               f"client trigger->EndOfFrame P50: ours {mean_of('ours', 'client_p50_ms'):.2f} ms, "
               f"sync {mean_of('sync', 'client_p50_ms'):.2f} ms")
+        print(f"host process CPU (mean of rounds, % of one core): ours {mean_of('ours', 'host_cpu_pct'):.0f}%, "
+              f"sync {mean_of('sync', 'host_cpu_pct'):.0f}%, none {mean_of('none', 'host_cpu_pct'):.0f}%; "
+              f"ours' threads: publisher {mean_of('ours', 'publisher_cpu_pct'):.1f}%, "
+              f"pose {mean_of('ours', 'pose_cpu_pct'):.1f}%")
+        print(f"page stream at {a.cameras} cameras x {a.targets} targets: {mean_of('ours', 'page_updates_per_s'):.1f} "
+              f"new states/s, estimate -> state received P50 {mean_of('ours', 'page_delay_p50_ms'):.1f} ms, "
+              f"P99 {mean_of('ours', 'page_delay_p99_ms'):.1f} ms (goals >= 10/s, < 100 ms)")
         print(f"ours: {ours.get('dropped_slow', 0)} clients dropped; pose {ours.get('pose_ticks', 0)} ticks "
               f"({ours.get('pose_late_ticks', 0)} late), {ours.get('pose_datagrams_received', 0)} object datagrams "
               f"received, estimate age P50 {ours.get('pose_age_p50_ms', float('nan')):.1f} ms; "

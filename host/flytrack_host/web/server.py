@@ -52,7 +52,7 @@ DEFAULT_PORT = 8397  # Braid's model server port
 MAX_REQUEST_LINE = 8192
 MAX_HEADER_BYTES = 16384
 MAX_CONNECTIONS = 128
-POLL_S = 0.002  # the publisher looks for new frames this often while clients are connected
+POLL_S = 0.005  # the publisher looks for new frames this often while clients are connected
 COOKIE = "flytrack_token"
 _STATIC_NAME = re.compile(r"^[A-Za-z0-9_-]+\.(html|js|css|png|svg|ico)$")
 _TYPES = {"html": "text/html; charset=utf-8", "js": "text/javascript; charset=utf-8",
@@ -293,7 +293,9 @@ class LiveServer:
         self._frame_backlog = frame_backlog
         # The publisher polls for frames every POLL_S while clients are connected: on_frame is then only
         # an append. Waking it per frame (Event.set: a futex call and a thread switch on the tracking
-        # thread) measured 20-30 us a frame here, the poll adds 1 ms of delay on average.
+        # thread) measured 20-30 us a frame here; the poll adds 2.5 ms of delay on average. Each wake
+        # takes the GIL, and on an overloaded machine the kernel can deschedule a thread holding it
+        # while the tracking thread waits, so the publisher wakes as rarely as the delay allows.
         self._wake = threading.Event()  # new clients and close() wake it
         self._handed: set[socket.socket] = set()
         self._stop = threading.Event()
@@ -370,7 +372,7 @@ class LiveServer:
     # --- publisher thread -------------------------------------------------------------------------
     def _publish(self) -> None:
         sel = self.clients.selector
-        next_ui = next_keep = time.monotonic()
+        next_ui = next_keep = next_check = time.monotonic()
         while True:
             try:
                 # Every POLL_S with clients (frames, slow clients' backlogs, clients that left), else at
@@ -379,7 +381,11 @@ class LiveServer:
                 self._wake.wait(min(wait, POLL_S) if self.clients.clients else min(wait, 0.05))
                 self._wake.clear()  # before draining: a frame appended from now on wakes us again
                 stopping = self._stop.is_set()
-                if self.clients.clients:
+                now = time.monotonic()
+                # Sockets are polled (a system call) when a backlog waits, else every 0.1 s to notice
+                # clients that left.
+                if self.clients.clients and (self.clients.pending_bytes() or now >= next_check):
+                    next_check = now + 0.1
                     for key, mask in sel.select(0):
                         self.clients.on_ready(key.data, mask)
                 self.clients.admit()
