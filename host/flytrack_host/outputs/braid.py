@@ -94,9 +94,14 @@ _ROW = ('{"obj_id":%d,"frame":%d,"x":%s,"y":%s,"z":%s,"xvel":%s,"yvel":%s,"zvel"
 
 
 def encode_frame(result: FrameResult, trigger_timestamp: float, now: float | None = None) -> bytes:
-    """All events of one frame as one byte string (one write per client). The same bytes as
-    `sse_event(envelope(m, ...))` for each of `frame_messages(result)`, built ~4x faster with string
-    formatting (the publisher encodes every frame; see test_braid_messages)."""
+    """All events of one frame as one byte string."""
+    return b"".join(frame_events(result, trigger_timestamp, now))
+
+
+def frame_events(result: FrameResult, trigger_timestamp: float, now: float | None = None) -> list[bytes]:
+    """The frame's events, one byte string each: the same bytes as `sse_event(envelope(m, ...))` for
+    each of `frame_messages(result)`, built faster with string formatting (the publisher encodes
+    every frame; see test_braid_messages)."""
     now = time.time() if now is None else now
     frame = int(result.trigger_frame)
     tt_ok = trigger_timestamp is not None and math.isfinite(trigger_timestamp)
@@ -115,7 +120,7 @@ def encode_frame(result: FrameResult, trigger_timestamp: float, now: float | Non
         parts.append(head + '{"Update":' + row + "}" + tail)
     parts.extend(f'{head}{{"Death":{int(i)}}}{tail}' for i in result.died)
     parts.append(f'{head}{{"EndOfFrame":{frame}}}{tail}')
-    return "".join(parts).encode()
+    return [p.encode() for p in parts]
 
 
 def calibration_event(xml: str, synced_frame: int = 0) -> bytes:

@@ -7,6 +7,10 @@ has a bounded backlog: what the kernel does not take at once waits there, and a 
 would pass `limit_bytes` (it stopped reading, or reads slower than the stream) is dropped: backlog
 freed, socket closed, drop counted. Memory per client is at most `limit_bytes` plus the kernel's
 socket buffers, and nothing ever blocks.
+
+An HTTP/1.1 client gets the stream with chunked transfer encoding, one chunk per event, as Braid's
+server sends it: Braid's own Python clients read `iter_content(chunk_size=None)` and expect each
+piece to be exactly one event. An HTTP/1.0 client gets the events as a plain body until close.
 """
 
 from __future__ import annotations
@@ -31,9 +35,18 @@ class ClientStats:
     by_kind: dict[str, int] = field(default_factory=dict)  # connected now, per stream
 
 
+def chunk(data: bytes) -> bytes:
+    """One HTTP/1.1 chunk."""
+    return b"%x\r\n" % len(data) + data + b"\r\n"
+
+
+END_CHUNKS = b"0\r\n\r\n"
+
+
 class StreamClient:
-    def __init__(self, kind: str, sock: socket.socket, limit_bytes: int, address: str = ""):
+    def __init__(self, kind: str, sock: socket.socket, limit_bytes: int, address: str = "", chunked: bool = False):
         self.kind = kind
+        self.chunked = chunked
         self.sock = sock
         self.limit_bytes = limit_bytes
         self.address = address
@@ -125,12 +138,14 @@ class ClientSet:
             self._reserved += 1
             return True
 
-    def hand_over(self, kind: str, sock: socket.socket, address: str, first: bytes | None) -> None:
+    def hand_over(self, kind: str, sock: socket.socket, address: str, first: bytes | None,
+                  chunked: bool = False) -> None:
         sock.setblocking(False)
-        c = StreamClient(kind, sock, self.limit_bytes, address)
+        c = StreamClient(kind, sock, self.limit_bytes, address, chunked)
         if first:
-            c.pending.append(memoryview(first))
-            c.backlog_bytes = len(first)
+            data = chunk(first) if chunked else first
+            c.pending.append(memoryview(data))
+            c.backlog_bytes = len(data)
         self.incoming.append(c)
 
     def unreserve(self) -> None:
@@ -148,10 +163,16 @@ class ClientSet:
                 self.remove(c)
         self._count()
 
-    def broadcast(self, kind: str, data: bytes) -> int:
-        """Queue `data` for every client of `kind`; clients that must go are removed. Returns reached."""
+    def broadcast(self, kind: str, events: list[bytes]) -> int:
+        """Queue `events` for every client of `kind` (one write each); clients that must go are
+        removed. Returns the clients reached."""
         n = 0
+        plain = chunked = b""
         for c in [c for c in self.clients if c.kind == kind]:
+            if c.chunked:
+                data = chunked = chunked or b"".join(chunk(e) for e in events)
+            else:
+                data = plain = plain or b"".join(events)
             if c.queue(data):
                 n += 1
                 self._want_write(c)
@@ -181,7 +202,14 @@ class ClientSet:
     def keepalive(self, idle_s: float = 5.0) -> None:
         now = time.monotonic()
         for c in list(self.clients):
-            if not c.pending and now - c.last_write > idle_s and not c.queue(b": keep-alive\n\n"):
+            ka = b": keep-alive\n\n"
+            if not c.pending and now - c.last_write > idle_s and not c.queue(chunk(ka) if c.chunked else ka):
+                self.remove(c)
+
+    def end_streams(self) -> None:
+        """The last chunk for chunked clients: their HTTP response ends cleanly."""
+        for c in list(self.clients):
+            if c.chunked and not c.queue(END_CHUNKS):
                 self.remove(c)
 
     def _want_write(self, c: StreamClient) -> None:

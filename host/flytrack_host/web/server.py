@@ -259,15 +259,28 @@ class _Handler(BaseHTTPRequestHandler):
         if live._closed or not live.clients.reserve():
             self.send_error(HTTPStatus.SERVICE_UNAVAILABLE, f"too many streaming clients ({live.clients.max_clients})")
             return
+        chunked = self.request_version == "HTTP/1.1"
         try:
-            self._headers(200, "text/event-stream", None)
+            if chunked:  # one chunk per event, as Braid sends them (see web/clients.py)
+                self.protocol_version = "HTTP/1.1"
+                self.send_response(200)
+                self.send_header("Content-Type", "text/event-stream")
+                self.send_header("Cache-Control", "no-cache")
+                self.send_header("Transfer-Encoding", "chunked")
+                self.send_header("Connection", "close")
+                if self._cookie:
+                    self.send_header("Set-Cookie", self._cookie)
+                self.end_headers()
+            else:
+                self._headers(200, "text/event-stream", None)
             self.wfile.flush()
         except OSError:
             live.clients.unreserve()
             return
         # From here the publisher thread writes to this socket (non-blocking), this thread is done.
+        self.close_connection = True
         live._handed.add(self.connection)
-        live.clients.hand_over(kind, self.connection, self.address_string(), first)
+        live.clients.hand_over(kind, self.connection, self.address_string(), first, chunked)
         live._signal()
 
 
@@ -407,6 +420,7 @@ class LiveServer:
             if stopping and not self._frames:
                 break
         # The last frames and the final page state are queued: give the clients 2 s to take them.
+        self.clients.end_streams()
         end = time.monotonic() + 2.0
         while self.clients.pending_bytes() and time.monotonic() < end:
             for key, mask in sel.select(0.05):
@@ -420,7 +434,7 @@ class LiveServer:
             if result.trigger_frame < 0:
                 continue
             if self.clients.count("braid"):
-                self.clients.broadcast("braid", braid.encode_frame(result, frame_time))
+                self.clients.broadcast("braid", braid.frame_events(result, frame_time))
             self.state.add_frame(result, frame_time, estimate_time)
             self.counts["frames_published"] += 1
             # Let the GIL go between frames: a tracking thread waiting for it gets it now, not after
@@ -434,7 +448,7 @@ class LiveServer:
         self._last_state_json = body
         self._last_ui_event = b"event: state\ndata: " + body + b"\n\n"
         self.counts["ui_snapshots"] += 1
-        self.clients.broadcast("ui", self._last_ui_event)
+        self.clients.broadcast("ui", [self._last_ui_event])
 
     def _calibration_event(self) -> bytes | None:
         return braid.calibration_event(self.calibration_xml) if self.calibration_xml else None

@@ -240,3 +240,41 @@ def test_close_ends_every_stream_and_frees_the_port(server):
         assert not r.t.is_alive() and r.frames == 20
     with socket.socket() as probe:
         assert probe.connect_ex(("127.0.0.1", server.port)) != 0
+
+
+def test_a_braid_client_reading_with_requests_gets_one_event_per_chunk():
+    """Braid's Python clients (its UDP re-send script) open the page with a requests session (the
+    token cookie is kept), then read /events with iter_content(chunk_size=None) and expect every
+    piece to be exactly one event: `event: braid` and one `data:` line, v 2 or 3."""
+    import json
+
+    import requests
+
+    s = LiveServer("127.0.0.1", 0, token="t0k", calibration_xml="<multi_camera_reconstructor/>")
+    s.start()
+    try:
+        session = requests.session()
+        session.get(s.url + "?token=t0k", timeout=10).raise_for_status()  # the cookie for what follows
+        r = session.get(s.url + "events", stream=True, headers={"Accept": "text/event-stream"}, timeout=10)
+        r.raise_for_status()
+        assert r.headers["Transfer-Encoding"] == "chunked"
+        assert _wait(lambda: s.clients.count("braid") == 1)
+        for i in range(10):
+            _feed(s, range(i * 10, i * 10 + 10), n=3)
+            time.sleep(0.01)
+        kinds: dict[str, int] = {}
+        for piece in r.iter_content(chunk_size=None, decode_unicode=True):
+            lines = piece.strip().split("\n")
+            assert len(lines) == 2 and lines[0] == "event: braid" and lines[1].startswith("data: "), piece[:200]
+            data = json.loads(lines[1][len("data: "):])
+            assert data.get("v", 1) in (2, 3)
+            k = next(iter(data["msg"]))
+            kinds[k] = kinds.get(k, 0) + 1
+            if k == "Update":
+                assert {"x", "y", "z"} <= set(data["msg"]["Update"])
+            if kinds.get("EndOfFrame") == 100:
+                break
+        assert kinds == {"CalibrationFlydraXml": 1, "Birth": 30, "Update": 300, "EndOfFrame": 100}  # _feed: 10 x 3 born
+        r.close()
+    finally:
+        s.close()
