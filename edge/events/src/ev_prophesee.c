@@ -1,0 +1,143 @@
+/* Prophesee decoders: EVT 2.0 (32-bit words), EVT 3.0 (16-bit stateful words) and DAT (8-byte CD
+ * events). Formats as Prophesee documents them (Metavision "Event data formats"). */
+#include "ev_internal.h"
+
+/* EVT 2.0 word types (bits 31..28) */
+#define EVT2_CD_OFF 0x0u
+#define EVT2_CD_ON 0x1u
+#define EVT2_TIME_HIGH 0x8u
+#define EVT2_EXT_TRIGGER 0xAu
+
+size_t ev_decode_evt2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
+    const uint8_t *p = r->data + r->start;
+    size_t words = (r->end - r->start) / 4, room = cap - n;
+    size_t i = 0;
+    int64_t t_hi = r->t_base + ((int64_t)r->t_high << 6);
+    for (; i < words && room > 0; i++) {
+        uint32_t w = ev_le32(p + 4 * i);
+        uint32_t type = w >> 28;
+        if (type <= EVT2_CD_ON) {
+            ft_event *e = &out[n++];
+            room--;
+            e->t = t_hi | (int64_t)((w >> 22) & 0x3Fu);
+            e->x = (uint16_t)((w >> 11) & 0x7FFu);
+            e->y = (uint16_t)(w & 0x7FFu);
+            e->p = (uint8_t)type;
+            e->pad[0] = e->pad[1] = e->pad[2] = 0;
+        } else if (type == EVT2_TIME_HIGH) {
+            uint32_t th = w & 0x0FFFFFFFu;
+            if (r->have_t_high && th < r->t_high) /* the 34-bit time wrapped (~4.8 h) */
+                r->t_base += (int64_t)1 << 34;
+            r->t_high = th;
+            r->have_t_high = 1;
+            t_hi = r->t_base + ((int64_t)th << 6);
+        } else if (type == EVT2_EXT_TRIGGER) {
+            r->info.n_triggers++;
+        } else {
+            r->info.n_skipped++; /* OTHERS, CONTINUED, undefined */
+        }
+    }
+    r->start += 4 * i;
+    return n;
+}
+
+/* EVT 3.0 word types (bits 15..12) */
+#define EVT3_ADDR_Y 0x0u
+#define EVT3_ADDR_X 0x2u
+#define EVT3_VECT_BASE_X 0x3u
+#define EVT3_VECT_12 0x4u
+#define EVT3_VECT_8 0x5u
+#define EVT3_TIME_LOW 0x6u
+#define EVT3_TIME_HIGH 0x8u
+#define EVT3_EXT_TRIGGER 0xAu
+
+static inline void put(ft_event *e, int64_t t, uint16_t x, uint16_t y, uint8_t p) {
+    e->t = t;
+    e->x = x;
+    e->y = y;
+    e->p = p;
+    e->pad[0] = e->pad[1] = e->pad[2] = 0;
+}
+
+size_t ev_decode_evt3(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
+    const uint8_t *p = r->data + r->start;
+    size_t words = (r->end - r->start) / 2, i = 0;
+    uint16_t y = r->y, xb = r->x_base;
+    uint8_t pol = r->pol;
+    int64_t t = r->t_base + ((int64_t)r->t_high << 12) + r->t_low;
+    /* stop with room for one more VECT_12 (12 events) */
+    for (; i < words && n + 12 < cap; i++) {
+        uint16_t w = ev_le16(p + 2 * i);
+        switch (w >> 12) {
+        case EVT3_ADDR_Y:
+            y = w & 0x7FFu;
+            break;
+        case EVT3_ADDR_X:
+            put(&out[n++], t, w & 0x7FFu, y, (uint8_t)((w >> 11) & 1u));
+            break;
+        case EVT3_VECT_BASE_X:
+            xb = w & 0x7FFu;
+            pol = (uint8_t)((w >> 11) & 1u);
+            break;
+        case EVT3_VECT_12: {
+            uint32_t m = w & 0xFFFu;
+            while (m) {
+                int b = __builtin_ctz(m);
+                put(&out[n++], t, (uint16_t)(xb + b), y, pol);
+                m &= m - 1;
+            }
+            xb = (uint16_t)(xb + 12);
+            break;
+        }
+        case EVT3_VECT_8: {
+            uint32_t m = w & 0xFFu;
+            while (m) {
+                int b = __builtin_ctz(m);
+                put(&out[n++], t, (uint16_t)(xb + b), y, pol);
+                m &= m - 1;
+            }
+            xb = (uint16_t)(xb + 8);
+            break;
+        }
+        case EVT3_TIME_LOW:
+            r->t_low = w & 0xFFFu;
+            t = r->t_base + ((int64_t)r->t_high << 12) + r->t_low;
+            break;
+        case EVT3_TIME_HIGH: {
+            uint32_t th = w & 0xFFFu;
+            if (r->have_t_high && th < r->t_high) /* the 24-bit time wrapped (16.7 s) */
+                r->t_base += (int64_t)1 << 24;
+            r->t_high = th;
+            r->have_t_high = 1;
+            t = r->t_base + ((int64_t)r->t_high << 12) + r->t_low;
+            break;
+        }
+        case EVT3_EXT_TRIGGER:
+            r->info.n_triggers++;
+            break;
+        default: /* CONTINUED_4, OTHERS, CONTINUED_12, undefined */
+            r->info.n_skipped++;
+            break;
+        }
+    }
+    r->y = y;
+    r->x_base = xb;
+    r->pol = pol;
+    r->start += 2 * i;
+    return n;
+}
+
+size_t ev_decode_dat(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
+    const uint8_t *p = r->data + r->start;
+    size_t recs = (r->end - r->start) / 8, room = cap - n, i = 0;
+    for (; i < recs && i < room; i++) {
+        uint32_t ts = ev_le32(p + 8 * i), d = ev_le32(p + 8 * i + 4);
+        if (ts < r->t_last && r->t_last - ts > 0x80000000u) /* 32-bit microseconds wrapped */
+            r->t_base += (int64_t)1 << 32;
+        r->t_last = ts;
+        put(&out[n++], r->t_base + ts, (uint16_t)(d & 0x3FFFu), (uint16_t)((d >> 14) & 0x3FFFu),
+            (uint8_t)((d >> 28) ? 1 : 0));
+    }
+    r->start += 8 * i;
+    return n;
+}
