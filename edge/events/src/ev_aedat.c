@@ -28,13 +28,8 @@ size_t ev_decode_aedat2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             r->info.n_triggers++;
             continue;
         }
-        ft_event *e = &out[n++];
+        ev_put(&out[n++], r->t_base + ts, 127u - ((a >> 1) & 0x7Fu), (a >> 8) & 0x7Fu, ~a & 1u);
         room--;
-        e->t = r->t_base + ts;
-        e->x = (uint16_t)(127u - ((a >> 1) & 0x7Fu));
-        e->y = (uint16_t)((a >> 8) & 0x7Fu);
-        e->p = (uint8_t)(~a & 1u);
-        e->pad[0] = e->pad[1] = e->pad[2] = 0;
     }
     r->start += 8 * i;
     return n;
@@ -124,12 +119,8 @@ size_t ev_drain_pending(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
         size_t take = r->pend_n - i < cap - n ? r->pend_n - i : cap - n;
         for (size_t k = 0; k < take; k++, i++) {
             const uint8_t *e = p + 16 * i;
-            ft_event *o = &out[n++];
-            o->t = (int64_t)ev_le64(e);
-            o->x = ev_le16(e + 8);
-            o->y = ev_le16(e + 10);
-            o->p = e[12] ? 1 : 0;
-            o->pad[0] = o->pad[1] = o->pad[2] = 0;
+            ev_put(&out[n++], (int64_t)ev_le64(e), ev_le16(e + 8), ev_le16(e + 10),
+                   e[12] ? 1u : 0u);
         }
     } else {
         int64_t hi = (int64_t)((uint64_t)(uint32_t)r->pend_overflow << 31);
@@ -137,12 +128,8 @@ size_t ev_drain_pending(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             uint32_t d = ev_le32(p + 8 * i), ts = ev_le32(p + 8 * i + 4);
             if (!(d & 1u)) /* invalidated event */
                 continue;
-            ft_event *o = &out[n++];
-            o->t = hi | (int64_t)(ts & 0x7FFFFFFFu);
-            o->x = (uint16_t)(d >> 17);
-            o->y = (uint16_t)((d >> 2) & 0x7FFFu);
-            o->p = (uint8_t)((d >> 1) & 1u);
-            o->pad[0] = o->pad[1] = o->pad[2] = 0;
+            ev_put(&out[n++], hi | (int64_t)(ts & 0x7FFFFFFFu), d >> 17, (d >> 2) & 0x7FFFu,
+                   (d >> 1) & 1u);
         }
     }
     r->pend_i = i;

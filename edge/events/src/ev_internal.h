@@ -17,6 +17,8 @@ struct ft_ev_reader {
     int fd;
     const uint8_t *data; /* == buf for files, the caller's bytes for memory */
     uint8_t *buf;
+    void *map; /* a regular file mapped whole (then fd's data is read through it, no buf) */
+    size_t map_len;
     size_t buf_cap, start, end; /* unconsumed bytes are data[start..end) */
     uint64_t data_off;          /* file offset of data[0] */
     int eof;
@@ -60,6 +62,13 @@ static inline uint32_t ev_be32(const uint8_t *p) {
 }
 static inline uint64_t ev_le64(const uint8_t *p) {
     return (uint64_t)ev_le32(p) | ((uint64_t)ev_le32(p + 4) << 32);
+}
+
+/* Stores one event as two 64-bit words (t; x | y << 16 | p << 32, the pad bytes zero). */
+static inline void ev_put(ft_event *e, int64_t t, uint32_t x, uint32_t y, uint32_t p) {
+    uint64_t rest = (uint64_t)(x & 0xFFFFu) | ((uint64_t)(y & 0xFFFFu) << 16) | ((uint64_t)p << 32);
+    memcpy(&e->t, &t, 8);
+    memcpy(&e->x, &rest, 8);
 }
 
 /* Makes at least n unconsumed bytes available; 1 if so, 0 at the end of input (or on a read error,

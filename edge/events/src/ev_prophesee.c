@@ -17,13 +17,9 @@ size_t ev_decode_evt2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
         uint32_t w = ev_le32(p + 4 * i);
         uint32_t type = w >> 28;
         if (type <= EVT2_CD_ON) {
-            ft_event *e = &out[n++];
+            ev_put(&out[n++], t_hi | (int64_t)((w >> 22) & 0x3Fu), (w >> 11) & 0x7FFu, w & 0x7FFu,
+                   type);
             room--;
-            e->t = t_hi | (int64_t)((w >> 22) & 0x3Fu);
-            e->x = (uint16_t)((w >> 11) & 0x7FFu);
-            e->y = (uint16_t)(w & 0x7FFu);
-            e->p = (uint8_t)type;
-            e->pad[0] = e->pad[1] = e->pad[2] = 0;
         } else if (type == EVT2_TIME_HIGH) {
             uint32_t th = w & 0x0FFFFFFFu;
             if (r->have_t_high && th < r->t_high) /* the 34-bit time wrapped (~4.8 h) */
@@ -51,65 +47,53 @@ size_t ev_decode_evt2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
 #define EVT3_TIME_HIGH 0x8u
 #define EVT3_EXT_TRIGGER 0xAu
 
-static inline void put(ft_event *e, int64_t t, uint16_t x, uint16_t y, uint8_t p) {
-    e->t = t;
-    e->x = x;
-    e->y = y;
-    e->p = p;
-    e->pad[0] = e->pad[1] = e->pad[2] = 0;
-}
+/* Word types the fast path handles without a branch on the type: ADDR_Y, ADDR_X, TIME_LOW (most
+ * words of a stream); every other type takes the switch. */
+#define EVT3_SLOW_TYPES (~((1u << EVT3_ADDR_Y) | (1u << EVT3_ADDR_X) | (1u << EVT3_TIME_LOW)))
 
 size_t ev_decode_evt3(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
     const uint8_t *p = r->data + r->start;
     size_t words = (r->end - r->start) / 2, i = 0;
-    uint16_t y = r->y, xb = r->x_base;
+    uint32_t y = r->y, xb = r->x_base, tl = r->t_low;
     uint8_t pol = r->pol;
-    int64_t t = r->t_base + ((int64_t)r->t_high << 12) + r->t_low;
+    int64_t hi = r->t_base + ((int64_t)r->t_high << 12);
     /* stop with room for one more VECT_12 (12 events) */
     for (; i < words && n + 12 < cap; i++) {
-        uint16_t w = ev_le16(p + 2 * i);
-        switch (w >> 12) {
-        case EVT3_ADDR_Y:
-            y = w & 0x7FFu;
-            break;
-        case EVT3_ADDR_X:
-            put(&out[n++], t, w & 0x7FFu, y, (uint8_t)((w >> 11) & 1u));
-            break;
+        uint32_t w = ev_le16(p + 2 * i), type = w >> 12;
+        if (!((EVT3_SLOW_TYPES >> type) & 1u)) {
+            /* ADDR_Y / ADDR_X / TIME_LOW: select instead of branching (the order of these types
+             * is data-dependent, so a branch on it mispredicts); the event slot is written every
+             * time and kept only for ADDR_X. */
+            uint32_t v = w & 0x7FFu;
+            y = type == EVT3_ADDR_Y ? v : y;
+            tl = type == EVT3_TIME_LOW ? (w & 0xFFFu) : tl;
+            ev_put(&out[n], hi + tl, v, y, (w >> 11) & 1u);
+            n += type == EVT3_ADDR_X;
+            continue;
+        }
+        switch (type) {
         case EVT3_VECT_BASE_X:
             xb = w & 0x7FFu;
             pol = (uint8_t)((w >> 11) & 1u);
             break;
-        case EVT3_VECT_12: {
-            uint32_t m = w & 0xFFFu;
-            while (m) {
-                int b = __builtin_ctz(m);
-                put(&out[n++], t, (uint16_t)(xb + b), y, pol);
-                m &= m - 1;
-            }
-            xb = (uint16_t)(xb + 12);
-            break;
-        }
+        case EVT3_VECT_12:
         case EVT3_VECT_8: {
-            uint32_t m = w & 0xFFu;
+            uint32_t m = type == EVT3_VECT_12 ? (w & 0xFFFu) : (w & 0xFFu);
             while (m) {
                 int b = __builtin_ctz(m);
-                put(&out[n++], t, (uint16_t)(xb + b), y, pol);
+                ev_put(&out[n++], hi + tl, xb + (uint32_t)b, y, pol);
                 m &= m - 1;
             }
-            xb = (uint16_t)(xb + 8);
+            xb = (xb + (type == EVT3_VECT_12 ? 12u : 8u)) & 0xFFFFu;
             break;
         }
-        case EVT3_TIME_LOW:
-            r->t_low = w & 0xFFFu;
-            t = r->t_base + ((int64_t)r->t_high << 12) + r->t_low;
-            break;
         case EVT3_TIME_HIGH: {
             uint32_t th = w & 0xFFFu;
             if (r->have_t_high && th < r->t_high) /* the 24-bit time wrapped (16.7 s) */
                 r->t_base += (int64_t)1 << 24;
             r->t_high = th;
             r->have_t_high = 1;
-            t = r->t_base + ((int64_t)r->t_high << 12) + r->t_low;
+            hi = r->t_base + ((int64_t)th << 12);
             break;
         }
         case EVT3_EXT_TRIGGER:
@@ -120,9 +104,10 @@ size_t ev_decode_evt3(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             break;
         }
     }
-    r->y = y;
-    r->x_base = xb;
+    r->y = (uint16_t)y;
+    r->x_base = (uint16_t)xb;
     r->pol = pol;
+    r->t_low = tl;
     r->start += 2 * i;
     return n;
 }
@@ -135,8 +120,7 @@ size_t ev_decode_dat(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
         if (ts < r->t_last && r->t_last - ts > 0x80000000u) /* 32-bit microseconds wrapped */
             r->t_base += (int64_t)1 << 32;
         r->t_last = ts;
-        put(&out[n++], r->t_base + ts, (uint16_t)(d & 0x3FFFu), (uint16_t)((d >> 14) & 0x3FFFu),
-            (uint8_t)((d >> 28) ? 1 : 0));
+        ev_put(&out[n++], r->t_base + ts, d & 0x3FFFu, (d >> 14) & 0x3FFFu, (d >> 28) ? 1u : 0u);
     }
     r->start += 8 * i;
     return n;

@@ -6,6 +6,8 @@
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "ev_internal.h"
@@ -314,6 +316,21 @@ ft_ev_reader *ft_ev_open(const char *path, int format, char *err, size_t err_len
         free(r);
         return NULL;
     }
+    /* A regular file is mapped (no copy through read(); its pages are the page cache's, clean and
+     * reclaimable, so memory stays bounded); pipes and the like are read in chunks. */
+    struct stat st;
+    if (fstat(r->fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) {
+        void *map = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE, r->fd, 0);
+        if (map != MAP_FAILED) {
+            posix_madvise(map, (size_t)st.st_size, POSIX_MADV_SEQUENTIAL);
+            r->map = map;
+            r->map_len = (size_t)st.st_size;
+            r->data = map;
+            r->end = r->map_len;
+            r->eof = 1;
+            return finish_open(r, format, err, err_len);
+        }
+    }
     r->buf_cap = FT_EV_READ_CHUNK + 4096;
     r->buf = malloc(r->buf_cap);
     if (!r->buf) {
@@ -420,6 +437,8 @@ long long ft_ev_error_offset(const ft_ev_reader *r) {
 void ft_ev_close(ft_ev_reader *r) {
     if (!r)
         return;
+    if (r->map)
+        munmap(r->map, r->map_len);
     if (r->fd >= 0)
         close(r->fd);
     ev_aedat4_free(r);
