@@ -47,7 +47,7 @@ int ev_next_packet_aedat3(ft_ev_reader *r) {
         if (!ev_need(r, A3_HEADER)) {
             if (r->end > r->start)
                 ev_fail(r, at,
-                        "AEDAT 3.1 packet header cut short (%zu of 28 bytes): truncated file",
+                        "truncated file: AEDAT 3.1 packet header cut short (%zu of 28 bytes)",
                         r->end - r->start);
             return r->failed ? -1 : 0;
         }
@@ -66,7 +66,7 @@ int ev_next_packet_aedat3(ft_ev_reader *r) {
         size_t bytes = (size_t)size * (size_t)capacity;
         if (!ev_need(r, A3_HEADER + bytes)) {
             ev_fail(r, at,
-                    "AEDAT 3.1 packet of %zu bytes cut short (%zu bytes left): truncated file",
+                    "truncated file: AEDAT 3.1 packet of %zu bytes cut short (%zu bytes left)",
                     A3_HEADER + bytes, r->end - r->start);
             return -1;
         }
@@ -207,7 +207,7 @@ int ev_aedat4_header(ft_ev_reader *r) {
         return -1;
     }
     if (!ev_need(r, 4 + (size_t)hsize)) {
-        ev_fail(r, at, "AEDAT 4.0 header of %u bytes cut short: truncated file", hsize);
+        ev_fail(r, at, "truncated file: AEDAT 4.0 header of %u bytes cut short", hsize);
         return -1;
     }
     const uint8_t *b = r->data + r->start + 4;
@@ -337,8 +337,8 @@ int ev_next_packet_aedat4(ft_ev_reader *r) {
         if (!ev_need(r, 8)) {
             if (r->end > r->start || r->table_pos >= 0)
                 ev_fail(r, at,
-                        "AEDAT 4.0 packet header cut short (%zu of 8 bytes, data table "
-                        "expected at %lld): truncated file",
+                        "truncated file: AEDAT 4.0 packet header cut short (%zu of 8 "
+                        "bytes, data table expected at %lld)",
                         r->end - r->start, (long long)r->table_pos);
             return r->failed ? -1 : 0;
         }
@@ -350,7 +350,7 @@ int ev_next_packet_aedat4(ft_ev_reader *r) {
         }
         if (!ev_need(r, 8 + (size_t)size)) {
             ev_fail(r, at,
-                    "AEDAT 4.0 packet of %d bytes cut short (%zu bytes left): truncated file", size,
+                    "truncated file: AEDAT 4.0 packet of %d bytes cut short (%zu bytes left)", size,
                     r->end - r->start - 8);
             return -1;
         }

@@ -74,7 +74,7 @@ static inline void ev_put(ft_event *e, int64_t t, uint32_t x, uint32_t y, uint32
 /* Makes at least n unconsumed bytes available; 1 if so, 0 at the end of input (or on a read error,
  * which also marks the reader failed). May move data. */
 int ev_need(ft_ev_reader *r, size_t n);
-/* Marks the reader failed at the given file offset; the message gets " at byte N" appended. */
+/* Marks the reader failed at the given file offset: "<name>: at byte N: <message>". */
 void ev_fail(ft_ev_reader *r, uint64_t off, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 static inline uint64_t ev_pos(const ft_ev_reader *r) {

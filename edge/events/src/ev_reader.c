@@ -36,7 +36,7 @@ void ev_fail(ft_ev_reader *r, uint64_t off, const char *fmt, ...) {
     va_start(ap, fmt);
     vsnprintf(msg, sizeof msg, fmt, ap);
     va_end(ap);
-    snprintf(r->err, sizeof r->err, "%s: %s at byte %llu", r->name, msg, (unsigned long long)off);
+    snprintf(r->err, sizeof r->err, "%s: at byte %llu: %s", r->name, (unsigned long long)off, msg);
     r->err_off = (long long)off;
     r->failed = 1;
 }
@@ -409,7 +409,7 @@ long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap) {
         size_t ws = word_size(fmt);
         if (r->end - r->start < ws && !ev_need(r, ws)) {
             if (r->end > r->start && !r->failed)
-                ev_fail(r, ev_pos(r), "%s word cut short (%zu of %zu bytes): truncated file",
+                ev_fail(r, ev_pos(r), "truncated file: %s word cut short (%zu of %zu bytes)",
                         ft_ev_format_name(fmt), r->end - r->start, ws);
             break;
         }
