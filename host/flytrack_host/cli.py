@@ -32,6 +32,7 @@ _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.tracking.bench", "app", "bench", "Benchmarks that print measured figures."),
     ("flytrack_host.trigger.cli", "app", "trigger", "Trigger box: info, start, stop, watch, pulse, flash."),
     ("flytrack_host.calibration.cli", "app", "calibrate", "Calibration: selfcal, dlt, align, report, convert."),
+    ("flytrack_host.events.cli", "app", "events", "Event-camera files: info, convert (AEDAT 2/3/4, EVT 2/3, DAT)."),
 ]
 # (module, function, command name): top-level commands that live in their components.
 _COMMANDS: list[tuple[str, str, str]] = [
