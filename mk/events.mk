@@ -5,7 +5,7 @@
 # against dv-processing, aedat and expelliarmus (pinned in host/requirements.txt, installed by
 # setup), and flytrack-edge with event sources.
 test-events: cbuild
-	@cd $(BUILD) && ctest --output-on-failure -R '^(events_|edge_dvs_source)'
+	@cd $(BUILD) && ctest --output-on-failure -R '^(events_|edge_dvs_)'
 	@$(PYTEST) -q host/tests/events tests/edge/test_edge_events.py
 
 # Decode speed per format, side by side with expelliarmus (EVT 2/3, DAT) and dv-processing (AEDAT 4)

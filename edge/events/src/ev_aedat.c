@@ -19,18 +19,22 @@
 size_t ev_decode_aedat2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
     const uint8_t *p = r->data + r->start;
     size_t recs = (r->end - r->start) / 8, room = cap - n, i = 0;
+    int64_t base = r->t_base; /* locals: stores to out could alias *r */
+    uint32_t last = r->t_last;
     for (; i < recs && room > 0; i++) {
         uint32_t a = ev_be32(p + 8 * i), ts = ev_be32(p + 8 * i + 4);
-        if (ts < r->t_last && r->t_last - ts > 0x80000000u) /* 32-bit microseconds wrapped */
-            r->t_base += (int64_t)1 << 32;
-        r->t_last = ts;
+        if (__builtin_expect(ts < last && last - ts > 0x80000000u, 0)) /* 32-bit us wrapped */
+            base += (int64_t)1 << 32;
+        last = ts;
         if (a & 0x80008000u) { /* external sync (bit 15) or special event (bit 31) */
             r->info.n_triggers++;
             continue;
         }
-        ev_put(&out[n++], r->t_base + ts, 127u - ((a >> 1) & 0x7Fu), (a >> 8) & 0x7Fu, ~a & 1u);
+        ev_put(&out[n++], base + ts, 127u - ((a >> 1) & 0x7Fu), (a >> 8) & 0x7Fu, ~a & 1u);
         room--;
     }
+    r->t_base = base;
+    r->t_last = last;
     r->start += 8 * i;
     return n;
 }

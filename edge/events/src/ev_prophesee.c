@@ -115,13 +115,18 @@ size_t ev_decode_evt3(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
 size_t ev_decode_dat(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
     const uint8_t *p = r->data + r->start;
     size_t recs = (r->end - r->start) / 8, room = cap - n, i = 0;
+    /* the time state in locals: stores to out could alias *r, which would reload it per event */
+    int64_t base = r->t_base;
+    uint32_t last = r->t_last;
     for (; i < recs && i < room; i++) {
         uint32_t ts = ev_le32(p + 8 * i), d = ev_le32(p + 8 * i + 4);
-        if (ts < r->t_last && r->t_last - ts > 0x80000000u) /* 32-bit microseconds wrapped */
-            r->t_base += (int64_t)1 << 32;
-        r->t_last = ts;
-        ev_put(&out[n++], r->t_base + ts, d & 0x3FFFu, (d >> 14) & 0x3FFFu, (d >> 28) ? 1u : 0u);
+        if (__builtin_expect(ts < last && last - ts > 0x80000000u, 0)) /* 32-bit us wrapped */
+            base += (int64_t)1 << 32;
+        last = ts;
+        ev_put(&out[n++], base + ts, d & 0x3FFFu, (d >> 14) & 0x3FFFu, (d >> 28) ? 1u : 0u);
     }
+    r->t_base = base;
+    r->t_last = last;
     r->start += 8 * i;
     return n;
 }

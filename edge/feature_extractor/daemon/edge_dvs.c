@@ -259,9 +259,15 @@ int edge_is_event_source(const char *source) {
     return !strcmp(source, "dvs128") || !strcmp(source, "events");
 }
 
-int edge_dvs_run(edge_config *cfg) {
+void edge_dvs_stop(void) {
+    g_stop = 1;
+}
+
+int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     static dvs_edge e;
     static ft_event in[8192];
+    memset(&e, 0, sizeof e);
+    g_stop = 0;
     e.cfg = cfg;
     e.slice_us = cfg->slice_us;
     struct sigaction sa;
@@ -281,9 +287,8 @@ int edge_dvs_run(edge_config *cfg) {
     if (!strcmp(cfg->source, "events"))
         rc = ft_ev_source_open_file(&e.src, cfg->input, cfg->event_format, cfg->realtime);
     else
-        rc =
-            ft_ev_source_open_dvs128(&e.src, &ft_usb_libusb_ops,
-                                     cfg->have_dvs_biases ? cfg->dvs_biases : NULL, cfg->reopen_ms);
+        rc = ft_ev_source_open_dvs128(&e.src, usb, cfg->have_dvs_biases ? cfg->dvs_biases : NULL,
+                                      cfg->reopen_ms);
     if (rc) {
         logmsg("source %s %s: %s", cfg->source, cfg->input, e.src.error);
         close(e.sock);

@@ -488,7 +488,7 @@ int main(int argc, char **argv) {
     if (rc)
         return rc > 0 ? 0 : 2;
     if (edge_is_event_source(e.cfg.source)) /* events, not frames: edge_dvs.c */
-        return edge_dvs_run(&e.cfg);
+        return edge_dvs_run(&e.cfg, &ft_usb_libusb_ops);
     signal(SIGPIPE, SIG_IGN);
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
