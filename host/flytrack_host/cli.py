@@ -34,6 +34,7 @@ _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.calibration.cli", "app", "calibrate", "Calibration: selfcal, dlt, align, report, convert."),
     ("flytrack_host.actuation.cli", "app", "rules", "Closed-loop rules: check, replay on a recording."),
     ("flytrack_host.batch.cli", "app", "batch", "Batches on Dask: re-track many recordings, sweep parameters, export."),
+    ("flytrack_host.events.cli", "app", "events", "Event-camera files: info, convert (AEDAT 2/3/4, EVT 2/3, DAT)."),
 ]
 # (module, function, command name): top-level commands that live in their components.
 _COMMANDS: list[tuple[str, str, str]] = [
