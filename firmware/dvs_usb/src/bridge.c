@@ -1,0 +1,578 @@
+/* DVS USB bridge firmware (ATmega32U4, 16 MHz): AER capture -> DVS128 words -> bulk-IN 0x86.
+ *
+ * One polling loop, no interrupt in the event path (the sync input's tiny INT6 handler only stamps
+ * the pulse). Per event: Timer3's input capture has stamped /REQ's falling edge (exact), the loop
+ * reads the two address bytes and ICR3, does the four-phase handshake (/ACK low, wait /REQ high,
+ * /ACK high) and stores the 4-byte word, preferably straight into the USB endpoint bank (2 cycles
+ * a byte); when no bank is free the words go to a 1 KiB SRAM FIFO that is copied into banks as they
+ * free up. A full FIFO drops whole events (counted, status request); WRAP, RESET and SYNC words
+ * have a reserve and are never dropped silently.
+ *
+ * Words (protocol/SPEC.md section 2): byte 0 = x << 1 | polarity, byte 1 = y | SYNC << 7,
+ * u16 LE = 14-bit us timestamp | RESET << 14 | WRAP << 15. ts = Timer3 ticks >> 1.
+ * Wraps: an event whose ts is below the last one's follows a counter wrap, so a WRAP word goes
+ * first. With no events the loop reads TCNT3 itself often enough to never miss one.
+ */
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "board.h"
+#include "dvs_bridge.h"
+#include "usb_seam.h"
+
+#define FIFO_BYTES 1024u
+#define FIFO_RESERVE 8u    /* words kept free for WRAP / RESET / SYNC words */
+#define WORDS_PER_BANK 16u /* 64-byte bulk packets */
+#define IDLE_FLUSH 400u    /* idle loop passes before a partly filled bank goes out (~0.3 ms) */
+/* INT6 entry to its TCNT3 read: 4 (response) + 3 (jmp) + 2 (push) + 2 (lds), rounded to ticks */
+#define SYNC_LATENCY_TICKS 1u
+
+static uint8_t fifo[FIFO_BYTES] __attribute__((aligned(1024)));
+
+/* Loop state, kept in registers by the hot loop and stored here around the slow path. */
+static struct {
+    uint8_t *head, *tail, *stop; /* FIFO write / read pointers; events stop at `stop` */
+    uint16_t last;               /* ts (us) of the last word or idle reading */
+    uint8_t left;                /* words still free in the bank being filled (0: none) */
+    uint8_t pend_wraps, pend_reset;
+    uint16_t idle;
+    uint8_t step; /* slow_step's next task */
+} C;
+
+static struct {
+    uint32_t overflow, sync_events, sync_missed, clamped;
+    uint16_t fifo_max;
+    uint8_t running, master, slave_armed;
+    uint8_t sync_seen;
+} S;
+
+/* written by the INT6 handler */
+volatile uint8_t sync_seq;
+volatile uint8_t sync_lo, sync_hi;
+
+static uint8_t bias[DVS_BIAS_BYTES];
+
+static inline uint8_t *fifo_next(uint8_t *p) {
+    return (uint8_t *)(((uint16_t)(p + 4) & (FIFO_BYTES - 1)) | (uint16_t)fifo);
+}
+static inline uint16_t fifo_words(void) {
+    return (uint16_t)((uint16_t)(C.head - C.tail) & (FIFO_BYTES - 1)) >> 2;
+}
+
+/* Events may fill the FIFO up to FIFO_RESERVE free words, and not at all while special words wait.
+ */
+static void fifo_limits(void) {
+    uint16_t used = fifo_words();
+    if (used > S.fifo_max)
+        S.fifo_max = used;
+    if (C.pend_wraps || C.pend_reset || used >= FIFO_BYTES / 4 - 1 - FIFO_RESERVE)
+        C.stop = C.head;
+    else
+        C.stop = (uint8_t *)(((uint16_t)(C.tail - 4 * (FIFO_RESERVE + 1)) & (FIFO_BYTES - 1)) |
+                             (uint16_t)fifo);
+}
+
+/* A word in stream order: into the open bank, else the FIFO. 0 if the FIFO has no room at all. */
+static uint8_t put_word(uint8_t b0, uint8_t b1, uint16_t t) {
+    if (C.left) {
+        usb_bulk_in_put(b0);
+        usb_bulk_in_put(b1);
+        usb_bulk_in_put((uint8_t)t);
+        usb_bulk_in_put((uint8_t)(t >> 8));
+        if (--C.left == 0) {
+            usb_bulk_in_send();
+            C.left = usb_bulk_in_ready() ? WORDS_PER_BANK : 0;
+        }
+        return 1;
+    }
+    uint8_t *n = fifo_next(C.head);
+    if (n == C.tail)
+        return 0;
+    C.head[0] = b0;
+    C.head[1] = b1;
+    C.head[2] = (uint8_t)t;
+    C.head[3] = (uint8_t)(t >> 8);
+    C.head = n;
+    fifo_limits();
+    return 1;
+}
+
+static void put_wrap(void) {
+    if (C.pend_wraps || C.pend_reset || !put_word(0, 0, 0x8000u))
+        C.pend_wraps++;
+    fifo_limits();
+}
+
+static void put_reset(void) {
+    C.pend_wraps = 0; /* a reset makes the wraps before it meaningless */
+    if (C.pend_reset || !put_word(0, 0, 0x4000u))
+        C.pend_reset = 1;
+    fifo_limits();
+}
+
+/* Pending special words go out once there is room, after what the FIFO holds. */
+static void flush_pending(void) {
+    if (C.pend_reset && put_word(0, 0, 0x4000u))
+        C.pend_reset = 0;
+    while (!C.pend_reset && C.pend_wraps && put_word(0, 0, 0x8000u))
+        C.pend_wraps--;
+    fifo_limits();
+}
+
+/* Copies FIFO words into a free bank; with the FIFO empty, the next bank is filled directly. */
+static void __attribute__((noinline)) drain(void) {
+    if (C.left)
+        return;
+    if (!usb_bulk_in_ready())
+        return;
+    /* up to a bank's worth, in at most two runs that do not cross the FIFO's end */
+    uint8_t *p = C.tail;
+    uint16_t used = fifo_words();
+    uint8_t n = used < WORDS_PER_BANK ? (uint8_t)used : WORDS_PER_BANK;
+    uint8_t run = (uint8_t)((uint16_t)(fifo + FIFO_BYTES - p) >> 2);
+    uint8_t left = (uint8_t)(WORDS_PER_BANK - n);
+    if (run > n)
+        run = n;
+    n -= run;
+    while (run--) {
+        usb_bulk_in_put(*p++);
+        usb_bulk_in_put(*p++);
+        usb_bulk_in_put(*p++);
+        usb_bulk_in_put(*p++);
+    }
+    if (p == fifo + FIFO_BYTES)
+        p = fifo;
+    while (n--) {
+        usb_bulk_in_put(*p++);
+        usb_bulk_in_put(*p++);
+        usb_bulk_in_put(*p++);
+        usb_bulk_in_put(*p++);
+    }
+    C.tail = p;
+    C.left = left; /* the rest of this bank is filled directly (the FIFO is empty then) */
+    if (!left)
+        usb_bulk_in_send();
+    flush_pending();
+}
+
+/* An event with no bank open. With the FIFO empty, wait a little for the host to free a bank (the
+ * sensor waits on its handshake meanwhile: AER backpressure) rather than store the word and copy it
+ * later, which costs a third more cycles an event; only a host that stays away longer (~90 us)
+ * makes the FIFO fill. A full FIFO drops the event whole and counts it. */
+static void sync_word(uint8_t pre_wrap);
+
+static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t t) {
+    uint8_t k = 255;
+    for (;;) {
+        if (C.left) { /* a bank is open (a slow-path task may have opened one) */
+            put_word(a0, a1, t);
+            return;
+        }
+        if (C.tail != C.head || C.pend_wraps || C.pend_reset)
+            break; /* the FIFO is in use: the event goes behind what it holds */
+        if (usb_bulk_in_ready()) {
+            C.left = WORDS_PER_BANK;
+            if (sync_seq != S.sync_seen)
+                sync_word(0); /* a pulse that came while we waited */
+            put_word(a0, a1, t);
+            return;
+        }
+        if (!--k)
+            break;
+        /* Nothing else is done while the event is held here: a timestamp reset, a WRAP or SYNC
+         * word now would have to go out before an event stamped earlier. */
+    }
+    if (C.head == C.stop) {
+        S.overflow++;
+        return;
+    }
+    put_word(a0, a1, t);
+    if (usb_bulk_in_ready())
+        drain();
+}
+
+/* The event whose edge Timer3 has captured, served here in the slow path (before a timestamp reset,
+ * so that it keeps the epoch it was stamped in). */
+static void serve_one(void) {
+    uint8_t a0 = ADDR0_PIN, a1 = ADDR1_PIN & 0x7F;
+    uint16_t t = ICR3 >> 1;
+    TIFR3 = _BV(ICF3);
+    ACK_PORT &= (uint8_t)~_BV(ACK_BIT);
+    while (!(REQ_PIN & _BV(REQ_BIT)))
+        ;
+    ACK_PORT |= _BV(ACK_BIT);
+    if (t < C.last)
+        put_wrap();
+    C.last = t;
+    if (C.left)
+        put_word(a0, a1, t);
+    else
+        slow_put(a0, a1, t);
+}
+
+/* Timer3 restarted from start_ticks (now), and a RESET word. Events keep the epoch they were
+ * stamped in: one waiting is served first; one whose edge came during the restart itself (its ICR3
+ * holds an old-epoch value above the new count) is served before the RESET word too. */
+static void timer_zero(uint16_t start_ticks) {
+    if (TIFR3 & _BV(ICF3))
+        serve_one();
+    /* The counter keeps running: the prescaler restarts (PSRSYNC) and the count is written, so the
+     * next tick is a whole tick after this write. */
+    GTCCR = _BV(PSRSYNC);
+    TCNT3 = start_ticks;
+    if ((TIFR3 & _BV(ICF3)) && ICR3 > TCNT3)
+        serve_one();
+    put_reset();
+    C.last = start_ticks >> 1;
+}
+
+/* The waiting sync pulse as a SYNC word (only the latest pulse is kept; one the loop missed is
+ * counted). It waits if an event stamped before it is not yet read. pre_wrap (the event path has
+ * just seen a counter wrap): only a pulse from before that wrap, which must precede the WRAP word.
+ */
+static void sync_word(uint8_t pre_wrap) {
+    uint8_t seq, lo, hi;
+    if (!S.running || S.sync_seen == sync_seq)
+        return;
+    uint8_t pending = (TIFR3 & _BV(ICF3)) != 0;
+    uint16_t icr = ICR3;
+    cli();
+    seq = sync_seq;
+    lo = sync_lo;
+    hi = sync_hi;
+    sei();
+    uint16_t ticks = (uint16_t)(((uint16_t)(lo | hi << 8) - SYNC_LATENCY_TICKS) & TS_TOP);
+    if (pending && (uint16_t)((ticks - icr) & TS_TOP) < 0x4000u)
+        return; /* the pulse came after the waiting event's edge */
+    uint16_t ts = ticks >> 1;
+    uint16_t d = (uint16_t)((ts - C.last) & 0x3FFFu);
+    uint8_t after_wrap = d < 0x2000u && ts < C.last;
+    if (pre_wrap && (S.slave_armed || after_wrap))
+        return; /* it goes out after the WRAP word, from the slow path */
+    uint8_t n = (uint8_t)(seq - S.sync_seen);
+    S.sync_seen = seq;
+    if (n > 1)
+        S.sync_missed += n - 1u;
+    if (S.slave_armed) {
+        /* slave: this pulse is time zero. TCNT3 = ticks elapsed since it, kept running */
+        uint16_t el = (uint16_t)((TCNT3 - ticks) & TS_TOP);
+        timer_zero((uint16_t)(el + 3u)); /* the few cycles between the read and the write */
+        S.slave_armed = 0;
+        ts = 0;
+    } else if (d < 0x2000u) { /* at or after the last word's time */
+        if (after_wrap)
+            put_wrap();
+        C.last = ts;
+    } else if (ts > C.last) { /* before a WRAP already sent: the nearest time it can carry */
+        ts = 0;
+        S.clamped++;
+    }
+    if (put_word(0, DVS_WORD_SYNC, ts))
+        S.sync_events++;
+    else
+        S.sync_missed++;
+}
+
+/* The counter may wrap with no event to show it: read it (then check no edge came first). */
+static void idle_wrap(void) {
+    uint16_t now = TCNT3 >> 1;
+    if (TIFR3 & _BV(ICF3))
+        return;
+    if (now < C.last)
+        put_wrap();
+    C.last = now;
+}
+
+static void shift_biases(void) {
+    for (uint8_t i = 0; i < DVS_BIAS_BYTES; i++)
+        for (uint8_t m = 0x80; m; m >>= 1) {
+            if (bias[i] & m)
+                BIAS_PORT |= _BV(BIAS_BIT);
+            else
+                BIAS_PORT &= (uint8_t)~_BV(BIAS_BIT);
+            BIAS_PORT |= _BV(BIAS_CLK);
+            BIAS_PORT &= (uint8_t)~_BV(BIAS_CLK);
+        }
+    BIAS_PORT |= _BV(BIAS_LATCH);
+    BIAS_PORT &= (uint8_t)~_BV(BIAS_LATCH);
+}
+
+static void put_u32(uint8_t *p, uint32_t v) {
+    for (uint8_t i = 0; i < 4; i++, v >>= 8)
+        p[i] = (uint8_t)v;
+}
+
+/* One vendor request. Returns 1 if streaming was started or stopped. */
+static uint8_t control(void) {
+    usb_setup_t s;
+    uint8_t data[DVS_BIAS_BYTES];
+    if (!usb_control_poll(&s, data, sizeof data))
+        return 0;
+    if ((s.bmRequestType & 0x60) != 0x40) { /* vendor requests only */
+        usb_control_stall();
+        return 0;
+    }
+    switch (s.bRequest) {
+    case DVS_VR_START:
+        usb_control_reply(0, 0);
+        if (S.running)
+            return 0;
+        S.running = 1;
+        S.slave_armed = !S.master;
+        C.idle = 0;
+        fifo_limits();
+        if (S.master)
+            timer_zero(0);
+        return 1;
+    case DVS_VR_STOP:
+        usb_control_reply(0, 0);
+        if (!S.running)
+            return 0;
+        S.running = 0;
+        return 1;
+    case DVS_VR_BIASES:
+        if (s.wLength != DVS_BIAS_BYTES || (s.bmRequestType & 0x80)) {
+            usb_control_stall();
+            return 0;
+        }
+        memcpy(bias, data, sizeof bias);
+        usb_control_reply(0, 0);
+        shift_biases();
+        return 0;
+    case DVS_VR_RESET_TS:
+        usb_control_reply(0, 0);
+        if (S.running)
+            timer_zero(0);
+        return 0;
+    case DVS_VR_RESET_ARRAY:
+        usb_control_reply(0, 0);
+        BIAS_PORT |= _BV(ARRAY_RESET);
+        for (volatile uint8_t i = 0; i < 20; i++)
+            ;
+        BIAS_PORT &= (uint8_t)~_BV(ARRAY_RESET);
+        return 0;
+    case DVS_VR_TS_MASTER:
+        S.master = s.wValue & 1u;
+        S.slave_armed = S.running && !S.master;
+        usb_control_reply(0, 0);
+        return 0;
+    case DVS_VR_FT_STATUS: {
+        uint8_t r[DVS_STATUS_SIZE];
+        put_u32(r, S.overflow);
+        put_u32(r + 4, S.sync_events);
+        put_u32(r + 8, S.sync_missed);
+        put_u32(r + 12, S.clamped);
+        r[16] = (uint8_t)S.fifo_max;
+        r[17] = (uint8_t)(S.fifo_max >> 8);
+        r[18] = S.running;
+        r[19] = S.master;
+        usb_control_reply(r, (uint8_t)(s.wLength < sizeof r ? s.wLength : sizeof r));
+        return 0;
+    }
+    default:
+        usb_control_stall();
+        return 0;
+    }
+}
+
+/* Everything but the event path. Returns 1 when streaming stops. */
+static uint8_t slow_tasks(void) {
+    uint8_t *h0 = C.head;
+    uint8_t l0 = C.left;
+    drain();
+    if (sync_seq != S.sync_seen)
+        sync_word(0);
+    idle_wrap();
+    if (control())
+        return 1;
+    /* a partly filled bank goes out after a quiet spell, so that few events are not held back */
+    if (C.head == h0 && C.left == l0 && !(TIFR3 & _BV(ICF3))) {
+        if (++C.idle >= IDLE_FLUSH) {
+            C.idle = 0;
+            if (C.left && C.left < WORDS_PER_BANK) {
+                usb_bulk_in_send();
+                C.left = 0;
+                drain();
+            }
+        }
+    } else {
+        C.idle = 0;
+    }
+    return 0;
+}
+
+/* The slow path's tasks one at a time (each well under 100 cycles, bar a request's own work), while
+ * events stream and a bank is open. Returns 1 when streaming stops or restarts. */
+static uint8_t __attribute__((noinline)) slow_step(void) {
+    uint8_t r = 0;
+    switch (++C.step & 3) {
+    case 0:
+        if (sync_seq != S.sync_seen)
+            sync_word(0);
+        break;
+    case 1:
+        idle_wrap();
+        break;
+    case 2:
+        r = control();
+        break;
+    default:
+        drain();
+        break;
+    }
+    return r;
+}
+
+static uint8_t __attribute__((noinline)) slow(void) {
+    return slow_tasks();
+}
+
+/* The event loop: hot path inline, locals in registers. */
+static void capture(void) {
+    uint16_t last = C.last;
+    uint8_t left = C.left;
+    uint8_t banks = 0;
+    for (;;) {
+        if (TIFR3 & _BV(ICF3)) {
+            uint8_t a0 = ADDR0_PIN;
+            uint8_t a1 = ADDR1_PIN;
+            uint16_t t = ICR3;
+            TIFR3 = _BV(ICF3);
+            ACK_PORT &= (uint8_t)~_BV(ACK_BIT);
+            a1 &= 0x7F; /* /REQ (PD7) is low here; bit 7 is the SYNC flag */
+            t >>= 1;
+            while (!(REQ_PIN & _BV(REQ_BIT)))
+                ;
+            ACK_PORT |= _BV(ACK_BIT);
+            if (t < last) {
+                C.left = left;
+                C.last = last;
+                if (sync_seq != S.sync_seen)
+                    sync_word(1); /* a pulse from before the wrap goes first */
+                put_wrap();
+                left = C.left;
+            }
+            last = t;
+            if (left) {
+                usb_bulk_in_put(a0);
+                usb_bulk_in_put(a1);
+                usb_bulk_in_put((uint8_t)t);
+                usb_bulk_in_put((uint8_t)(t >> 8));
+                if (--left)
+                    continue;
+                usb_bulk_in_send();
+                left = usb_bulk_in_ready() ? WORDS_PER_BANK : 0;
+                /* while events stream, a waiting sync pulse goes out at each bank and the slow
+                 * path's other tasks run one at a time, one every 8th bank */
+                if (left) {
+                    if (sync_seq != S.sync_seen) {
+                        C.left = left;
+                        C.last = last;
+                        sync_word(0);
+                        left = C.left;
+                        last = C.last;
+                    }
+                    if (!(++banks & 7)) {
+                        C.left = left;
+                        C.last = last;
+                        uint8_t r = slow_step();
+                        left = C.left;
+                        last = C.last;
+                        if (r)
+                            return;
+                    }
+                }
+                continue; /* no bank free: the next event waits for one in slow_put */
+            } else {
+                C.left = left;
+                C.last = last;
+                slow_put(a0, a1, t);
+                left = C.left;
+                last = C.last;
+                continue;
+            }
+        }
+        C.last = last;
+        C.left = left;
+        if (slow())
+            return;
+        last = C.last;
+        left = C.left;
+    }
+}
+
+/* Stopped: events are acknowledged and discarded (the sensor never hangs on its bus), what is
+ * buffered still goes out, requests are served. */
+static void stopped(void) {
+    for (;;) {
+        if (TIFR3 & _BV(ICF3)) {
+            TIFR3 = _BV(ICF3);
+            ACK_PORT &= (uint8_t)~_BV(ACK_BIT);
+            while (!(REQ_PIN & _BV(REQ_BIT)))
+                ;
+            ACK_PORT |= _BV(ACK_BIT);
+        }
+        if (C.left && C.left < WORDS_PER_BANK) {
+            usb_bulk_in_send();
+            C.left = 0;
+        }
+        drain();
+        if (C.left == WORDS_PER_BANK)
+            C.left = 0; /* nothing to send: no bank is held open while stopped */
+        S.sync_seen = sync_seq;
+        if (control())
+            return;
+    }
+}
+
+int main(void) {
+    DDRB = 0;
+    PORTB = 0;
+    DDRD = 0;
+    PORTD = _BV(REQ_BIT); /* pull-up: an unplugged sensor reads as idle */
+    ACK_DDR |= _BV(ACK_BIT);
+    ACK_PORT |= _BV(ACK_BIT) | _BV(ICP_BIT);
+    BIAS_DDR |= _BV(BIAS_CLK) | _BV(BIAS_BIT) | _BV(BIAS_LATCH) | _BV(ARRAY_RESET);
+    SYNC_PORT &= (uint8_t)~_BV(SYNC_BIT);
+    /* Timer3: CTC (TOP = OCR3A), capture on /REQ's falling edge, f_cpu / 8 */
+    TCCR3A = 0;
+    OCR3A = TS_TOP;
+    TCCR3B = _BV(WGM32) | _BV(CS31);
+    EICRB = _BV(ISC61) | _BV(ISC60); /* INT6 rising edge */
+    EIFR = _BV(INTF6);
+    EIMSK = _BV(INT6);
+    C.head = C.tail = fifo;
+    S.master = 1;
+    fifo_limits();
+    usb_seam_init();
+    sei();
+    for (;;) {
+        if (S.running)
+            capture();
+        else
+            stopped();
+    }
+}
+
+/* Sync pulse: TCNT3 read in the handler's first instructions (fixed latency, SYNC_LATENCY_TICKS).
+ * Only the latest pulse is kept; the main loop turns it into a SYNC word and counts any it missed.
+ */
+ISR(INT6_vect, ISR_NAKED) {
+    __asm__ volatile("push r24\n\t"
+                     "lds r24, %[tl]\n\t"
+                     "sts sync_lo, r24\n\t"
+                     "lds r24, %[th]\n\t"
+                     "sts sync_hi, r24\n\t"
+                     "in r24, __SREG__\n\t"
+                     "push r24\n\t"
+                     "lds r24, sync_seq\n\t"
+                     "subi r24, 0xFF\n\t"
+                     "sts sync_seq, r24\n\t"
+                     "pop r24\n\t"
+                     "out __SREG__, r24\n\t"
+                     "pop r24\n\t"
+                     "reti\n\t" ::[tl] "i"(_SFR_MEM_ADDR(TCNT3L)),
+                     [th] "i"(_SFR_MEM_ADDR(TCNT3H)));
+}
