@@ -8,6 +8,10 @@ wraps, resets and sync words included. Figures are printed (run with -s) and lis
 
 from __future__ import annotations
 
+import re
+import subprocess
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -231,3 +235,31 @@ def test_slave_mode_zeroes_time_at_the_next_sync_pulse(bridge) -> None:
     s_rel = (run.sync_cycles - pulse0) / F * 1e6
     assert np.max(np.abs(sync_t.astype(np.float64) - s_rel)) <= 1.5
     assert not sim.BridgeStatus.parse(run.replies[-1].data).master
+
+
+def test_harness_cli_and_bad_input(bridge, tmp_path) -> None:
+    """Every option in the usage text; bad inputs give one clear line and exit 2, no traceback."""
+    harness, elf = bridge
+    src = (Path(__file__).resolve().parents[2] / "firmware/dvs_usb/harness/dvs_sim.c").read_text()
+    options = re.findall(r'\{"([a-z-]+)",', src.split("static const struct option opts[]", 1)[1].split("};", 1)[0])
+    r = subprocess.run([str(harness), "--help"], capture_output=True, text=True, timeout=10)
+    assert r.returncode == 0 and len(options) >= 15
+    assert not [o for o in options if f"--{o}" not in r.stderr]
+    out = tmp_path / "out.txt"
+    (tmp_path / "ev.bin").write_bytes(b"\x00" * 7)
+    (tmp_path / "ctl.txt").write_text("100 40b3zz\n")
+    (tmp_path / "short.txt").write_text("100 40b3\n")
+    cases = [
+        (["--events", str(tmp_path / "ev.bin")], "not a whole number of 6-byte records"),
+        (["--control", str(tmp_path / "ctl.txt")], "bad hex"),
+        (["--control", str(tmp_path / "short.txt")], "8 setup bytes"),
+        (["--sync-count", "3", "--sync-period", "100", "--sync-high", "100"], "--sync-high"),
+        (["--events", str(tmp_path / "missing.bin")], "cannot read"),
+    ]
+    for extra, msg in cases:
+        r = subprocess.run([str(harness), "--elf", str(elf), "--out", str(out), *extra], capture_output=True,
+                           text=True, timeout=10)  # fmt: skip
+        assert r.returncode == 2 and msg in r.stderr, (extra, r.stderr)
+    r = subprocess.run([str(harness), "--elf", str(tmp_path / "nope.elf"), "--out", str(out)], capture_output=True,
+                       text=True, timeout=10)  # fmt: skip
+    assert r.returncode == 2 and "cannot read firmware" in r.stderr
