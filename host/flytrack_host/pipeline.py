@@ -32,6 +32,7 @@ import typer
 from flytrack_host.camera import Camera
 from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
+from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.receiver import Receiver, StatusReport
 from flytrack_host.recording.schema import (
     ASSOCIATION,
@@ -189,6 +190,7 @@ class HostPipeline:
         self.callback_errors = 0
         self.sinks: list[ResultSink] = list(sinks or [])  # live outputs and actuation, fed per frame
         self.sink_errors = 0
+        self.last_synced: SyncedBundle | None = None  # the last bundle tracked (read by the live page)
         self.recording_error: str | None = None  # finalising the recording failed (raw files kept)
         self.loop_errors = 0  # exceptions caught per item in the tracking thread (it goes on)
         self.recorder: Recorder | None = None
@@ -253,6 +255,12 @@ class HostPipeline:
         self._stopped_at = time.time()
         self.log("pipeline stopped")
         self.log(self.latency.format(), "latency")
+        # Outputs first: what they still record (actuation firings) gets into the recording.
+        for sink in self.sinks:
+            try:
+                sink.close()
+            except Exception as exc:
+                self.log(f"closing output {type(sink).__name__} failed: {exc!r}")
         h5 = None
         if self.recorder is not None:
             try:
@@ -265,11 +273,6 @@ class HostPipeline:
             self.receiver.close()
         if self.live is not None:
             self.live.close()
-        for sink in self.sinks:
-            try:
-                sink.close()
-            except Exception as exc:
-                self.log(f"closing output {type(sink).__name__} failed: {exc!r}")
         self._summary = self.summary(recording_h5=h5)
         if self._error is not None:
             raise RuntimeError(f"tracking thread failed: {self._error}") from self._error
@@ -465,6 +468,7 @@ class HostPipeline:
                 self.tracker_resets += 1
                 self._make_tracker()
         t_est = time.time()
+        self.last_synced = sb  # the live page shows its cameras' points and arrival times
         if result is not None:
             self.frames_tracked += 1
             self.n_objects = len(result.estimates)
@@ -609,6 +613,11 @@ def run_command(
     trigger_port: str | None = typer.Option(None, help="Serial port of the trigger instead of the rig's trigger.port."),
     trigger_reset_wait: float | None = typer.Option(
         None, help="Seconds to wait after opening the trigger port (default 2 for a board, 0 for a pty)."),
+    http: str = typer.Option("127.0.0.1:8397", "--http", help=HTTP_HELP),
+    pose: str | None = typer.Option(None, "--pose", help=POSE_HELP),
+    pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
+    pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
+    pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
     until Ctrl-C.
@@ -623,6 +632,12 @@ def run_command(
     from flytrack_host.rig import RigError, load_rig
 
     console = Console()
+    try:
+        outputs = LiveOutputs.from_options(http=http, pose=pose, pose_rate=pose_rate, pose_lead_ms=pose_lead_ms,
+                                           pose_lock=pose_lock)
+    except OutputsError as exc:
+        console.print(f"[red]error[/red] {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
     try:
         rig = load_rig(rig_path)
     except RigError as exc:
@@ -659,11 +674,15 @@ def run_command(
                         clock=session.clock if session else None, fps=session.fps if session else None,
                         hold_until_synchronized=session is not None)
     try:
+        outputs.attach(pipe, echo=lambda s: None)  # printed after the first line below
         pipe.start()
     except OSError as exc:
         if session is not None:
             session.close()
-        console.print(f"[red]error[/red] cannot listen on {bind or rig.host.listen}: {exc}", highlight=False)
+        for sink in pipe.sinks:
+            sink.close()
+        where = f"{bind or rig.host.listen} (features) or {http} (live outputs)"
+        console.print(f"[red]error[/red] cannot listen on {where}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
     if session is not None:
         session.attach(pipe)
@@ -678,6 +697,8 @@ def run_command(
     host, port = pipe.address
     # Plain first line, so scripts (and tests) can find the port and the recording.
     print(f"listening on {host}:{port}; recording to {pipe.recording_path if pipe.record else '-'}", flush=True)
+    for line in outputs.started:
+        print(line, flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     end = None if seconds is None else time.monotonic() + seconds

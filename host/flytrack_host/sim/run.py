@@ -24,7 +24,8 @@ import socket
 import subprocess
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +69,9 @@ class DemoConfig:
     progress: bool = True
     flight: FlightParams = field(default_factory=FlightParams)
     render: RenderParams | None = None
+    rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)
+    # Called with the host pipeline before it starts: live outputs join its sinks (`--serve`).
+    attach: list[Callable[[Any], object]] = field(default_factory=list)
 
     def check(self) -> None:
         if not 2 <= self.cameras <= 64:
@@ -127,6 +131,7 @@ class DemoReport:
     notes: list[str] = field(default_factory=list)
     host_summary: dict[str, Any] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=dict)  # per part of the simulated rig
+    actuation: dict[str, Any] = field(default_factory=dict)  # closed loop vs ground truth (with --rules)
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -263,7 +268,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     cpu = CpuSampler()
     cpu.add("host", os.getpid())
-    edges = feeder = host = live = session = None
+    edges = feeder = host = live = session = lab = engine = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
     live_frames = [0]
@@ -292,6 +297,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             calibration=calib_path.name if calib_path else None, recording_folder="recordings",
             live_subscribers=[f"127.0.0.1:{live_port}"], name="simulated-rig",
         )
+        if cfg.rules is not None:  # the closed loop: lab devices on loopback, the rules in the rig file
+            from flytrack_host.actuation.rules import RulesError
+            from flytrack_host.sim.closed_loop import ClosedLoopLab
+
+            try:
+                lab = ClosedLoopLab(cfg.rules, out)
+            except RulesError as exc:
+                raise DemoError(str(exc)) from None
+            rig = lab.rig(rig)
         write_rig(rig, rig_path)
         from flytrack_host.pipeline import HostPipeline
         from flytrack_host.rig import load_rig
@@ -315,6 +329,18 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         host = HostPipeline(rig, cameras_for_host, clock=session.clock, fps=fps, hold_until_synchronized=True,
                             on_result=on_result, rig_text=rig_path.read_text(),
                             recording_path=out / "recording.flytrack")
+        if lab is not None:
+            try:
+                engine = lab.engine(rig, fps, session)
+            except RulesError as exc:
+                raise DemoError(str(exc)) from None
+            engine.attach(host)
+            engine.start()
+        for fn in cfg.attach:
+            try:
+                fn(host)
+            except OSError as exc:
+                raise DemoError(f"a live output could not start: {exc}") from None
         host.start()
         session.attach(host)
         live = _LiveCounter(live_port, live_frames)
@@ -363,11 +389,18 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         if feeder is not None:
             feeder.stop()
         trig.close()
+        if lab is not None and engine is None:
+            lab.close()
 
     fs = feeder.stats()
     report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
                      notes, wall0, cams, warmup, trigger_summary, preroll)
     report.cpu_seconds = cpu.totals()
+    if lab is not None and engine is not None:
+        try:
+            report.actuation = lab.report(engine, gt, fs.pulse_frames if trig.mode == "simavr" else None)
+        finally:
+            lab.close()
     return report
 
 
@@ -516,8 +549,8 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
     frames_triggered = max(fs.edges, fs.frames_rendered)
     return DemoReport(
-        config={k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()
-                if k not in ("flight", "render")},
+        config={f.name: (str(v) if isinstance(v := getattr(cfg, f.name), Path) else v) for f in fields(cfg)
+                if f.name not in ("flight", "render", "attach")},
         trigger=trig.kind_label,
         trigger_note=trig.note,
         scores=scores,

@@ -278,6 +278,14 @@ class TriggerDevice(SerialTrigger):
         self._request(tl.Pulse(channel, tl.FRAME_NOW if frame is None else int(frame), width_ticks))
         return width_ticks
 
+    def pulse_timed(self, channel: int, frame: int | None, width_s: float) -> tuple[float, float]:
+        """As `pulse`, returning (host time the request was written, host time its ACK arrived)."""
+        if not width_s > 0:
+            raise TriggerError(f"pulse width must be positive, got {width_s} s")
+        width_ticks = max(1, min(0xFFFF, round(width_s / self._tick_s())))
+        _, t0, t1 = self._request_timed(tl.Pulse(channel, tl.FRAME_NOW if frame is None else int(frame), width_ticks))
+        return t0, t1
+
     def set_output(self, channel: int, level: int | bool) -> None:
         self._request(tl.SetOutput(channel, 1 if level else 0))
 
