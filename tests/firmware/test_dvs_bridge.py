@@ -137,11 +137,14 @@ def test_capacity_back_to_back(bridge, dvs_figures) -> None:
     out = {}
     for name, usb in (("firmware", 1), ("full-speed bulk", sim.USB_FS_PACKET_CYCLES)):
         run = sim.run_bridge(played, _start() + [_status(3_000_000)], usb_packet_cycles=usb, built=bridge,
-                             drain_cycles=50_000)  # fmt: skip
+                             drain_cycles=50_000, sync=(8_000, 25_000, 400, 150))  # fmt: skip
         assert not run.violations
-        ev, _ = _decode(run)
+        ev, sync_t = _decode(run)
         idx, err = _match(played, run, ev)
         assert len(ev) == n and np.max(np.abs(err)) <= 1.0
+        # 2 kHz sync pulses while the loop is saturated: every one recorded, on time
+        assert len(sync_t) == len(run.sync_cycles) == 150
+        assert np.max(np.abs(sync_t.astype(np.float64) - run.truth_us(run.sync_cycles))) <= 1.0
         cyc = (run.req_cycles[-1] - run.req_cycles[0]) / (n - 1)
         out[name] = cyc
         print(f"\nDVS bridge back-to-back, {name}: {cyc:.1f} cycles/event = {F / cyc / 1e3:.0f} k events/s")
@@ -158,18 +161,24 @@ def test_fifo_overflow_counted_words_intact(bridge, dvs_figures) -> None:
     n = 4_000
     played = _random_events(n, rng, 20_000 + np.arange(n) * 250)  # 64 k events/s for 62 ms
     run = sim.run_bridge(played, _start() + [_status(4_000_000)], usb_packet_cycles=100_000, built=bridge,
-                         drain_cycles=250_000)  # fmt: skip
+                         drain_cycles=250_000, sync=(16_000, 30_000, 800, 60))  # fmt: skip
     assert not run.violations
-    ev, _ = _decode(run)
+    ev, sync_t = _decode(run)
     idx, err = _match(played, run, ev)
     st = run.status()
+    # sync words are never dropped silently: recorded (on time) or counted as missed
+    assert len(sync_t) == st.sync_events and st.sync_events + st.sync_missed == 60
+    truth = run.truth_us(run.sync_cycles)
+    nearest = np.min(np.abs(sync_t.astype(np.float64)[:, None] - truth[None, :]), axis=1)
+    assert np.max(nearest) <= 1.0 and len(sync_t) > 0
     lost = n - len(ev)
     assert lost > 1_000 and st.overflow == lost
     assert np.max(np.abs(err)) <= 1.0
     assert ev["t_us"].max() > 3 * 16_384
     assert np.all(np.diff(idx) > 0)
     print(f"\nDVS bridge FIFO overflow: {lost} of {n} events dropped and counted (status {st.overflow}), "
-          f"FIFO max {st.fifo_max} words, every delivered word exact")
+          f"FIFO max {st.fifo_max} words, every delivered word exact; sync {st.sync_events} recorded + "
+          f"{st.sync_missed} counted missed of 60 pulses")
     dvs_figures["FIFO overflow"] = f"{lost}/{n} dropped == counted {st.overflow}; delivered words all exact"
 
 

@@ -25,7 +25,7 @@
  *       bias <hex>                         the bits shifted into the bias register at a latch
  *       array_reset <cycle>
  *       violation <cycle> <what>
- *       end <cycle> played=<n> first_req=<c> last_ack=<c> violations=<n> packets=<n>
+ *       end <cycle> played=<n> first_req=<c> last_ack=<c> violations=<n> packets=<n> pc=<byte addr>
  * - An interrupt's entry costs 4 cycles, as on the chip (simavr 1.6 charges none).
  * The run ends once every event and request is done and no packet came for --drain-cycles, or at
  * --max-cycles.
@@ -607,9 +607,10 @@ int main(int argc, char **argv) {
                 (unsigned long long)g_avr->cycle);
         rc = 1;
     }
-    fprintf(g_out, "end %llu played=%zu first_req=%llu last_ack=%llu violations=%lu packets=%lu\n",
+    fprintf(g_out,
+            "end %llu played=%zu first_req=%llu last_ack=%llu violations=%lu packets=%lu pc=%u\n",
             (unsigned long long)g_avr->cycle, g_next, (unsigned long long)g_first_req,
-            (unsigned long long)g_last_ack, g_violations, g_packets);
+            (unsigned long long)g_last_ack, g_violations, g_packets, (unsigned)g_avr->pc);
     fclose(g_out);
     double wall = (double)(t1.tv_sec - t0.tv_sec) + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-9;
     fprintf(

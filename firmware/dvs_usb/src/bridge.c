@@ -38,7 +38,9 @@ static struct {
     uint8_t left;                /* words still free in the bank being filled (0: none) */
     uint8_t pend_wraps, pend_reset;
     uint16_t idle;
-    uint8_t step; /* slow_step's next task */
+    uint8_t step;       /* slow_step's next task */
+    uint8_t fifo_steps; /* events through the FIFO path since its last slow_step */
+    uint8_t stop_req;   /* a slow_step run from slow_put saw START or STOP */
 } C;
 
 static struct {
@@ -162,6 +164,7 @@ static void __attribute__((noinline)) drain(void) {
  * later, which costs a third more cycles an event; only a host that stays away longer (~90 us)
  * makes the FIFO fill. A full FIFO drops the event whole and counts it. */
 static void sync_word(uint8_t pre_wrap);
+static uint8_t slow_step(void);
 
 static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t t) {
     uint8_t k = 255;
@@ -184,13 +187,16 @@ static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t 
         /* Nothing else is done while the event is held here: a timestamp reset, a WRAP or SYNC
          * word now would have to go out before an event stamped earlier. */
     }
-    if (C.head == C.stop) {
+    if (C.head == C.stop)
         S.overflow++;
-        return;
-    }
-    put_word(a0, a1, t);
+    else
+        put_word(a0, a1, t);
     if (usb_bulk_in_ready())
         drain();
+    /* With the sensor never idle the loop would not get to the slow path: one task every 8th
+     * event here (the event is stored, nothing is held). */
+    if (!(++C.fifo_steps & 7) && slow_step())
+        C.stop_req = 1;
 }
 
 /* The event whose edge Timer3 has captured, served here in the slow path (before a timestamp reset,
@@ -491,6 +497,10 @@ static void capture(void) {
                 slow_put(a0, a1, t);
                 left = C.left;
                 last = C.last;
+                if (C.stop_req) {
+                    C.stop_req = 0;
+                    return;
+                }
                 continue;
             }
         }
