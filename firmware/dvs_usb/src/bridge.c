@@ -25,7 +25,7 @@
 #define FIFO_BYTES 1024u
 #define FIFO_RESERVE 8u    /* words kept free for WRAP / RESET / SYNC words */
 #define WORDS_PER_BANK 16u /* 64-byte bulk packets */
-#define IDLE_FLUSH 400u    /* idle loop passes before a partly filled bank goes out (~0.3 ms) */
+#define FLUSH_TICKS 2000u  /* a partly filled bank goes out after 1 ms */
 /* INT6 entry to its TCNT3 read: 4 (response) + 3 (jmp) + 2 (push) + 2 (lds), rounded to ticks */
 #define SYNC_LATENCY_TICKS 1u
 
@@ -37,7 +37,8 @@ static struct {
     uint16_t last;               /* ts (us) of the last word or idle reading */
     uint8_t left;                /* words still free in the bank being filled (0: none) */
     uint8_t pend_wraps, pend_reset;
-    uint16_t idle;
+    uint16_t t0; /* Timer3 when the open, partly filled bank was first seen (flush_old_bank) */
+    uint8_t t0_valid, seen_left;
     uint8_t step;       /* slow_step's next task */
     uint8_t fifo_steps; /* events through the FIFO path since its last slow_step */
     uint8_t stop_req;   /* a slow_step run from slow_put saw START or STOP */
@@ -291,6 +292,28 @@ static void idle_wrap(void) {
     C.last = now;
 }
 
+/* A partly filled bank goes out once it has been open FLUSH_TICKS (as first seen here), so that a
+ * slow trickle of events is not held back until 16 have come. A bank opened since the last look
+ * (more room than then) restarts the clock. */
+static void flush_old_bank(void) {
+    uint8_t l = C.left;
+    if (!l || l == WORDS_PER_BANK) {
+        C.t0_valid = 0;
+    } else {
+        uint16_t now = TCNT3;
+        if (!C.t0_valid || l > C.seen_left) {
+            C.t0 = now;
+            C.t0_valid = 1;
+        } else if ((uint16_t)((now - C.t0) & TS_TOP) >= FLUSH_TICKS) {
+            usb_bulk_in_send();
+            C.left = 0;
+            C.t0_valid = 0;
+            drain();
+        }
+    }
+    C.seen_left = l;
+}
+
 static void shift_biases(void) {
     for (uint8_t i = 0; i < DVS_BIAS_BYTES; i++)
         for (uint8_t m = 0x80; m; m >>= 1) {
@@ -327,7 +350,6 @@ static uint8_t control(void) {
             return 0;
         S.running = 1;
         S.slave_armed = !S.master;
-        C.idle = 0;
         fifo_limits();
         if (S.master)
             timer_zero(0);
@@ -385,27 +407,13 @@ static uint8_t control(void) {
 
 /* Everything but the event path. Returns 1 when streaming stops. */
 static uint8_t slow_tasks(void) {
-    uint8_t *h0 = C.head;
-    uint8_t l0 = C.left;
     drain();
     if (sync_seq != S.sync_seen)
         sync_word(0);
     idle_wrap();
     if (control())
         return 1;
-    /* a partly filled bank goes out after a quiet spell, so that few events are not held back */
-    if (C.head == h0 && C.left == l0 && !(TIFR3 & _BV(ICF3))) {
-        if (++C.idle >= IDLE_FLUSH) {
-            C.idle = 0;
-            if (C.left && C.left < WORDS_PER_BANK) {
-                usb_bulk_in_send();
-                C.left = 0;
-                drain();
-            }
-        }
-    } else {
-        C.idle = 0;
-    }
+    flush_old_bank();
     return 0;
 }
 
