@@ -3,10 +3,11 @@
 from .simulator import (
     BridgeRun,
     BridgeStatus,
+    aer_events,
     build,
     control_request,
     run_bridge,
     tools_available,
 )
 
-__all__ = ["BridgeRun", "BridgeStatus", "build", "control_request", "run_bridge", "tools_available"]
+__all__ = ["BridgeRun", "BridgeStatus", "aer_events", "build", "control_request", "run_bridge", "tools_available"]
