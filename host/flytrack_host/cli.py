@@ -40,6 +40,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.io.cli", "export_command", "export"),
     ("flytrack_host.io.cli", "retrack_command", "retrack"),
     ("flytrack_host.sim.cli", "demo_command", "demo"),
+    ("flytrack_host.wingbeat.cli", "wingbeat_command", "wingbeat"),
 ]
 
 
