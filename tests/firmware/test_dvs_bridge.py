@@ -99,9 +99,10 @@ def test_paced_300k_stream_every_event_exact(bridge, dvs_figures) -> None:
     assert np.array_equal(ev["y"], played["addr"] >> 8 & 0x7F)
     assert np.array_equal(ev["polarity"], played["addr"] & 1)
     assert np.max(np.abs(err)) <= 1.0, (err.min(), err.max())
-    # the timestamp reset: one epoch restart in the middle, and times start again from ~0 after it
+    # the timestamp reset: served within 2 ms under this load (one epoch restart), and the times start
+    # again from ~0 after it
     epochs = run.epoch_starts()
-    assert any(abs(c - reset_at) < 2_000 for c in epochs[:, 0])
+    assert any(0 <= c - reset_at < 32_000 for c in epochs[:, 0]), (reset_at, epochs)
     after = run.req_cycles > epochs[-1, 0]
     assert ev["t_us"][after].min() < 5 and ev["t_us"][~after].max() > 40_000
     # sync: one word per pulse, each within 1 us of the pulse's edge
@@ -293,3 +294,21 @@ def test_trickle_latency_bounded(bridge, dvs_figures) -> None:
           f"{lat_ms.max():.2f} ms max ({short} short packets of {len(run.packets)})")
     assert lat_ms.max() < 1.2
     dvs_figures["trickle latency"] = f"{lat_ms.mean():.2f} ms mean, {lat_ms.max():.2f} ms max at 2 k events/s"
+
+
+@pytest.mark.parametrize("req_delay,next_delay", [(1, 1), (8, 16), (40, 80)])
+def test_handshake_timings(bridge, req_delay: int, next_delay: int) -> None:
+    """Sensors slower to release /REQ and to present the next event (up to 2.5 us / 5 us): the bridge
+    waits for each phase, never breaks the handshake, and every event keeps its exact time."""
+    rng = np.random.default_rng(7)
+    n = 3_000
+    played = _random_events(n, rng, np.full(n, 20_000))
+    run = sim.run_bridge(played, _start(), req_delay=req_delay, next_delay=next_delay, built=bridge,
+                         drain_cycles=40_000)  # fmt: skip
+    assert not run.violations and run.end["played"] == n
+    ev, _ = _decode(run)
+    idx, err = _match(played, run, ev)
+    assert len(ev) == n and np.max(np.abs(err)) <= 1.0
+    cyc = (run.req_cycles[-1] - run.req_cycles[0]) / (n - 1)
+    assert cyc >= req_delay + next_delay  # the bridge really waited on the sensor
+    print(f"\nDVS bridge handshake /REQ release {req_delay} cycles, next /REQ {next_delay}: {cyc:.1f} cycles/event")

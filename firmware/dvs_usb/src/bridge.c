@@ -405,23 +405,15 @@ static uint8_t control(void) {
     }
 }
 
-/* Everything but the event path. Returns 1 when streaming stops. */
-static uint8_t slow_tasks(void) {
-    drain();
-    if (sync_seq != S.sync_seen)
-        sync_word(0);
-    idle_wrap();
-    if (control())
-        return 1;
-    flush_old_bank();
-    return 0;
-}
-
-/* The slow path's tasks one at a time (each well under 100 cycles, bar a request's own work), while
- * events stream and a bank is open. Returns 1 when streaming stops or restarts. */
+/* Everything but the event path, one short task at a time (each well under 100 cycles, bar a
+ * request's own work), so that an event is never kept waiting long: when no event is waiting, every
+ * 8th bank while events stream, every 8th event through the FIFO path. Returns 1 when streaming
+ * stops or restarts. */
 static uint8_t __attribute__((noinline)) slow_step(void) {
     uint8_t r = 0;
-    switch (++C.step & 3) {
+    if (++C.step >= 5)
+        C.step = 0;
+    switch (C.step) {
     case 0:
         if (sync_seq != S.sync_seen)
             sync_word(0);
@@ -432,15 +424,14 @@ static uint8_t __attribute__((noinline)) slow_step(void) {
     case 2:
         r = control();
         break;
-    default:
+    case 3:
         drain();
+        break;
+    default:
+        flush_old_bank();
         break;
     }
     return r;
-}
-
-static uint8_t __attribute__((noinline)) slow(void) {
-    return slow_tasks();
 }
 
 /* The event loop: hot path inline, locals in registers. */
@@ -512,9 +503,10 @@ static void capture(void) {
                 continue;
             }
         }
+        /* no event waiting: one short slow-path task, then look again */
         C.last = last;
         C.left = left;
-        if (slow())
+        if (slow_step())
             return;
         last = C.last;
         left = C.left;
