@@ -99,10 +99,10 @@ def test_paced_300k_stream_every_event_exact(bridge, dvs_figures) -> None:
     assert np.array_equal(ev["y"], played["addr"] >> 8 & 0x7F)
     assert np.array_equal(ev["polarity"], played["addr"] & 1)
     assert np.max(np.abs(err)) <= 1.0, (err.min(), err.max())
-    # the timestamp reset: served within 2 ms under this load (one epoch restart), and the times start
+    # the timestamp reset: served within 3 ms under this load (one epoch restart), and the times start
     # again from ~0 after it
     epochs = run.epoch_starts()
-    assert any(0 <= c - reset_at < 32_000 for c in epochs[:, 0]), (reset_at, epochs)
+    assert any(0 <= c - reset_at < 48_000 for c in epochs[:, 0]), (reset_at, epochs)
     after = run.req_cycles > epochs[-1, 0]
     assert ev["t_us"][after].min() < 5 and ev["t_us"][~after].max() > 40_000
     # sync: one word per pulse, each within 1 us of the pulse's edge
@@ -241,9 +241,9 @@ def test_slave_mode_zeroes_time_at_the_next_sync_pulse(bridge) -> None:
     after = run.req_cycles > pulse0 + 2_000
     t_rel = (run.req_cycles[after] - pulse0) / F * 1e6  # us since the pulse
     err = ev["t_us"][after].astype(np.float64) - t_rel
-    assert np.max(np.abs(err)) <= 1.5, (err.min(), err.max())
+    assert np.max(np.abs(err)) <= 1.0, (err.min(), err.max())
     s_rel = (run.sync_cycles - pulse0) / F * 1e6
-    assert np.max(np.abs(sync_t.astype(np.float64) - s_rel)) <= 1.5
+    assert np.max(np.abs(sync_t.astype(np.float64) - s_rel)) <= 1.0
     assert not sim.BridgeStatus.parse(run.replies[-1].data).master
 
 
@@ -312,3 +312,37 @@ def test_handshake_timings(bridge, req_delay: int, next_delay: int) -> None:
     cyc = (run.req_cycles[-1] - run.req_cycles[0]) / (n - 1)
     assert cyc >= req_delay + next_delay  # the bridge really waited on the sensor
     print(f"\nDVS bridge handshake /REQ release {req_delay} cycles, next /REQ {next_delay}: {cyc:.1f} cycles/event")
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_random_bursts_resets_slow_host(bridge, seed: int) -> None:
+    """Bursty events (gaps from 0 to ~1 ms), 1.6 kHz sync, three timestamp resets at random moments and a
+    host 7x slower than full speed (the FIFO fills in bursts): every delivered word is a played event at its exact time, in order;
+    what is missing is what the status counts as dropped; every sync pulse is a SYNC word on time or
+    counted."""
+    rng = np.random.default_rng(seed)
+    n = 12_000
+    gaps = np.where(rng.random(n) < 0.7, rng.integers(0, 40, n), rng.exponential(2_000, n).astype(np.int64))
+    cyc = 20_000 + np.cumsum(gaps)
+    played = _random_events(n, rng, cyc)
+    end = int(cyc[-1])
+    resets = sorted(int(c) for c in rng.integers(40_000, end, 3))
+    controls = _start() + [sim.control_request(c, sim.VENDOR_OUT, sim.VR_RESET_TS) for c in resets]
+    controls.append(_status(end + 100_000))
+    pulses = (end - 25_000) // 10_000
+    run = sim.run_bridge(played, controls, sync=(10_000, 25_000, 500, pulses), usb_packet_cycles=6_000,
+                         built=bridge)  # fmt: skip
+    assert not run.violations
+    ev, sync_t = _decode(run)
+    idx, err = _match(played, run, ev)
+    st = run.status()
+    assert np.max(np.abs(err)) <= 1.0
+    assert n - len(ev) == st.overflow
+    assert len(run.epoch_starts()) == 2 + 3  # boot, START, three resets
+    assert len(sync_t) == st.sync_events and st.sync_events + st.sync_missed == pulses
+    # sync words: each within 1 us of a pulse in the epoch it was sent in (a clamped one may not be)
+    truth = run.truth_us(run.sync_cycles)
+    nearest = np.min(np.abs(sync_t.astype(np.float64)[:, None] - truth[None, :]), axis=1)
+    assert np.sum(nearest > 1.0) <= st.clamped
+    print(f"\nDVS bridge random seed {seed}: {len(ev)}/{n} events delivered exact ({st.overflow} dropped, counted), "
+          f"sync {st.sync_events}/{pulses} (missed {st.sync_missed}, clamped {st.clamped}), FIFO max {st.fifo_max}")

@@ -28,6 +28,8 @@
 #define FLUSH_TICKS 2000u  /* a partly filled bank goes out after 1 ms */
 /* INT6 entry to its TCNT3 read: 4 (response) + 3 (jmp) + 2 (push) + 2 (lds), rounded to ticks */
 #define SYNC_LATENCY_TICKS 1u
+/* slave reset: cycles from its TCNT3 read to the write, in ticks */
+#define SLAVE_WRITE_TICKS 3u
 
 static uint8_t fifo[FIFO_BYTES] __attribute__((aligned(1024)));
 
@@ -165,6 +167,7 @@ static void __attribute__((noinline)) drain(void) {
  * later, which costs a third more cycles an event; only a host that stays away longer (~90 us)
  * makes the FIFO fill. A full FIFO drops the event whole and counts it. */
 static void sync_word(uint8_t pre_wrap);
+static void sync_emit(uint8_t seq, uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
 static uint8_t slow_step(void);
 
 static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t t) {
@@ -185,8 +188,11 @@ static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t 
         }
         if (!--k)
             break;
-        /* Nothing else is done while the event is held here: a timestamp reset, a WRAP or SYNC
-         * word now would have to go out before an event stamped earlier. */
+        /* While the event is held here only a sync pulse is taken, and only one that needs no
+         * WRAP word first (pre_wrap mode): a reset or a WRAP now would go out before an event
+         * stamped earlier. The SYNC word goes to the FIFO, and the event after it. */
+        if (!(k & 15) && sync_seq != S.sync_seen)
+            sync_word(1);
     }
     if (C.head == C.stop)
         S.overflow++;
@@ -222,15 +228,24 @@ static void serve_one(void) {
 /* Timer3 restarted from start_ticks (now), and a RESET word. Events keep the epoch they were
  * stamped in: one waiting is served first; one whose edge came during the restart itself (its ICR3
  * holds an old-epoch value above the new count) is served before the RESET word too. */
-static void timer_zero(uint16_t start_ticks) {
+static void timer_zero(uint8_t from_pulse, uint16_t pulse_ticks) {
     if (TIFR3 & _BV(ICF3))
         serve_one();
     /* The counter keeps running: the prescaler restarts (PSRSYNC) and the count is written, so the
      * next tick is a whole tick after this write. */
+    cli(); /* a sync pulse is of the old epoch or of the new one, never in between */
+    uint8_t seq = sync_seq;
+    uint16_t raw = (uint16_t)(sync_lo | sync_hi << 8);
+    uint16_t start_ticks = 0;
+    if (from_pulse) /* slave: time zero is the pulse; the count is the ticks since, at the write */
+        start_ticks = (uint16_t)((TCNT3 - pulse_ticks + SLAVE_WRITE_TICKS) & TS_TOP);
     GTCCR = _BV(PSRSYNC);
     TCNT3 = start_ticks;
+    sei();
     if ((TIFR3 & _BV(ICF3)) && ICR3 > TCNT3)
         serve_one();
+    if (S.running && seq != S.sync_seen)
+        sync_emit(seq, raw, 0, 0, 0); /* a pulse of the old epoch goes before the RESET word */
     put_reset();
     C.last = start_ticks >> 1;
 }
@@ -239,6 +254,8 @@ static void timer_zero(uint16_t start_ticks) {
  * counted). It waits if an event stamped before it is not yet read. pre_wrap (the event path has
  * just seen a counter wrap): only a pulse from before that wrap, which must precede the WRAP word.
  */
+static void sync_emit(uint8_t seq, uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
+
 static void sync_word(uint8_t pre_wrap) {
     uint8_t seq, lo, hi;
     if (!S.running || S.sync_seen == sync_seq)
@@ -250,7 +267,13 @@ static void sync_word(uint8_t pre_wrap) {
     lo = sync_lo;
     hi = sync_hi;
     sei();
-    uint16_t ticks = (uint16_t)(((uint16_t)(lo | hi << 8) - SYNC_LATENCY_TICKS) & TS_TOP);
+    sync_emit(seq, (uint16_t)(lo | hi << 8), pre_wrap, pending, icr);
+}
+
+/* The pulse the handler stamped `raw` (its seq-th) as a SYNC word, unless it must wait (see above).
+ */
+static void sync_emit(uint8_t seq, uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr) {
+    uint16_t ticks = (uint16_t)((raw - SYNC_LATENCY_TICKS) & TS_TOP);
     if (pending && (uint16_t)((ticks - icr) & TS_TOP) < 0x4000u)
         return; /* the pulse came after the waiting event's edge */
     uint16_t ts = ticks >> 1;
@@ -264,9 +287,8 @@ static void sync_word(uint8_t pre_wrap) {
         S.sync_missed += n - 1u;
     if (S.slave_armed) {
         /* slave: this pulse is time zero. TCNT3 = ticks elapsed since it, kept running */
-        uint16_t el = (uint16_t)((TCNT3 - ticks) & TS_TOP);
-        timer_zero((uint16_t)(el + 3u)); /* the few cycles between the read and the write */
         S.slave_armed = 0;
+        timer_zero(1, ticks);
         ts = 0;
     } else if (d < 0x2000u) { /* at or after the last word's time */
         if (after_wrap)
@@ -352,7 +374,7 @@ static uint8_t control(void) {
         S.slave_armed = !S.master;
         fifo_limits();
         if (S.master)
-            timer_zero(0);
+            timer_zero(0, 0);
         return 1;
     case DVS_VR_STOP:
         usb_control_reply(0, 0);
@@ -372,7 +394,7 @@ static uint8_t control(void) {
     case DVS_VR_RESET_TS:
         usb_control_reply(0, 0);
         if (S.running)
-            timer_zero(0);
+            timer_zero(0, 0);
         return 0;
     case DVS_VR_RESET_ARRAY:
         usb_control_reply(0, 0);
@@ -411,20 +433,19 @@ static uint8_t control(void) {
  * stops or restarts. */
 static uint8_t __attribute__((noinline)) slow_step(void) {
     uint8_t r = 0;
-    if (++C.step >= 5)
+    if (++C.step >= 8)
         C.step = 0;
+    if (C.step & 1) /* requests every other step */
+        return control();
     switch (C.step) {
     case 0:
         if (sync_seq != S.sync_seen)
             sync_word(0);
         break;
-    case 1:
+    case 2:
         idle_wrap();
         break;
-    case 2:
-        r = control();
-        break;
-    case 3:
+    case 4:
         drain();
         break;
     default:
