@@ -317,9 +317,9 @@ def test_handshake_timings(bridge, req_delay: int, next_delay: int) -> None:
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_random_bursts_resets_slow_host(bridge, seed: int) -> None:
     """Bursty events (gaps from 0 to ~1 ms), 1.6 kHz sync, three timestamp resets at random moments and a
-    host 7x slower than full speed (the FIFO fills in bursts): every delivered word is a played event at its exact time, in order;
-    what is missing is what the status counts as dropped; every sync pulse is a SYNC word on time or
-    counted."""
+    host 7x slower than full speed (the FIFO fills in bursts): every delivered word is a played event at
+    its exact time, in order; what is missing is what the status counts as dropped; every sync pulse is
+    a SYNC word on time or counted."""
     rng = np.random.default_rng(seed)
     n = 12_000
     gaps = np.where(rng.random(n) < 0.7, rng.integers(0, 40, n), rng.exponential(2_000, n).astype(np.int64))
