@@ -54,8 +54,9 @@ static struct {
 } S;
 
 /* written by the INT6 handler */
-volatile uint8_t sync_seq;
-volatile uint8_t sync_lo, sync_hi;
+#define SYNC_RING 4                     /* pulses the handler keeps until the loop takes them */
+volatile uint8_t sync_seq;              /* pulses seen by the handler */
+volatile uint16_t sync_ring[SYNC_RING]; /* their TCNT3 values, pulse i at [i % SYNC_RING] */
 
 static uint8_t bias[DVS_BIAS_BYTES];
 
@@ -167,7 +168,8 @@ static void __attribute__((noinline)) drain(void) {
  * later, which costs a third more cycles an event; only a host that stays away longer (~90 us)
  * makes the FIFO fill. A full FIFO drops the event whole and counts it. */
 static void sync_word(uint8_t pre_wrap);
-static void sync_emit(uint8_t seq, uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
+static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
+static uint8_t sync_take(uint8_t upto, uint16_t *raw);
 static uint8_t slow_step(void);
 
 static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t t) {
@@ -229,13 +231,13 @@ static void serve_one(void) {
  * stamped in: one waiting is served first; one whose edge came during the restart itself (its ICR3
  * holds an old-epoch value above the new count) is served before the RESET word too. */
 static void timer_zero(uint8_t from_pulse, uint16_t pulse_ticks) {
+    uint16_t raw;
     if (TIFR3 & _BV(ICF3))
         serve_one();
     /* The counter keeps running: the prescaler restarts (PSRSYNC) and the count is written, so the
      * next tick is a whole tick after this write. */
     cli(); /* a sync pulse is of the old epoch or of the new one, never in between */
     uint8_t seq = sync_seq;
-    uint16_t raw = (uint16_t)(sync_lo | sync_hi << 8);
     uint16_t start_ticks = 0;
     if (from_pulse) /* slave: time zero is the pulse; the count is the ticks since, at the write */
         start_ticks = (uint16_t)((TCNT3 - pulse_ticks + SLAVE_WRITE_TICKS) & TS_TOP);
@@ -244,47 +246,58 @@ static void timer_zero(uint8_t from_pulse, uint16_t pulse_ticks) {
     sei();
     if ((TIFR3 & _BV(ICF3)) && ICR3 > TCNT3)
         serve_one();
-    if (S.running && seq != S.sync_seen)
-        sync_emit(seq, raw, 0, 0, 0); /* a pulse of the old epoch goes before the RESET word */
+    /* pulses of the old epoch not yet taken go before the RESET word */
+    uint8_t armed = S.slave_armed;
+    S.slave_armed = 0;
+    while (S.running && sync_take(seq, &raw))
+        sync_emit(raw, 0, 0, 0);
+    S.slave_armed = armed;
     put_reset();
     C.last = start_ticks >> 1;
 }
 
-/* The waiting sync pulse as a SYNC word (only the latest pulse is kept; one the loop missed is
- * counted). It waits if an event stamped before it is not yet read. pre_wrap (the event path has
- * just seen a counter wrap): only a pulse from before that wrap, which must precede the WRAP word.
- */
-static void sync_emit(uint8_t seq, uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
+/* The oldest pulse not yet taken (of those before pulse number `upto`), its TCNT3 value in *raw:
+ * 0 if none. More than SYNC_RING waiting: the oldest were overwritten, counted as missed. */
+static uint8_t sync_take(uint8_t upto, uint16_t *raw) {
+    uint8_t n = (uint8_t)(upto - S.sync_seen);
+    if (!n)
+        return 0;
+    if (n > SYNC_RING) {
+        S.sync_missed += n - SYNC_RING;
+        S.sync_seen = (uint8_t)(upto - SYNC_RING);
+    }
+    cli();
+    *raw = sync_ring[S.sync_seen & (SYNC_RING - 1)];
+    sei();
+    return 1;
+}
+
+/* The waiting sync pulses as SYNC words, oldest first. One waits if an event stamped before it is
+ * not yet read. pre_wrap (the event path has just seen a counter wrap, or an event is held): only
+ * pulses from before that wrap, which must precede the WRAP word. */
+static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
 
 static void sync_word(uint8_t pre_wrap) {
-    uint8_t seq, lo, hi;
-    if (!S.running || S.sync_seen == sync_seq)
+    uint16_t raw;
+    if (!S.running)
         return;
     uint8_t pending = (TIFR3 & _BV(ICF3)) != 0;
     uint16_t icr = ICR3;
-    cli();
-    seq = sync_seq;
-    lo = sync_lo;
-    hi = sync_hi;
-    sei();
-    sync_emit(seq, (uint16_t)(lo | hi << 8), pre_wrap, pending, icr);
+    while (sync_take(sync_seq, &raw) && sync_emit(raw, pre_wrap, pending, icr))
+        ;
 }
 
-/* The pulse the handler stamped `raw` (its seq-th) as a SYNC word, unless it must wait (see above).
- */
-static void sync_emit(uint8_t seq, uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr) {
+/* The pulse the handler stamped `raw` (the oldest not taken) as a SYNC word; 0 if it must wait. */
+static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr) {
     uint16_t ticks = (uint16_t)((raw - SYNC_LATENCY_TICKS) & TS_TOP);
     if (pending && (uint16_t)((ticks - icr) & TS_TOP) < 0x4000u)
-        return; /* the pulse came after the waiting event's edge */
+        return 0; /* the pulse came after the waiting event's edge */
     uint16_t ts = ticks >> 1;
     uint16_t d = (uint16_t)((ts - C.last) & 0x3FFFu);
     uint8_t after_wrap = d < 0x2000u && ts < C.last;
     if (pre_wrap && (S.slave_armed || after_wrap))
-        return; /* it goes out after the WRAP word, from the slow path */
-    uint8_t n = (uint8_t)(seq - S.sync_seen);
-    S.sync_seen = seq;
-    if (n > 1)
-        S.sync_missed += n - 1u;
+        return 0; /* it goes out after the WRAP word, from the slow path */
+    S.sync_seen++;
     if (S.slave_armed) {
         /* slave: this pulse is time zero. TCNT3 = ticks elapsed since it, kept running */
         S.slave_armed = 0;
@@ -302,6 +315,7 @@ static void sync_emit(uint8_t seq, uint16_t raw, uint8_t pre_wrap, uint8_t pendi
         S.sync_events++;
     else
         S.sync_missed++;
+    return 1;
 }
 
 /* The counter may wrap with no event to show it: read it (then check no edge came first). */
@@ -587,23 +601,35 @@ int main(void) {
     }
 }
 
-/* Sync pulse: TCNT3 read in the handler's first instructions (fixed latency, SYNC_LATENCY_TICKS).
- * Only the latest pulse is kept; the main loop turns it into a SYNC word and counts any it missed.
- */
+/* Sync pulse: TCNT3 read in the handler's first instructions (fixed latency, SYNC_LATENCY_TICKS),
+ * kept in sync_ring[sync_seq % SYNC_RING]; the main loop turns the pulses into SYNC words, oldest
+ * first, and counts any that were overwritten before it took them. */
 ISR(INT6_vect, ISR_NAKED) {
     __asm__ volatile("push r24\n\t"
                      "lds r24, %[tl]\n\t"
-                     "sts sync_lo, r24\n\t"
-                     "lds r24, %[th]\n\t"
-                     "sts sync_hi, r24\n\t"
-                     "in r24, __SREG__\n\t"
-                     "push r24\n\t"
-                     "lds r24, sync_seq\n\t"
-                     "subi r24, 0xFF\n\t"
-                     "sts sync_seq, r24\n\t"
-                     "pop r24\n\t"
-                     "out __SREG__, r24\n\t"
+                     "push r25\n\t"
+                     "lds r25, %[th]\n\t"
+                     "push r30\n\t"
+                     "in r30, __SREG__\n\t"
+                     "push r30\n\t"
+                     "push r31\n\t"
+                     "lds r30, sync_seq\n\t"
+                     "andi r30, %[mask]\n\t"
+                     "lsl r30\n\t"
+                     "ldi r31, 0\n\t"
+                     "subi r30, lo8(-(sync_ring))\n\t"
+                     "sbci r31, hi8(-(sync_ring))\n\t"
+                     "st Z+, r24\n\t"
+                     "st Z, r25\n\t"
+                     "lds r30, sync_seq\n\t"
+                     "subi r30, 0xFF\n\t"
+                     "sts sync_seq, r30\n\t"
+                     "pop r31\n\t"
+                     "pop r30\n\t"
+                     "out __SREG__, r30\n\t"
+                     "pop r30\n\t"
+                     "pop r25\n\t"
                      "pop r24\n\t"
                      "reti\n\t" ::[tl] "i"(_SFR_MEM_ADDR(TCNT3L)),
-                     [th] "i"(_SFR_MEM_ADDR(TCNT3H)));
+                     [th] "i"(_SFR_MEM_ADDR(TCNT3H)), [mask] "i"(SYNC_RING - 1));
 }
