@@ -9,7 +9,9 @@ wraps, resets and sync words included. Figures are printed (run with -s) and lis
 from __future__ import annotations
 
 import re
+import struct
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -346,3 +348,35 @@ def test_random_bursts_resets_slow_host(bridge, seed: int) -> None:
     assert np.sum(nearest > 1.0) <= st.clamped
     print(f"\nDVS bridge random seed {seed}: {len(ev)}/{n} events delivered exact ({st.overflow} dropped, counted), "
           f"sync {st.sync_events}/{pulses} (missed {st.sync_missed}, clamped {st.clamped}), FIFO max {st.fifo_max}")
+
+
+def test_target_build_usb_descriptors(bridge) -> None:
+    """The target build (real USB controller, not runnable here) enumerates as a DVS128: its device and
+    configuration descriptors, read from the .elf, carry 152a:8400, bcdDevice 0x000E (type 0, firmware 14,
+    what libcaer checks) and one bulk-IN endpoint 0x86 of 64 bytes."""
+    elf = sim.build_dir() / "firmware" / sim.MCU / "flytrack_dvs.elf"
+    make = ["make", "-s", "-C", str(sim.REPO_ROOT / "firmware" / "dvs_usb"), f"OUT={sim.build_dir() / 'firmware'}"]
+    subprocess.run([*make, str(elf)], check=True, stdout=subprocess.DEVNULL)
+    syms = {}
+    nm = subprocess.run(["avr-nm", "-S", str(elf)], capture_output=True, text=True, check=True).stdout
+    for line in nm.splitlines():
+        parts = line.split()
+        if len(parts) == 4:
+            syms[parts[3]] = (int(parts[0], 16), int(parts[1], 16))
+    with tempfile.TemporaryDirectory() as d:
+        flash = Path(d) / "flash.bin"
+        subprocess.run(["avr-objcopy", "-O", "binary", "-j", ".text", str(elf), str(flash)], check=True)
+        image = flash.read_bytes()
+
+    def blob(name: str) -> bytes:
+        a, n = syms[name]
+        return image[a : a + n]
+
+    dev = blob("dev_desc")
+    assert len(dev) == 18 and dev[1] == 1
+    vid, pid, bcd = struct.unpack_from("<HHH", dev, 8)
+    assert (vid, pid, bcd) == (0x152A, 0x8400, 0x000E)
+    conf = blob("conf_desc")
+    assert len(conf) == struct.unpack_from("<H", conf, 2)[0] == 25
+    ep = conf[18:25]
+    assert ep[1] == 5 and ep[2] == 0x86 and ep[3] == 2 and struct.unpack_from("<H", ep, 4)[0] == 64
