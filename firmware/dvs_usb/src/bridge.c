@@ -163,16 +163,17 @@ static void __attribute__((noinline)) drain(void) {
     flush_pending();
 }
 
-/* An event with no bank open. With the FIFO empty, wait a little for the host to free a bank (the
- * sensor waits on its handshake meanwhile: AER backpressure) rather than store the word and copy it
- * later, which costs a third more cycles an event; only a host that stays away longer (~90 us)
- * makes the FIFO fill. A full FIFO drops the event whole and counts it. */
 static void sync_word(uint8_t pre_wrap);
 static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
 static uint8_t sync_take(uint8_t upto, uint16_t *raw);
 static uint8_t slow_step(void);
 
-static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t t) {
+/* An event with no bank open. With the FIFO empty, wait a little for the host to free a bank (the
+ * sensor waits on its handshake meanwhile: AER backpressure) rather than store the word and copy it
+ * later, which costs a third more cycles an event; only a host that stays away longer (~90 us)
+ * makes the FIFO fill. A full FIFO drops the event whole and counts it. steps: the slow path may
+ * run from here (not when called from a request's own work). */
+static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t t, uint8_t steps) {
     uint8_t k = 255;
     for (;;) {
         if (C.left) { /* a bank is open (a slow-path task may have opened one) */
@@ -204,7 +205,7 @@ static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t 
         drain();
     /* With the sensor never idle the loop would not get to the slow path: one task every 8th
      * event here (the event is stored, nothing is held). */
-    if (!(++C.fifo_steps & 7) && slow_step())
+    if (steps && !(++C.fifo_steps & 7) && slow_step())
         C.stop_req = 1;
 }
 
@@ -224,7 +225,7 @@ static void serve_one(void) {
     if (C.left)
         put_word(a0, a1, t);
     else
-        slow_put(a0, a1, t);
+        slow_put(a0, a1, t, 0);
 }
 
 /* Timer3 restarted from start_ticks (now), and a RESET word. Events keep the epoch they were
@@ -528,7 +529,7 @@ static void capture(void) {
             } else {
                 C.left = left;
                 C.last = last;
-                slow_put(a0, a1, t);
+                slow_put(a0, a1, t, 1);
                 left = C.left;
                 last = C.last;
                 if (C.stop_req) {
