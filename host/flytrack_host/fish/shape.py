@@ -134,7 +134,7 @@ class ShapeModel:
         )
 
 
-def default_model(length: float = 0.05, n_body: int = 22, n_head: int = 4, n_u: int = 12) -> ShapeModel:
+def default_model(length: float = 0.05, n_body: int = 16, n_head: int = 3, n_u: int = 8) -> ShapeModel:
     """A danio-like shape (giant danio: about 6-7 cm long, 1.5 cm deep): widest at the head centre (so the
     largest circle inside the top silhouette is centred there, as the seed's model generation assumes),
     tapering to a narrow caudal peduncle. Used as the synthetic truth and as a starting model."""
@@ -154,9 +154,14 @@ def default_model(length: float = 0.05, n_body: int = 22, n_head: int = 4, n_u: 
     return ShapeModel(s=s, a=a, b=b, d=d, length=L, n_u=n_u)
 
 
-def arclength(p: F64, n: int = 64) -> F64:
+_GL: dict[int, tuple[F64, F64]] = {}
+
+
+def arclength(p: F64, n: int = 24) -> F64:
     """Length of the body midline (s in [0, 1]) for p (B,5), by Gauss-Legendre quadrature."""
-    xg, wg = np.polynomial.legendre.leggauss(n)
+    if n not in _GL:
+        _GL[n] = np.polynomial.legendre.leggauss(n)
+    xg, wg = _GL[n]
     s = 0.5 * (xg + 1.0)
     _, df, _ = midline_body(p, s)
     return 0.5 * (np.linalg.norm(df[:, :, :2], axis=2) @ wg)
