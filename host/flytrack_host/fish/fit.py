@@ -15,7 +15,7 @@ the predicted head position, to keep the numbers well scaled.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np

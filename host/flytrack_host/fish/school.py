@@ -39,7 +39,7 @@ def _bend_c(x: F64) -> F64:
 
 def _bend_s(x: F64) -> F64:
     """S shape (inflection near mid-body) scaled by x."""
-    return np.stack([0.50 * x, -0.95 * x, 0.30 * x], axis=-1)
+    return np.stack([0.70 * x, -0.52 * x, 0.0 * x], axis=-1)  # f2'' changes sign at s = 0.45
 
 
 def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: float = 0.05, seed: int = 0,
@@ -69,7 +69,8 @@ def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: fl
         tc = t_cross + 12 * g  # groups cross at different times
         for j in range(k):
             yaw = np.deg2rad(dirs[j] + rng.uniform(-8, 8)) + np.pi * rng.integers(0, 2)
-            z = 0.20 + (j - (k - 1) / 2) * 0.03 + rng.uniform(-0.004, 0.004)
+            # a depth of its own per fish, so the side view starts clear (the seed's model needs it)
+            z = 0.20 + (fi - (n_fish - 1) / 2) * min(0.03, 0.24 / max(n_fish, 1)) + rng.uniform(-0.003, 0.003)
             h = heading_from_angles(yaw, 0.0)
             start[fi] = np.array([cx, cy, z]) - h * speed * tc * dt
             yaw0[fi] = yaw

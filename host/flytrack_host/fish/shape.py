@@ -144,8 +144,9 @@ def default_model(length: float = 0.05, n_body: int = 16, n_head: int = 3, n_u: 
     s = np.concatenate([sh, sb])
     L = length
     # head: an elliptic nose cap; body: smooth taper to 6% of the maximum at the tail
-    head = np.sqrt(np.clip(1.0 - (s / nose) ** 2, 0.0, 1.0))
-    body = 0.06 + 0.94 * (1.0 - s) ** 1.4 * (1.0 + 1.2 * s)
+    # the widest section is at the head centre, with a clear maximum on both sides of it
+    head = np.sqrt(np.clip(1.0 - (s / nose) ** 2, 0.0, 1.0)) * (1.0 - 0.3 * np.abs(s) / nose)
+    body = 0.06 + 0.94 * (1.0 - s) ** 1.3 * (1.0 + 0.5 * s)
     prof = np.where(s < 0, 0.15 + 0.85 * head, np.minimum(body, 1.0))
     prof[0] = 0.15
     a = 0.075 * L * prof  # half-width about 3.7 mm for 5 cm

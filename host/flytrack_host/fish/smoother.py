@@ -72,7 +72,8 @@ class TrackFilter:
         self.x = np.concatenate([X[0:3], np.zeros(3) if vel is None else vel, X[3:6], X[6:11]])
         self.P = np.diag(np.concatenate([np.full(3, 1e-6), np.full(3, 0.05**2), np.full(3, 1e-3),
                                          np.full(5, 1e-6)]))
-        self.xs, self.Ps, self.xs_pred, self.Ps_pred = [self.x.copy()], [self.P.copy()], [self.x.copy()], [self.P.copy()]
+        self.xs, self.Ps = [self.x.copy()], [self.P.copy()]
+        self.xs_pred, self.Ps_pred = [self.x.copy()], [self.P.copy()]
 
     def predict(self) -> F64:
         """The predicted state X (11) for the next frame (the fit's starting point)."""

@@ -161,7 +161,8 @@ class FishTracker:
                 oms = []
                 for ci in {k[0] for k in keys}:
                     fm = fields[ci]
-                    oms.append(F.OutsideMap(fm.view, fm.field, mm_per_px(self.views[ci], Xp[f]), r0, fm.origin, fm.beyond))
+                    scale = mm_per_px(self.views[ci], Xp[f])
+                    oms.append(F.OutsideMap(fm.view, fm.field, scale, r0, fm.origin, fm.beyond))
                 zp = F.z_from_state(Xp[f], r0)[0]
                 cost = F.make_cost(self.models_mm[f], r0, sets, others, cfg.fit, z_prior=zp, outside=oms)
                 z0 = F.z_from_state(cur[f], r0)[0]
