@@ -104,7 +104,7 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
     bms: list[BackgroundModel] | None = None
     if background is not None:
         bms = [BackgroundModel(b) for b in background]
-    for k in range(n_background):
+    for _ in range(n_background):
         imgs = next(it, None)
         if imgs is None:
             raise TrackingError(f"the videos end within the {n_background} background frames")

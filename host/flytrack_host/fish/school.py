@@ -34,7 +34,7 @@ class School:
 
 def _bend_c(x: F64) -> F64:
     """C shape (one bend, same sign along the body) scaled by x in [0, 1]."""
-    return np.stack([0.55 * x, 0.0 * x, -0.10 * x], axis=-1)
+    return np.stack([0.55 * x, 0.0 * x, -0.05 * x], axis=-1)  # f2'' > 0 along the whole body
 
 
 def _bend_s(x: F64) -> F64:
