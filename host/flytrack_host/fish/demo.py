@@ -132,10 +132,11 @@ def score(res: TrackResult, school: School, views: list[View], validation: View)
 
 def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[int, int] = (1280, 1024),
              side_size: tuple[int, int] = (512, 384), out: Path | None = None, noise: float = 3.0,
-             progress: bool = False, plots: bool = True) -> dict:
+             progress: bool = False, plots: bool = True, cross_frame: int | None = None,
+             top_zoom: float = 1.0) -> dict:
     cv2.setNumThreads(1)  # one core, as the figure is quoted
-    school = make_school(n_fish, frames, seed=seed)
-    rig = tank_rig(top_size, side_size)
+    school = make_school(n_fish, frames, seed=seed, cross_frame=cross_frame)
+    rig = tank_rig(top_size, side_size, top_zoom=top_zoom)
     views = [AirView(rig["top"]), AirView(rig["side"])]
     validation = AirView(rig["end"])
     model = default_model(school.length)
@@ -153,7 +154,7 @@ def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[
         bar.start()
         task = bar.add_task("tracking", total=frames)
     try:
-        res = track(stream, views, school.fps, n_background=n_bg,
+        res = track(stream, views, school.fps, n_background=n_bg, n_fish=n_fish,
                     progress=(lambda n: bar.advance(task, n)) if bar else None)
     finally:
         if bar:

@@ -43,7 +43,7 @@ def _bend_s(x: F64) -> F64:
 
 
 def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: float = 0.05, seed: int = 0,
-                speed: float = 0.15) -> School:
+                speed: float = 0.15, cross_frame: int | None = None) -> School:
     """Fish in crossing groups of up to three (depths 3 cm apart); fish 0 does a C-start, fish 1 an S-start,
     fish 2 a coasting turn (a single fish does all three in turn)."""
     rng = np.random.default_rng(seed)
@@ -55,7 +55,8 @@ def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: fl
         sizes.append(k)
         left -= k
     centres = [(0.305, 0.15), (0.17, 0.11), (0.44, 0.19), (0.17, 0.20), (0.44, 0.10)]
-    t_cross = max(int(0.35 * n_frames), 60)  # fish start apart (a clear view for the model), cross later
+    # fish start apart (a clear view for the model) and cross later
+    t_cross = cross_frame if cross_frame is not None else max(int(0.35 * n_frames), 60)
     groups: list[list[int]] = []
     yaw0 = np.zeros(n_fish)
     start = np.zeros((n_fish, 3))

@@ -74,12 +74,13 @@ def views_from_calibration(cams: Mapping[str, object], names: list[str]) -> list
 
 
 def tank_rig(top_size: tuple[int, int] = (1280, 1024), side_size: tuple[int, int] = (512, 384),
-             distortion: float = -0.04) -> dict[str, Camera]:
+             distortion: float = -0.04, top_zoom: float = 1.0) -> dict[str, Camera]:
     """The synthetic rig of seed 004 §5.1 in air: a 0.61 x 0.30 x 0.40 m tank (x, y, z; floor at z = 0),
     a top camera above it, a side camera facing the long wall (tracking) and one facing the short wall
-    (validation only), each with a little barrel distortion."""
+    (validation only), each with a little barrel distortion. `top_zoom` > 1 narrows the top view on the
+    tank's centre (small test images at the full demo's pixels per mm)."""
     cx, cy = 0.305, 0.15
-    top = Camera.look_at("top", (cx, cy, 1.25), (cx, cy, 0.2), *top_size, focal_px=top_size[0] * 1.05 / 0.66,
+    top = Camera.look_at("top", (cx, cy, 1.25), (cx, cy, 0.2), *top_size, focal_px=top_zoom * top_size[0] * 1.05 / 0.66,
                          up=(0.0, 1.0, 0.0), dist=(distortion, 0, 0, 0, 0))
     side = Camera.look_at("side", (cx, -0.95, 0.2), (cx, cy, 0.2), *side_size, focal_px=side_size[0] * 1.1 / 0.68,
                           dist=(distortion, 0, 0, 0, 0))
