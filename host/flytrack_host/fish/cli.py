@@ -104,12 +104,16 @@ def track_command(
     fish: int | None = typer.Option(None, help="Number of fish (default: as many as are in clear view)."),
     zmin: float = typer.Option(0.0, help="Lowest height (m) a fish can be at, in the calibration's frame."),
     zmax: float = typer.Option(0.4, help="Highest height (m) a fish can be at."),
+    sa_levels: int = typer.Option(6, help="Simulated-annealing temperature levels per fish and frame."),
+    polish_iterations: int = typer.Option(15, help="Least-squares polish evaluations per fish and frame."),
 ) -> None:
     """Track fish shapes in 3D from a top and a side video; write position, heading, midline parameters,
     cross-sections, curvature and covariance per fish per frame to HDF5."""
     from flytrack_host.calibration.formats import CalibrationFormatError, load_calibration
     from flytrack_host.fish.io import write_tracks
+    from flytrack_host.fish.fit import FitConfig
     from flytrack_host.fish.pipeline import TrackingError, track
+    from flytrack_host.fish.tracker import TrackerConfig
     from flytrack_host.fish.views import views_from_calibration
 
     if len(videos) < 2:
@@ -140,6 +144,7 @@ def track_command(
             task = bar.add_task("frames", total=n_track)
             res = track(vids.frames(), views, vids.fps[0], n_background=background_frames, background=bg,
                         n_fish=fish, zrange=(zmin, zmax), progress=lambda n: bar.advance(task, n),
+                        cfg=TrackerConfig(fit=FitConfig(max_levels=sa_levels, qn_maxiter=polish_iterations)),
                         log=lambda m: err.print(f"[yellow]note:[/yellow] {m}", highlight=False))
     except (TrackingError, VideoError) as exc:
         raise _fail(str(exc)) from None

@@ -17,6 +17,7 @@ from flytrack_host.fish.pipeline import TrackResult, midlines, track
 from flytrack_host.fish.render import render_sequence
 from flytrack_host.fish.school import School, make_school
 from flytrack_host.fish.shape import default_model
+from flytrack_host.fish.tracker import TrackerConfig
 from flytrack_host.fish.views import AirView, View, tank_rig
 
 F64 = NDArray[np.float64]
@@ -133,7 +134,7 @@ def score(res: TrackResult, school: School, views: list[View], validation: View)
 def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[int, int] = (1280, 1024),
              side_size: tuple[int, int] = (512, 384), out: Path | None = None, noise: float = 3.0,
              progress: bool = False, plots: bool = True, cross_frame: int | None = None,
-             top_zoom: float = 1.0) -> dict:
+             top_zoom: float = 1.0, cfg: TrackerConfig | None = None) -> dict:
     cv2.setNumThreads(1)  # one core, as the figure is quoted
     school = make_school(n_fish, frames, seed=seed, cross_frame=cross_frame)
     rig = tank_rig(top_size, side_size, top_zoom=top_zoom)
@@ -154,7 +155,7 @@ def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[
         bar.start()
         task = bar.add_task("tracking", total=frames)
     try:
-        res = track(stream, views, school.fps, n_background=n_bg, n_fish=n_fish,
+        res = track(stream, views, school.fps, n_background=n_bg, n_fish=n_fish, cfg=cfg,
                     progress=(lambda n: bar.advance(task, n)) if bar else None)
     finally:
         if bar:
