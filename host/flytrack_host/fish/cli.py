@@ -166,6 +166,9 @@ def demo_command(
     json_path: Path | None = typer.Option(None, "--json", help="Write the scored figures as JSON."),
     out: Path | None = typer.Option(None, help="Folder for tracks.h5 and the plots (Figures 5, 9, 11)."),
     small: bool = typer.Option(False, help="Half-size images (quicker; the figures are then at that scale)."),
+    water: float | None = typer.Option(None, help="Fill the tank (refractive index, e.g. 1.333): the cameras "
+                                       "look through the water surface and the tank walls (shared refraction "
+                                       "model, as Braid's <water>)."),
 ) -> None:
     """Render a synthetic school in a 0.61 x 0.30 x 0.40 m tank (top camera 1280x1024, side and validation
     cameras 512x384, 250 fps, sensor noise), track it and score it against the ground truth."""
@@ -177,7 +180,7 @@ def demo_command(
         raise _fail("--frames must be at least 20")
     top = (640, 512) if small else (1280, 1024)
     side = (256, 192) if small else (512, 384)
-    s = run_demo(fish, frames, seed, top, side, out=out, progress=True)
+    s = run_demo(fish, frames, seed, top, side, out=out, progress=True, water=water)
     console.print(f"fish {s['fish']}, frames {s['frames']}, occluded fish-frames {s['occluded_fish_frames']} "
                   f"(largest group {s['max_occlusion_group']})", highlight=False)
     console.print(f"midline error, top view: mean {s['midline_mean_px']:.2f} px, max {s['midline_max_px']:.2f} px",

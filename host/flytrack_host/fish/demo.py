@@ -134,10 +134,10 @@ def score(res: TrackResult, school: School, views: list[View], validation: View)
 def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[int, int] = (1280, 1024),
              side_size: tuple[int, int] = (512, 384), out: Path | None = None, noise: float = 3.0,
              progress: bool = False, plots: bool = True, cross_frame: int | None = None,
-             top_zoom: float = 1.0, cfg: TrackerConfig | None = None) -> dict:
+             top_zoom: float = 1.0, cfg: TrackerConfig | None = None, water: float | None = None) -> dict:
     cv2.setNumThreads(1)  # one core, as the figure is quoted
     school = make_school(n_fish, frames, seed=seed, cross_frame=cross_frame)
-    rig = tank_rig(top_size, side_size, top_zoom=top_zoom)
+    rig = tank_rig(top_size, side_size, top_zoom=top_zoom, water=water)
     views = [AirView(rig["top"]), AirView(rig["side"])]
     validation = AirView(rig["end"])
     model = default_model(school.length)

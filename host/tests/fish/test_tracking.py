@@ -60,3 +60,17 @@ def test_two_fish_crossing_keep_their_identities(tmp_path: Path) -> None:
     assert np.allclose(np.linalg.norm(f0["heading"], axis=1), 1.0)
     for name in ("fish_fig5_state.png", "fish_fig9_midlines.png", "fish_fig11_curvature.png"):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_tracking_through_water_with_the_shared_refraction_model() -> None:
+    """Cameras behind the water surface and the tank walls (index 1.333): rendered and tracked through the
+    project's refraction model (Camera.interface); the fit's lines are the refracted rays."""
+    s = run_demo(1, 12, 0, (640, 512), (512, 384), out=None, top_zoom=2.0, water=1.333, cfg=QUICK, plots=False)
+    assert s["midline_mean_px"] < 1.0
+    assert s["head_mm_mean"] < 2.0
+    assert s["heading_deg_mean"] < 3.0
+    # the refraction is not negligible here: a fish 10 cm below the surface moves ~10 px in the top view
+    wet = tank_rig((640, 512), (512, 384), top_zoom=2.0, water=1.333)["top"]
+    dry = tank_rig((640, 512), (512, 384), top_zoom=2.0)["top"]
+    X = np.array([[0.2, 0.15, 0.2]])
+    assert np.linalg.norm(wet.project(X) - dry.project(X)) > 8.0
