@@ -90,7 +90,8 @@ def main(argv: list[str] | None = None) -> dict:
                       "ms_per_fit": 1000 * float(np.mean(secs))}
     ours = rows["flytrack SA+lsq"]
     print(f"per-frame fit, 1 fish, {args.frames} frames, same cost and start (CPU time)")
-    print(f"{'method':24s} {'head mm':>8s} {'heading':>8s} {'cost':>8s} {'evals':>7s} {'ms/fit':>8s} {'time ratio':>10s}")
+    cols = ("head mm", "heading", "cost", "evals", "ms/fit", "time ratio")
+    print(f"{'method':24s} " + " ".join(f"{c:>8s}" for c in cols))
     for name, r in rows.items():
         print(f"{name:24s} {r['head_mm']:8.2f} {r['heading_deg']:8.2f} {r['cost']:8.1f} {r['evaluations']:7.0f} "
               f"{r['ms_per_fit']:8.1f} {r['ms_per_fit'] / ours['ms_per_fit']:9.1f}x")
