@@ -154,7 +154,7 @@ def track_command(
     if plots is not None:
         from flytrack_host.fish.plots import write_plots
 
-        for p in write_plots(plots, res, views[:2], None):
+        for p in write_plots(plots, res, views[:2]):
             console.print(f"plot {p}", highlight=False)
 
 

@@ -173,7 +173,7 @@ def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[
         if plots:
             from flytrack_host.fish.plots import write_plots
 
-            write_plots(out, res, views, [imgs[0][n_bg + res.first_frame:], imgs[1][n_bg + res.first_frame:]])
+            write_plots(out, res, views)
     return summary
 
 

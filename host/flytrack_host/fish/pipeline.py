@@ -42,6 +42,8 @@ class TrackResult:
     cpu_seconds: float
     messages: list[str] = field(default_factory=list)
     model_results: list[ModelResult] = field(default_factory=list)
+    exposure: list[NDArray[np.uint8]] = field(default_factory=list)  # per view: darkest of every 10th frame
+    exposure_every: int = 10
 
     @property
     def n_fish(self) -> int:
@@ -120,6 +122,7 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
     t_wall = time.perf_counter()
     t_cpu = time.process_time()
     tracker: FishTracker | None = None
+    exposure: list[NDArray[np.uint8]] = []
     models: list[ModelResult] = []
     raw, seen, shared = [], [], []
     first = -1
@@ -150,6 +153,9 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
                 continue
             # the model frame itself is tracked as well, starting from the model's state
         res = tracker.step(sils)
+        if len(raw) % 10 == 0:  # the multi-exposure image of Figure 9
+            exposure = [im.copy() for im in imgs] if not raw else [np.minimum(e, im) for e, im in
+                                                                    zip(exposure, imgs, strict=True)]
         raw.append(res.X)
         seen.append(np.array([[a[f] >= 0 for a in res.assoc] for f in range(tracker.n_fish)], np.int8))
         sh = np.ones(tracker.n_fish, np.int8)
@@ -173,7 +179,7 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
         frames_missing = int(np.sum(~np.any(seen_a[:, f].astype(bool), axis=1)))
         note(f"fish {f}: no silhouette in {frames_missing} frames (left the view or hidden); predicted there")
     return TrackResult(fps, first, [m.model for m in models], raw_a, fl, sm, cov, seen_a, np.array(shared), wall,
-                       cpu, messages, models)
+                       cpu, messages, models, exposure)
 
 
 def midlines(X: F64, model: ShapeModel, n: int = 30) -> F64:

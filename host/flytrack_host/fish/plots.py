@@ -12,7 +12,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
 
 from flytrack_host.fish.curvature import S_GRID, curvature, total_curvature  # noqa: E402
 from flytrack_host.fish.pipeline import TrackResult, midlines  # noqa: E402
@@ -49,18 +48,19 @@ def figure5(res: TrackResult, fish: int, path: Path) -> None:
     plt.close(fig)
 
 
-def figure9(res: TrackResult, views: Sequence[View], images: Sequence[Sequence[NDArray[np.uint8]]], path: Path,
-            every: int = 10) -> None:
-    """Multi-exposure: the darkest value over the frames shown, with every `every`-th estimated midline."""
+def figure9(res: TrackResult, views: Sequence[View], path: Path) -> None:
+    """Multi-exposure: the darkest value over every 10th frame (TrackResult.exposure), with the estimated
+    midlines of those frames."""
+    every = getattr(res, "exposure_every", 10)
     n = len(views)
     fig, ax = plt.subplots(1, n, figsize=(6 * n, 4.5))
     ax = np.atleast_1d(ax)
     T = res.smoothed.shape[0]
     frames = list(range(0, T, every))
     colours = plt.cm.tab10(np.arange(res.n_fish) % 10)
-    for c, (view, imgs) in enumerate(zip(views, images, strict=True)):
-        stack = np.min(np.stack([imgs[k] for k in frames if k < len(imgs)]), axis=0)
-        ax[c].imshow(stack, cmap="gray", vmin=0, vmax=255)
+    for c, view in enumerate(views):
+        if c < len(getattr(res, "exposure", [])):
+            ax[c].imshow(res.exposure[c], cmap="gray", vmin=0, vmax=255)
         lo = np.array([np.inf, np.inf])
         hi = -lo
         for f in range(res.n_fish):
@@ -106,14 +106,12 @@ def figure11(res: TrackResult, path: Path) -> None:
     plt.close(fig)
 
 
-def write_plots(out: Path, res: TrackResult, views: Sequence[View],
-                images: Sequence[Sequence[NDArray[np.uint8]]] | None) -> list[Path]:
+def write_plots(out: Path, res: TrackResult, views: Sequence[View], images: object = None) -> list[Path]:
+    """Figures 5, 9 and 11 as PNG files in `out`. (`images` is not used: Figure 9's multi-exposure image
+    is gathered while tracking, TrackResult.exposure.)"""
     out.mkdir(parents=True, exist_ok=True)
-    paths = [out / "fish_fig5_state.png", out / "fish_fig11_curvature.png"]
+    paths = [out / "fish_fig5_state.png", out / "fish_fig9_midlines.png", out / "fish_fig11_curvature.png"]
     figure5(res, _busiest_fish(res), paths[0])
-    figure11(res, paths[1])
-    if images is not None:
-        p = out / "fish_fig9_midlines.png"
-        figure9(res, views, images, p)
-        paths.append(p)
+    figure9(res, views, paths[1])
+    figure11(res, paths[2])
     return paths
