@@ -6,6 +6,12 @@ edge extractor's undistortion all use this model, so a point means the same thin
 Conventions: a world point Xw maps to camera coordinates Xc = R @ Xw + t; the camera looks along +z;
 pixel (0, 0) is the centre of the top-left pixel, as in OpenCV.
 Distortion coefficients are in OpenCV order (k1, k2, p1, p2, k3).
+With `K_dist` set (flydra's `intrinsic_linear` / XML `non_linear_parameters` fc, cc, alpha_c) the lens
+distortion is applied about that K instead of K: ideal pixel p = K (x/z, y/z) (so P = K [R|t] still holds),
+q = K_dist^-1 p, distorted pixel = K_dist D(q). This is flydra's model exactly (its helper's undistort is
+the inverse of it); with K_dist None it is OpenCV's, K_dist = K.
+With `interface` set (a `refraction.FlatInterface`: Braid's `<water>`, a tank wall) points beyond the
+plane are seen through it: they project as their refraction point on the plane does (refraction.py).
 """
 
 from __future__ import annotations
@@ -15,6 +21,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from flytrack_host.refraction import (
+    FlatInterface,
+    refraction_point,
+    refraction_point_jacobian,
+    trace_rays,
+    triangulate_rays,
+)
 
 F64 = NDArray[np.float64]
 
@@ -42,6 +56,8 @@ class Camera:
     R: F64
     t: F64
     dist: F64 = field(default_factory=lambda: np.zeros(5))
+    interface: FlatInterface | None = None
+    K_dist: F64 | None = None
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
@@ -53,8 +69,19 @@ class Camera:
             raise ValueError(f"camera {self.name}: at most 5 distortion coefficients (k1 k2 p1 p2 k3)")
         d[: given.size] = given
         self.dist = d
+        if self.K_dist is not None:
+            Kd = np.asarray(self.K_dist, dtype=np.float64).reshape(3, 3)
+            if not (np.all(np.isfinite(Kd)) and Kd[0, 0] > 0 and Kd[1, 1] > 0 and Kd[2, 2] == 1.0
+                    and Kd[1, 0] == 0 and Kd[2, 0] == 0 and Kd[2, 1] == 0):
+                raise ValueError(f"camera {self.name}: K_dist must be an upper-triangular intrinsic matrix "
+                                 "with positive focal lengths and K_dist[2, 2] = 1")
+            # The same K as the pinhole's (to rounding) is no separate distortion frame.
+            self.K_dist = None if np.allclose(Kd, self.K, rtol=1e-13, atol=0) else Kd
         if not (np.all(np.isfinite(self.K)) and np.all(np.isfinite(self.R)) and np.all(np.isfinite(self.t))):
             raise ValueError(f"camera {self.name}: calibration contains NaN or infinity")
+        if self.interface is not None and not float(self.interface.height(self.center)) > 0:
+            raise ValueError(f"camera {self.name}: its centre must lie on the near (normal) side of its "
+                             "refractive interface")
 
     # --- geometry -------------------------------------------------------------------------------
     @property
@@ -72,11 +99,35 @@ class Camera:
         return bool(np.any(self.dist != 0.0))
 
     def to_camera(self, Xw: ArrayLike) -> F64:
-        X = np.atleast_2d(np.asarray(Xw, dtype=np.float64))
-        return X @ self.R.T + self.t
+        """Camera coordinates of the point each world point is seen at: itself, or its refraction
+        point on the interface when it lies beyond it."""
+        return self.seen_at(Xw) @ self.R.T + self.t
 
-    def _pix(self, xn: F64, yn: F64) -> F64:
-        K = self.K
+    def seen_at(self, Xw: ArrayLike) -> F64:
+        """World points (N,3) -> the points (N,3) the camera's straight rays reach: the points
+        themselves, or for points beyond the refractive interface their refraction points on it."""
+        X = np.atleast_2d(np.asarray(Xw, dtype=np.float64))
+        if self.interface is None:
+            return X
+        beyond = self.interface.beyond(X)
+        if not beyond.any():
+            return X
+        S = refraction_point(self.center, X, self.interface)
+        return np.where(beyond[:, None], S, X)
+
+    @property
+    def Kd(self) -> F64:
+        """The K about which the distortion is applied (K_dist, or K)."""
+        return self.K if self.K_dist is None else self.K_dist
+
+    def _to_dist_frame(self, xn: F64, yn: F64) -> tuple[F64, F64]:
+        """Pinhole normalised coordinates -> the coordinates the distortion acts on (K_dist^-1 K x)."""
+        if self.K_dist is None:
+            return xn, yn
+        return self._normalize(self._pix(xn, yn), self.K_dist)
+
+    def _pix(self, xn: F64, yn: F64, K: F64 | None = None) -> F64:
+        K = self.K if K is None else K
         u = K[0, 0] * xn + K[0, 1] * yn + K[0, 2]
         v = K[1, 1] * yn + K[1, 2]
         return np.stack([u, v], axis=-1)
@@ -88,8 +139,9 @@ class Camera:
         with np.errstate(divide="ignore", invalid="ignore"):
             xn = np.where(z > 0, Xc[:, 0] / z, np.nan)
             yn = np.where(z > 0, Xc[:, 1] / z, np.nan)
+        xn, yn = self._to_dist_frame(xn, yn)
         xd, yd = _distort_normalized(xn, yn, self.dist)
-        return self._pix(xd, yd)
+        return self._pix(xd, yd, self.Kd)
 
     def project_undistorted(self, Xw: ArrayLike) -> F64:
         Xc = self.to_camera(Xw)
@@ -102,9 +154,18 @@ class Camera:
     def project_jacobian(self, Xw: ArrayLike) -> tuple[F64, F64]:
         """One world point (3,) -> (distorted pixel (2,), d pixel / d Xw (2,3)), analytically."""
         X = np.asarray(Xw, dtype=np.float64).reshape(3)
+        dS = None
+        if self.interface is not None and bool(self.interface.beyond(X)):
+            S = refraction_point(self.center, X, self.interface)
+            dS = refraction_point_jacobian(self.center, X, S, self.interface)
+            X = S
         Xc = self.R @ X + self.t
         z = Xc[2]
-        x, y = Xc[0] / z, Xc[1] / z
+        x0, y0 = Xc[0] / z, Xc[1] / z
+        # The distortion acts on q = A (x0, y0) + b, A = (K_dist^-1 K)[:2, :2].
+        A = np.linalg.solve(self.Kd, self.K)[:2, :2] if self.K_dist is not None else np.eye(2)
+        x, y = self._to_dist_frame(np.array([x0]), np.array([y0]))
+        x, y = float(x[0]), float(y[0])
         k1, k2, p1, p2, k3 = self.dist
         r2 = x * x + y * y
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -118,18 +179,21 @@ class Camera:
         dyd_dy = radial + y * dradial_dr2 * 2.0 * y + p1 * 6.0 * y + 2.0 * p2 * x
         Dd = np.array([[dxd_dx, dxd_dy], [dyd_dx, dyd_dy]])
         # d(x, y) / d Xc
-        Dn = np.array([[1.0 / z, 0.0, -x / z], [0.0, 1.0 / z, -y / z]])
-        Kp = self.K[:2, :2]
-        J = Kp @ Dd @ Dn @ self.R
-        uv = np.array([Kp[0, 0] * xd + Kp[0, 1] * yd + self.K[0, 2], Kp[1, 1] * yd + self.K[1, 2]])
+        Dn = np.array([[1.0 / z, 0.0, -x0 / z], [0.0, 1.0 / z, -y0 / z]])
+        Kd = self.Kd
+        Kp = Kd[:2, :2]
+        J = Kp @ Dd @ A @ Dn @ self.R
+        if dS is not None:
+            J = J @ dS
+        uv = np.array([Kp[0, 0] * xd + Kp[0, 1] * yd + Kd[0, 2], Kp[1, 1] * yd + Kd[1, 2]])
         return uv, J
 
     def distort(self, uv_ideal: ArrayLike) -> F64:
         """Ideal (undistorted) pixel coordinates (N,2) -> distorted pixel coordinates (N,2)."""
         uv = np.atleast_2d(np.asarray(uv_ideal, dtype=np.float64))
-        xn, yn = self._normalize(uv)
+        xn, yn = self._normalize(uv, self.Kd)
         xd, yd = _distort_normalized(xn, yn, self.dist)
-        return self._pix(xd, yd)
+        return self._pix(xd, yd, self.Kd)
 
     def undistort(self, uv: ArrayLike, iterations: int = 20) -> F64:
         """Distorted pixel coordinates (N,2) -> ideal pinhole pixel coordinates (N,2).
@@ -139,9 +203,10 @@ class Camera:
         does not converge (far outside the field the distortion model was fitted on, where it folds
         over) the point is NaN rather than a wrong position."""
         uv = np.atleast_2d(np.asarray(uv, dtype=np.float64))
-        xd, yd = self._normalize(uv)
+        Kd = self.Kd
+        xd, yd = self._normalize(uv, Kd)
         if not self.has_distortion:
-            return self._pix(xd, yd)
+            return self._pix(xd, yd, Kd)
         k1, k2, p1, p2, k3 = self.dist
         x, y = xd.copy(), yd.copy()
         for _ in range(iterations):
@@ -168,10 +233,10 @@ class Camera:
             bad = ~(np.hypot(fx - xd, fy - yd) < 1e-6)  # ~1e-3 px at f = 1000 px; NaN counts as bad
         x[bad] = np.nan
         y[bad] = np.nan
-        return self._pix(x, y)
+        return self._pix(x, y, Kd)
 
-    def _normalize(self, uv: F64) -> tuple[F64, F64]:
-        K = self.K
+    def _normalize(self, uv: F64, K: F64 | None = None) -> tuple[F64, F64]:
+        K = self.K if K is None else K
         yn = (uv[:, 1] - K[1, 2]) / K[1, 1]
         xn = (uv[:, 0] - K[0, 2] - K[0, 1] * yn) / K[0, 0]
         return xn, yn
@@ -184,6 +249,29 @@ class Camera:
         d_world = d_cam @ self.R  # R.T @ d for each row
         d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
         return self.center, d_world
+
+    def refracted_rays(self, uv: ArrayLike) -> tuple[F64, F64]:
+        """Distorted pixels (N,2) -> (origins (N,3), unit directions (N,3)) of the lines on which the
+        seen points lie: the camera's rays, or beyond the interface their refracted continuations."""
+        c, d = self.rays(uv)
+        return self._refract_rays(c, d)
+
+    def ideal_rays(self, uv_ideal: ArrayLike) -> tuple[F64, F64]:
+        """As refracted_rays, from undistorted pixels."""
+        uv = np.atleast_2d(np.asarray(uv_ideal, dtype=np.float64))
+        xn, yn = self._normalize(uv)
+        d = np.stack([xn, yn, np.ones_like(xn)], axis=-1) @ self.R
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return self._refract_rays(self.center, d)
+
+    def _refract_rays(self, c: F64, d: F64) -> tuple[F64, F64]:
+        origins = np.broadcast_to(c, d.shape).copy()
+        if self.interface is None:
+            return origins, d
+        S, t = trace_rays(c, d, self.interface)
+        hit = np.isfinite(S).all(axis=1) & np.isfinite(t).all(axis=1)
+        origins[hit], d = S[hit], np.where(hit[:, None], t, d)
+        return origins, d
 
     def in_view(self, Xw: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """Which world points are in front of the camera and project inside the image."""
@@ -206,6 +294,8 @@ class Camera:
         width: int,
         height: int,
         dist: ArrayLike = (0.0, 0.0, 0.0, 0.0, 0.0),
+        interface: FlatInterface | None = None,
+        K_dist: ArrayLike | None = None,
     ) -> Camera:
         """Decompose a 3x4 projection matrix (any scale and sign) into K, R, t (RQ decomposition).
 
@@ -232,7 +322,8 @@ class Camera:
         R = S @ R
         t = np.linalg.solve(K, Pm[:, 3])  # with the unscaled K, so the overall scale of P cancels
         K = K / K[2, 2]
-        return cls(name=name, width=width, height=height, K=K, R=R, t=t, dist=np.asarray(dist, dtype=float))
+        return cls(name=name, width=width, height=height, K=K, R=R, t=t, dist=np.asarray(dist, dtype=float),
+                   interface=interface, K_dist=None if K_dist is None else np.asarray(K_dist, dtype=float))
 
     @classmethod
     def look_at(
@@ -245,6 +336,7 @@ class Camera:
         focal_px: float,
         up: ArrayLike = (0.0, 0.0, 1.0),
         dist: ArrayLike = (0.0, 0.0, 0.0, 0.0, 0.0),
+        interface: FlatInterface | None = None,
     ) -> Camera:
         """A camera at `position` looking at `target` (handy for synthetic rigs and tests)."""
         c = np.asarray(position, dtype=np.float64)
@@ -259,7 +351,8 @@ class Camera:
         R = np.stack([x, y, z])
         t = -R @ c
         K = np.array([[focal_px, 0.0, (width - 1) / 2.0], [0.0, focal_px, (height - 1) / 2.0], [0, 0, 1.0]])
-        return cls(name=name, width=width, height=height, K=K, R=R, t=t, dist=np.asarray(dist, dtype=float))
+        return cls(name=name, width=width, height=height, K=K, R=R, t=t, dist=np.asarray(dist, dtype=float),
+                   interface=interface)
 
 
 def triangulate(cameras: Sequence[Camera], uv_ideal: Sequence[ArrayLike]) -> F64:
@@ -267,6 +360,8 @@ def triangulate(cameras: Sequence[Camera], uv_ideal: Sequence[ArrayLike]) -> F64
     NaN when the rays are (nearly) parallel, i.e. the point is at infinity."""
     if len(cameras) < 2 or len(cameras) != len(uv_ideal):
         raise ValueError("triangulation needs the same number (>= 2) of cameras and points")
+    if any(c.interface is not None for c in cameras):
+        return triangulate_refractive(cameras, uv_ideal)
     rows = []
     for cam, p in zip(cameras, uv_ideal, strict=True):
         u, v = np.asarray(p, dtype=np.float64).reshape(2)
@@ -281,3 +376,31 @@ def triangulate(cameras: Sequence[Camera], uv_ideal: Sequence[ArrayLike]) -> F64
     if not abs(X[3]) > 1e-12 * np.linalg.norm(X[:3]):
         return np.full(3, np.nan)  # rays (nearly) parallel: the point is at infinity
     return X[:3] / X[3]
+
+
+def triangulate_refractive(cameras: Sequence[Camera], uv_ideal: Sequence[ArrayLike], iterations: int = 8) -> F64:
+    """Triangulation through refractive interfaces: the (refracted) rays' least-squares point, weighted
+    by 1 / distance^2 so it approximates the angular error, then Gauss-Newton on the undistorted-pixel
+    reprojection error. Works for cameras without an interface too (their rays are straight)."""
+    rays = [c.ideal_rays(p) for c, p in zip(cameras, uv_ideal, strict=True)]
+    o = np.concatenate([r[0] for r in rays])
+    d = np.concatenate([r[1] for r in rays])
+    X = triangulate_rays(o, d)
+    if not np.all(np.isfinite(X)):
+        return np.full(3, np.nan)
+    centers = np.stack([c.center for c in cameras])
+    w = 1.0 / np.maximum(np.sum((X - centers) ** 2, axis=1), 1e-12)
+    X = triangulate_rays(o, d, w)
+    obs = np.concatenate([np.asarray(p, dtype=np.float64).reshape(1, 2) for p in uv_ideal])
+    for _ in range(iterations):
+        r = np.concatenate([c.project_undistorted(X) for c in cameras]) - obs
+        if not np.all(np.isfinite(r)):
+            break
+        h = 1e-7 * max(1.0, float(np.abs(X).max()))
+        J = np.stack([(np.concatenate([c.project_undistorted(X + h * e) for c in cameras]) - obs - r).ravel() / h
+                      for e in np.eye(3)], axis=1)
+        step = np.linalg.lstsq(J, -r.ravel(), rcond=None)[0]
+        X = X + step
+        if np.linalg.norm(step) < 1e-12 * max(1.0, float(np.linalg.norm(X))):
+            break
+    return X

@@ -32,6 +32,7 @@ _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.tracking.bench", "app", "bench", "Benchmarks that print measured figures."),
     ("flytrack_host.trigger.cli", "app", "trigger", "Trigger box: info, start, stop, watch, pulse, flash."),
     ("flytrack_host.calibration.cli", "app", "calibrate", "Calibration: selfcal, dlt, align, report, convert."),
+    ("flytrack_host.batch.cli", "app", "batch", "Batches on Dask: re-track many recordings, sweep parameters, export."),
 ]
 # (module, function, command name): top-level commands that live in their components.
 _COMMANDS: list[tuple[str, str, str]] = [
@@ -39,6 +40,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.io.cli", "export_command", "export"),
     ("flytrack_host.io.cli", "retrack_command", "retrack"),
     ("flytrack_host.sim.cli", "demo_command", "demo"),
+    ("flytrack_host.wingbeat.cli", "wingbeat_command", "wingbeat"),
 ]
 
 

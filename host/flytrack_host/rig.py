@@ -107,13 +107,40 @@ class RecordingConfig(_Strict):
     flush_interval_s: float = Field(1.0, gt=0, le=10, description="Append-only files are flushed this often.")
 
 
+ActuatorKind = Literal["trigger_pulse", "modbus", "can", "hid", "usb", "udp", "python"]
+
+# What `address` means and which fields each kind needs (flytrack_host.actuation.devices).
+_ADDRESS_NEEDED = {"modbus": "HOST:PORT (TCP) or a serial port (RTU)", "can": "the CAN channel, e.g. can0",
+                   "udp": "HOST:PORT", "python": "module:function or path/to/file.py:function"}
+
+
 class ActuatorConfig(_Strict):
+    """A device the closed-loop rules drive (flytrack_host.actuation); rules name it by `name`."""
+
     name: str = Field(min_length=1)
-    kind: Literal["trigger_pulse", "modbus", "can", "hid", "udp"] = Field(
-        description="How the actuator is driven."
-    )
-    address: str = Field("", description="Port, HOST:PORT, CAN channel or HID path, by kind.")
-    channel: int = Field(0, ge=0)
+    kind: ActuatorKind = Field(description="How the actuator is driven.")
+    address: str = Field("", description="HOST:PORT, serial port, CAN channel, HID path or module:function, by kind.")
+    channel: int = Field(0, ge=0, description="trigger_pulse: the firmware's output channel (0 = exact pulses).")
+    transport: Literal["tcp", "rtu"] = Field("tcp", description="modbus: TCP or RTU over a serial port.")
+    unit: int = Field(1, ge=0, le=247, description="modbus: device (unit) id.")
+    baud: int = Field(19200, gt=0, description="modbus RTU: serial speed.")
+    interface: str = Field("socketcan", description="can: python-can interface (socketcan, virtual, udp_multicast...).")
+    bitrate: int | None = Field(None, gt=0, description="can: bit rate, where the interface takes one.")
+    vendor_id: int | None = Field(None, ge=0, le=0xFFFF, description="hid/usb: USB vendor id.")
+    product_id: int | None = Field(None, ge=0, le=0xFFFF, description="hid/usb: USB product id.")
+    latency_ms: float = Field(0.0, ge=0, le=10000, description="The device's own latency, added to the prediction.")
+    timeout_s: float = Field(0.5, gt=0, le=60, description="Give up on one command after this long.")
+    queue: int = Field(16, ge=1, le=10000, description="Commands waiting for this device at most; more are dropped.")
+
+    @model_validator(mode="after")
+    def _needs(self) -> ActuatorConfig:
+        if self.kind in _ADDRESS_NEEDED and not self.address:
+            raise ValueError(f"actuator {self.name!r} ({self.kind}) needs `address`: {_ADDRESS_NEEDED[self.kind]}")
+        if self.kind in ("modbus", "udp") and self.transport == "tcp":
+            _check_host_port(self.address)
+        if self.kind in ("hid", "usb") and not self.address and (self.vendor_id is None or self.product_id is None):
+            raise ValueError(f"actuator {self.name!r} ({self.kind}) needs vendor_id and product_id, or `address`")
+        return self
 
 
 class RigConfig(_Strict):
@@ -127,6 +154,7 @@ class RigConfig(_Strict):
     tracking: TrackingParams = Field(default_factory=TrackingParams)
     recording: RecordingConfig = Field(default_factory=RecordingConfig)
     actuators: list[ActuatorConfig] = Field(default_factory=list)
+    rules: str | None = Field(None, description="Closed-loop rules file (TOML), relative to the rig file.")
 
     # Filled by load_rig: the folder relative paths are resolved against.
     base_dir: Path = Field(default=Path("."), exclude=True)
@@ -145,6 +173,10 @@ class RigConfig(_Strict):
                 raise ValueError(f"two cameras are named {cam.name!r}; camera names must be unique")
             seen_idx[cam.index] = cam.name
             seen_name.add(cam.name)
+        names = [a.name for a in self.actuators]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"actuator names {dup} are used twice; rules name actuators, so names must be unique")
         return self
 
     def camera_by_index(self, index: int) -> CameraConfig | None:
@@ -160,6 +192,10 @@ class RigConfig(_Strict):
     @property
     def calibration_path(self) -> Path | None:
         return None if self.calibration is None else self.resolve(self.calibration)
+
+    @property
+    def rules_path(self) -> Path | None:
+        return None if self.rules is None else self.resolve(self.rules)
 
     @property
     def recording_dir(self) -> Path:
@@ -216,4 +252,6 @@ def load_rig(path: Path | str, check_files: bool = True) -> RigConfig:
             path,
             [f"calibration: file {rig.calibration_path} does not exist (fix the path or run `flytrack calibrate`)"],
         )
+    if check_files and rig.rules_path is not None and not rig.rules_path.exists():
+        raise RigError(path, [f"rules: file {rig.rules_path} does not exist (fix the path, or remove `rules`)"])
     return rig

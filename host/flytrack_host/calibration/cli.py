@@ -363,8 +363,32 @@ def report_cmd(
 def convert_cmd(
     src: Path = typer.Argument(..., help="Any calibration file (flydra XML, pymvg JSON, OpenCV YAML, anipose)."),
     dst: Path = typer.Argument(..., help="Output: .xml (flydra), .json (pymvg) or .toml (anipose)."),
+    force: bool = typer.Option(False, "--force", help="Write even when the output cannot reproduce the source's "
+                               "projection within 0.1 px."),
 ) -> None:
-    """Convert a calibration between formats."""
-    cams = load_calibration(src)
-    save_calibration(cams, dst)
-    console.print(f"{len(cams)} cameras written to {dst}", highlight=False)
+    """Convert a calibration between formats (a flydra .h5's calibration group too). The output is read
+    back and compared with the source over each image: more than 0.1 px apart is an error unless --force."""
+    from flytrack_host.calibration.formats import compare_projections
+
+    warns: list[str] = []
+    fidelity: dict[str, float] = {}
+    cams = load_calibration(src, warns, fidelity)
+    for w in warns:
+        err.print(f"[yellow]warning[/yellow] {src}: {w}", highlight=False)
+    tmp = dst.with_name(dst.name + ".tmp" + dst.suffix)
+    save_calibration(cams, tmp)
+    try:
+        back = load_calibration(tmp, [])
+        diff = compare_projections(cams, back)
+    except Exception:
+        tmp.unlink(missing_ok=True)
+        raise
+    worst = {n: max(diff.get(n, 0.0), fidelity.get(n, 0.0)) for n in cams}
+    name, px = max(worst.items(), key=lambda kv: kv[1])
+    if px > 0.1 and not force:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"{dst} would not reproduce {src}'s projection: camera {name!r} is {px:.3g} px off "
+                         "(more than 0.1 px). Pass --force to write it anyway, or choose flydra XML (.xml).")
+    tmp.replace(dst)
+    console.print(f"{len(cams)} cameras written to {dst} (largest difference from the source's projection "
+                  f"{px:.2g} px)", highlight=False)

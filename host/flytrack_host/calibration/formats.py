@@ -6,6 +6,8 @@ so the tracker, the simulator and the calibration never see a file format.
 flydra XML (`multi_camera_reconstructor`): per camera a `calibration_matrix` P (3x4, for undistorted pixels,
 rows separated by ';'), `resolution` (width height) and optional `non_linear_parameters` (Bouguet's
 model: fc1 fc2 cc1 cc2 k1 k2 p1 p2 alpha_c, optionally k3 and the rectified intrinsics fc1p fc2p cc1p cc2p).
+An optional `<water>n</water>` in the root (Braid) puts every camera above a water surface at z = 0 of
+refractive index n (Camera.interface = refraction.FlatInterface.water_surface(n)); we write it back.
 A per-camera `scale_factor` multiplies the last column of P (old files in mm -> m). We write P = K[R|t]
 with 17 significant digits and fc1p.. equal to fc1.., so a file we write reads back exactly.
 
@@ -16,6 +18,7 @@ R the rectification (identity for us) and P the rectified projection.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import tomllib
@@ -26,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from flytrack_host.camera import Camera, distort_normalized
+from flytrack_host.refraction import FlatInterface
 
 __all__ = [
     "CalibrationFormatError",
@@ -42,7 +46,8 @@ __all__ = [
     "FORMATS",
 ]
 
-FORMATS = ("flydra-xml", "pymvg-json", "opencv-yaml", "anipose-toml")
+FORMATS = ("flydra-xml", "pymvg-json", "opencv-yaml", "anipose-toml", "flydra-h5")
+_HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 # Below this many pixels a flydra camera whose distortion and projection intrinsics differ is still
 # represented exactly enough by one K; above it the reader says how far off it is.
@@ -69,11 +74,13 @@ def detect_format(path: str | Path) -> str:
         raise _fail(p, "no such file", "Check the path.") from None
     except OSError as exc:
         raise _fail(p, f"cannot be read ({exc.strerror})", "Check the path and its permissions.") from None
+    if raw.startswith(_HDF5_MAGIC):
+        return "flydra-h5"  # flydra's .h5 with a calibration group (read by io.flydra_h5)
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise _fail(p, "is not a text file",
-                    "Give a flydra XML, pymvg JSON, OpenCV YAML or anipose TOML file.") from None
+                    "Give a flydra XML or .h5, pymvg JSON, OpenCV YAML or anipose TOML file.") from None
     head = text.lstrip()
     if not head:
         raise _fail(p, "is empty", "Give a calibration file with at least one camera.")
@@ -89,18 +96,53 @@ def detect_format(path: str | Path) -> str:
                 "Give a flydra XML, pymvg JSON, OpenCV YAML (%YAML:1.0) or anipose TOML file.")
 
 
-def load_calibration(path: str | Path) -> dict[str, Camera]:
-    """Read any supported calibration file (format detected from its content)."""
+def load_calibration(
+    path: str | Path, warnings: list[str] | None = None, fidelity: dict[str, float] | None = None
+) -> dict[str, Camera]:
+    """Read any supported calibration file (format detected from its content). The readers' warnings
+    (e.g. a flydra model FlyTrack reproduces only approximately) go to `warnings` when given, else to
+    this module's logger at WARNING level, so they always reach the user. `fidelity` gets, per camera
+    whose file model FlyTrack can only approximate, the largest pixel difference measured over its image."""
+    import logging
+
     fmt = detect_format(path)
-    readers = {
-        "flydra-xml": load_flydra_xml,
-        "pymvg-json": load_pymvg_json,
-        "opencv-yaml": load_opencv_yaml,
-        "anipose-toml": load_anipose_toml,
-    }
-    cams = readers[fmt](path)
+    warns: list[str] = []
+    if fmt == "flydra-xml":
+        cams = load_flydra_xml(path, warns, fidelity)
+    elif fmt == "pymvg-json":
+        cams = load_pymvg_json(path, warns)
+    elif fmt == "flydra-h5":
+        cams = load_flydra_h5_calibration(path, warns)
+    elif fmt == "opencv-yaml":
+        cams = load_opencv_yaml(path)
+    else:
+        cams = load_anipose_toml(path)
     if not cams:
         raise _fail(path, "contains no cameras", "Give a calibration file with at least one camera.")
+    if warnings is not None:
+        warnings.extend(warns)
+    else:
+        for w in warns:
+            logging.getLogger(__name__).warning("%s: %s", path, w)
+    return cams
+
+
+def load_flydra_h5_calibration(path: str | Path, warnings: list[str] | None = None) -> dict[str, Camera]:
+    """The `calibration` group of a flydra .h5 (io.flydra_h5.read_flydra_calibration)."""
+    import h5py
+
+    from flytrack_host.io.flydra_h5 import FlydraH5Error, read_flydra_calibration
+
+    try:
+        with h5py.File(path, "r") as h5:
+            cams = read_flydra_calibration(h5, warnings)
+    except OSError as exc:
+        raise _fail(path, f"is not a readable HDF5 file ({exc})", "Check the file.") from None
+    except FlydraH5Error as exc:
+        raise _fail(path, str(exc), "Check the file.") from None
+    if not cams:
+        raise _fail(path, "has no calibration group (calibration/pmat/<cam_id>)",
+                    "Give the calibration separately (an XML file), or a flydra .h5 that holds one.")
     return cams
 
 
@@ -116,6 +158,14 @@ def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str |
     writers = {"flydra-xml": save_flydra_xml, "pymvg-json": save_pymvg_json, "anipose-toml": save_anipose_toml}
     if fmt not in writers:
         raise CalibrationFormatError(f"cannot write format {fmt!r}; FlyTrack writes {sorted(writers)}.")
+    if fmt != "flydra-xml" and any(c.interface is not None for c in cameras.values()):
+        raise CalibrationFormatError(
+            f"{path}: {fmt} has no place for refraction (these cameras look through water); write flydra XML "
+            "(.xml), whose <water> element keeps it.")
+    if fmt != "flydra-xml" and any(c.K_dist is not None for c in cameras.values()):
+        raise CalibrationFormatError(
+            f"{path}: {fmt} has one K per camera, but these cameras' distortion is about another K than their "
+            "projection's (flydra's model); write flydra XML (.xml), which keeps it exactly.")
     writers[fmt](cameras, path)
 
 
@@ -204,12 +254,12 @@ def _flydra_project(P: np.ndarray, Kh: np.ndarray, Kp: np.ndarray, dist: np.ndar
     x = np.hstack([X, np.ones((len(X), 1))]) @ P.T
     x = x[:, :2] / x[:, 2:3]
     yn = (x[:, 1] - Kp[1, 2]) / Kp[1, 1]
-    xn = (x[:, 0] - Kp[0, 2]) / Kp[0, 0]
+    xn = (x[:, 0] - Kp[0, 2] - Kp[0, 1] * yn) / Kp[0, 0]
     xd, yd = distort_normalized(xn, yn, dist)
     return np.stack([Kh[0, 0] * xd + Kh[0, 1] * yd + Kh[0, 2], Kh[1, 1] * yd + Kh[1, 2]], axis=1)
 
 
-def _flydra_camera(elem: ET.Element, path: Path | str, warnings: list[str]) -> Camera:
+def _flydra_camera(elem: ET.Element, path: Path | str, warnings: list[str], fidelity: dict[str, float]) -> Camera:
     cam_el = elem.find("cam_id")
     if cam_el is None or not (cam_el.text or "").strip():
         raise _fail(path, "a <single_camera_calibration> has no <cam_id>", "Give every camera a cam_id.")
@@ -264,32 +314,51 @@ def _flydra_camera(elem: ET.Element, path: Path | str, warnings: list[str]) -> C
     cc1p = _xml_float(nl, "cc1p", path, name, default=cc1)
     cc2p = _xml_float(nl, "cc2p", path, name, default=cc2)
     dist = np.array([k1, k2, p1, p2, k3])
-    if not np.any(dist != 0.0):
-        # Distortion is the identity, so only P matters (undistorted and distorted pixels coincide when
-        # the helper's forward and back normalisations agree, which is the flydra default).
-        if (fc1, fc2, cc1, cc2) != (fc1p, fc2p, cc1p, cc2p):
-            warnings.append(f"camera {name!r}: zero distortion but rectified intrinsics differ; used P only")
-        return base
+    # flydra's helper: undistort normalises distorted pixels by Kh (fc, cc, alpha_c), removes the lens
+    # distortion, and maps back with Kp (fc1p.., same skew); distort is its inverse. P gives the ideal
+    # pixels. When Kh == Kp ("simple", what flydra writes) that is exactly Camera(K from P, K_dist=Kh).
     Kh = np.array([[fc1, alpha * fc1, cc1], [0.0, fc2, cc2], [0.0, 0.0, 1.0]])
-    Kp = np.array([[fc1p, 0.0, cc1p], [0.0, fc2p, cc2p], [0.0, 0.0, 1.0]])
-    cam = Camera(name=name, width=w, height=h, K=Kh, R=base.R, t=base.t, dist=dist)
-    # flydra's projection: normalised coords are Kp^-1 P X; distort; then Kh. Ours uses one K. Measure
-    # how far the two differ over the image and say so when it matters.
-    if not np.allclose(np.linalg.solve(Kp, base.K), np.eye(3), rtol=0, atol=1e-12):
+    Kp = np.array([[fc1p, alpha * fc1p, cc1p], [0.0, fc2p, cc2p], [0.0, 0.0, 1.0]])
+    simple = (fc1, fc2, cc1, cc2) == (fc1p, fc2p, cc1p, cc2p)
+    if not np.any(dist != 0.0):
+        if not simple:
+            warnings.append(f"camera {name!r}: zero distortion but rectified intrinsics differ; used P only")
+        return base  # the distortion is the identity: P alone
+    cam = Camera(name=name, width=w, height=h, K=base.K, R=base.R, t=base.t, dist=dist, K_dist=Kh)
+    if not simple:
+        # Distortion about Kp on the way in and Kh on the way out: one K_dist cannot hold both. Measure
+        # how far the model is from flydra's over the image and say so.
         gu, gv = np.meshgrid(np.linspace(0, w - 1, 9), np.linspace(0, h - 1, 9))
         uv = np.stack([gu.ravel(), gv.ravel()], axis=1)
         centre, rays = cam.rays(uv)
         err = float(np.nanmax(np.linalg.norm(_flydra_project(P, Kh, Kp, dist, centre + rays) - uv, axis=1)))
+        fidelity[name] = err
         if err > _FLYDRA_APPROX_WARN_PX:
             warnings.append(
-                f"camera {name!r}: its distortion intrinsics (fc1.., fc1p..) differ from those of P; FlyTrack's "
-                f"single-K model reproduces flydra's projection to within {err:.3g} px. Re-run the calibration "
+                f"camera {name!r}: its rectified intrinsics (fc1p.., cc1p..) differ from fc1.., cc1..; FlyTrack's "
+                f"model reproduces flydra's projection to within {err:.3g} px. Re-run the calibration "
                 "(flytrack calibrate selfcal) for an exact model.")
     return cam
 
 
-def load_flydra_xml(path: str | Path, warnings: list[str] | None = None) -> dict[str, Camera]:
+def flydra_projection(P: np.ndarray, cam_xml_nl: dict[str, float], X: np.ndarray) -> np.ndarray:
+    """flydra's distorted projection of world points X (N, 3) for a 3x4 P and the XML's non-linear
+    parameters (fc1 fc2 cc1 cc2 k1 k2 p1 p2 [alpha_c k3 fc1p fc2p cc1p cc2p]); the reference tests and
+    conversions check FlyTrack's cameras against."""
+    g = cam_xml_nl.get
+    a = g("alpha_c", 0.0)
+    Kh = np.array([[g("fc1"), a * g("fc1"), g("cc1")], [0.0, g("fc2"), g("cc2")], [0.0, 0.0, 1.0]])
+    fc1p, fc2p = g("fc1p", g("fc1")), g("fc2p", g("fc2"))
+    Kp = np.array([[fc1p, a * fc1p, g("cc1p", g("cc1"))], [0.0, fc2p, g("cc2p", g("cc2"))], [0.0, 0.0, 1.0]])
+    dist = np.array([g("k1"), g("k2"), g("p1"), g("p2"), g("k3", 0.0)])
+    return _flydra_project(P, Kh, Kp, dist, X)
+
+
+def load_flydra_xml(
+    path: str | Path, warnings: list[str] | None = None, fidelity: dict[str, float] | None = None
+) -> dict[str, Camera]:
     warns = warnings if warnings is not None else []
+    fid = fidelity if fidelity is not None else {}
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
@@ -299,15 +368,46 @@ def load_flydra_xml(path: str | Path, warnings: list[str] | None = None) -> dict
     mcr = root if root.tag == "multi_camera_reconstructor" else root.find(".//multi_camera_reconstructor")
     if mcr is None:
         raise _fail(path, "has no <multi_camera_reconstructor> element", "This is not a flydra calibration file.")
-    cams = [_flydra_camera(e, path, warns) for e in mcr.findall("single_camera_calibration")]
+    cams = [_flydra_camera(e, path, warns, fid) for e in mcr.findall("single_camera_calibration")]
     if not cams:
         raise _fail(path, "has no <single_camera_calibration> element", "Give at least one camera.")
     _check_unique([c.name for c in cams], path)
+    water = _flydra_water(mcr, path)
+    if water is not None:
+        cams = [dataclasses.replace(c, interface=water) for c in cams]
     return {c.name: c for c in cams}
+
+
+def _flydra_water(mcr: ET.Element, path: Path | str) -> FlatInterface | None:
+    el = mcr.find("water")
+    if el is None:
+        return None
+    text = (el.text or "").strip()
+    try:
+        n = float(text)
+    except ValueError:
+        raise _fail(path, f"<water> is {text!r}, not a refractive index", "Write e.g. <water>1.333</water>.") from None
+    if not (math.isfinite(n) and n >= 1.0):
+        raise _fail(path, f"<water> is {n!r}; a refractive index is finite and >= 1", "Fix the file.")
+    return FlatInterface.water_surface(n)
+
+
+def _common_water(cameras: Mapping[str, Camera], path: Path | str) -> FlatInterface | None:
+    """The one water surface all cameras share (what <water> can hold), or None; anything else is an error."""
+    ifcs = {c.interface for c in cameras.values()}
+    if ifcs == {None}:
+        return None
+    (ifc,) = ifcs if len(ifcs) == 1 else (None,)
+    if ifc is None or not ifc.is_braid_water:
+        raise CalibrationFormatError(
+            f"{path}: flydra XML can only hold one water surface at z = 0 shared by every camera (<water>); "
+            "these cameras have other refractive interfaces, which no format FlyTrack writes can hold.")
+    return ifc
 
 
 def save_flydra_xml(cameras: Mapping[str, Camera], path: str | Path, minimum_eccentricity: float = 1.4) -> None:
     """Write flydra's `multi_camera_reconstructor` XML (world units: metres, scale_factor absent)."""
+    water = _common_water(cameras, path)
     root = ET.Element("multi_camera_reconstructor")
     for name, cam in cameras.items():
         sc = ET.SubElement(root, "single_camera_calibration")
@@ -316,7 +416,7 @@ def save_flydra_xml(cameras: Mapping[str, Camera], path: str | Path, minimum_ecc
         ET.SubElement(sc, "calibration_matrix").text = "; ".join(" ".join(_fmt(v) for v in row) for row in P)
         ET.SubElement(sc, "resolution").text = f"{int(cam.width)} {int(cam.height)}"
         nl = ET.SubElement(sc, "non_linear_parameters")
-        K = cam.K
+        K = cam.Kd  # the distortion's K (flydra's fc, cc, alpha_c); P holds the pinhole's
         k1, k2, p1, p2, k3 = cam.dist
         vals = {
             "fc1": K[0, 0], "fc2": K[1, 1], "cc1": K[0, 2], "cc2": K[1, 2],
@@ -328,6 +428,8 @@ def save_flydra_xml(cameras: Mapping[str, Camera], path: str | Path, minimum_ecc
         for tag, v in vals.items():
             ET.SubElement(nl, tag).text = _fmt(v)
     ET.SubElement(root, "minimum_eccentricity").text = _fmt(minimum_eccentricity)
+    if water is not None:
+        ET.SubElement(root, "water").text = _fmt(water.n_far)
     ET.indent(root)
     Path(path).write_text(ET.tostring(root, encoding="unicode") + "\n")
 
@@ -539,3 +641,26 @@ def save_anipose_toml(cameras: Mapping[str, Camera], path: str | Path) -> None:
                   f"rotation = {arr(_matrix_to_rodrigues(cam.R))}", f"translation = {arr(cam.t)}", ""]
     lines += ["[metadata]", 'adjusted = true', 'error = 0.0', ""]
     Path(path).write_text("\n".join(lines))
+
+
+def compare_projections(a: Mapping[str, Camera], b: Mapping[str, Camera]) -> dict[str, float]:
+    """Per camera of `a` (also in `b`): the largest pixel distance between their distorted projections
+    of 3D points on the rays of a 9x9 pixel grid at 3 depths around the rig's scale (a conversion check)."""
+    centres = np.stack([c.center for c in a.values()])
+    scale = max(float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max()), 1e-3)
+    out: dict[str, float] = {}
+    for name, ca in a.items():
+        cb = b.get(name)
+        if cb is None:
+            out[name] = float("inf")
+            continue
+        gu, gv = np.meshgrid(np.linspace(0, ca.width - 1, 9), np.linspace(0, ca.height - 1, 9))
+        uv = np.stack([gu.ravel(), gv.ravel()], axis=1)
+        o, d = ca.refracted_rays(uv)
+        ok = np.isfinite(d).all(axis=1)
+        X = np.concatenate([o[ok] + f * scale * d[ok] for f in (0.3, 1.0, 2.0)])
+        pa, pb = ca.project(X), cb.project(X)
+        good = np.isfinite(pa).all(axis=1)
+        diff = np.linalg.norm(pa[good] - pb[good], axis=1)
+        out[name] = float(np.nan_to_num(diff, nan=np.inf).max()) if diff.size else 0.0
+    return out

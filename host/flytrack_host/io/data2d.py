@@ -29,6 +29,8 @@ class Data2D:
     notes: list[str] = field(default_factory=list)
     tracking_params: dict | None = None
     cameras: dict[int, Camera] | None = None  # when the source carries a calibration in another form
+    # trigger_clock_info rows (start_timestamp, framecount, tcnt or fraction, stop_timestamp), if any
+    clock_samples: np.ndarray | None = None
 
 
 def empty_rows(n: int) -> np.ndarray:

@@ -1,14 +1,24 @@
-"""Import flydra's `.h5` (PyTables) 2D data for re-tracking.
+"""Import flydra's `.h5` (PyTables) 2D data, calibration, tracks and clock samples, faithfully.
 
-Tables read: `data2d_distorted` (camn, frame, timestamp, cam_received_timestamp, x, y, area, slope,
-eccentricity, frame_pt_idx, cur_val, mean_val, sumsqf_val) and `cam_info` (camn, cam_id). PyTables
-tables are HDF5 compound datasets, so h5py reads them. The calibration, when present, is the group
-flydra's reconstructor writes: `calibration/pmat/<cam_id>` (3x4), `calibration/resolution/<cam_id>`
-and `calibration/intrinsic_nonlinear/<cam_id>` (k1, k2, p1, p2[, k3]).
+Tables read (PyTables tables are HDF5 compound datasets, so h5py reads them): `data2d_distorted`
+(camn, frame, timestamp, cam_received_timestamp, x, y, area, slope, eccentricity, frame_pt_idx, cur_val,
+mean_val, sumsqf_val), `cam_info` (camn, cam_id), `textlog` (..., message), `kalman_estimates` (obj_id,
+frame, timestamp, x, y, z, ...) and `trigger_clock_info` (start_timestamp, framecount, tcnt,
+stop_timestamp).
+
+The calibration group is read as flydra's Reconstructor reads it:
+- `calibration/pmat/<cam_id>` (3x4) is in the world units of `calibration/scale_factor2meters/<cam_id>`
+  (e.g. 0.001: millimetres): P's last column is multiplied by it, so FlyTrack's world is in metres;
+- `calibration/intrinsic_linear/<cam_id>` is the K about which flydra applies the distortion
+  `calibration/intrinsic_nonlinear/<cam_id>` (k1, k2, p1, p2[, k3]); the linear part comes from P.
+  That is Camera(K from P, K_dist = intrinsic_linear): flydra's projection exactly;
+- `calibration/resolution/<cam_id>`; `calibration/refractive_interfaces` (a water surface z = 0, n2).
+The frame rate comes from the textlog's "... running at N fps" line (as flydra and Braid write it).
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import h5py
@@ -18,6 +28,9 @@ import pandas as pd
 from flytrack_host.camera import Camera
 from flytrack_host.io.braidz import _rows_from_braid_df
 from flytrack_host.io.data2d import Data2D
+from flytrack_host.refraction import FlatInterface
+
+_FPS_RE = re.compile(r"running at\s+([0-9]+(?:\.[0-9]*)?(?:[eE][+-]?[0-9]+)?)\s*fps")
 
 
 class FlydraH5Error(Exception):
@@ -25,24 +38,93 @@ class FlydraH5Error(Exception):
 
 
 def _text(v: object) -> str:
-    return v.decode() if isinstance(v, bytes) else str(v)
+    return v.decode(errors="replace") if isinstance(v, bytes) else str(v)
 
 
-def read_flydra_calibration(h5: h5py.File) -> dict[str, Camera]:
+def fps_from_textlog(messages: list[str]) -> float | None:
+    """The frame rate of a flydra/Braid textlog ("MainBrain running at 100 fps, ..."), else None."""
+    for msg in messages:
+        m = _FPS_RE.search(msg)
+        if m:
+            v = float(m.group(1))
+            if np.isfinite(v) and v > 0:
+                return v
+    return None
+
+
+def read_flydra_calibration(h5: h5py.File, warnings: list[str] | None = None) -> dict[str, Camera]:
+    """cam_id -> Camera from a flydra .h5's `calibration` group ({} when it has none)."""
+    warns = warnings if warnings is not None else []
     if "calibration" not in h5 or "pmat" not in h5["calibration"]:
         return {}
     g = h5["calibration"]
+    water = None
+    if "refractive_interfaces" in g:
+        ri = g["refractive_interfaces"][...]
+        if len(ri) > 1:
+            raise FlydraH5Error(f"calibration/refractive_interfaces has {len(ri)} rows; FlyTrack reads one water "
+                                "surface")
+        if len(ri) == 1:
+            r = ri[0]
+            nrm = (float(r["plane_normal_x"]), float(r["plane_normal_y"]), float(r["plane_normal_z"]))
+            if nrm != (0.0, 0.0, 1.0) or float(r["plane_dist_from_origin"]) != 0.0:
+                raise FlydraH5Error("calibration/refractive_interfaces: only the plane z = 0 (normal +z) is "
+                                    "flydra's water surface")
+            water = FlatInterface((0.0, 0.0, 0.0), nrm, n_far=float(r["n2"]), n_near=float(r["n1"]))
     cams = {}
     for cam_id, ds in g["pmat"].items():
         P = np.asarray(ds[...], dtype=np.float64)
-        w, h = (int(v) for v in np.asarray(g["resolution"][cam_id][...]).ravel()[:2]) \
-            if "resolution" in g and cam_id in g["resolution"] else (640, 480)
+        if P.shape != (3, 4) or not np.all(np.isfinite(P)):
+            raise FlydraH5Error(f"calibration/pmat/{cam_id} is not a finite 3x4 matrix")
+        if "scale_factor2meters" in g and cam_id in g["scale_factor2meters"]:
+            sf = float(np.asarray(g["scale_factor2meters"][cam_id][...]).ravel()[0])
+            if not (np.isfinite(sf) and sf > 0):
+                raise FlydraH5Error(f"calibration/scale_factor2meters/{cam_id} is {sf!r}, not a positive number")
+            P = P.copy()
+            P[:, 3] *= sf  # flydra: X_m = sf X_units, so P X_units = [M | sf p4] X_m
+        if "resolution" in g and cam_id in g["resolution"]:
+            w, h = (int(v) for v in np.asarray(g["resolution"][cam_id][...]).ravel()[:2])
+        else:
+            w, h = 640, 480
+            warns.append(f"camera {cam_id!r}: no calibration/resolution; assumed 640x480")
         dist = np.zeros(5)
         if "intrinsic_nonlinear" in g and cam_id in g["intrinsic_nonlinear"]:
             nl = np.asarray(g["intrinsic_nonlinear"][cam_id][...], dtype=np.float64).ravel()
             dist[: min(5, nl.size)] = nl[:5]
-        cams[cam_id] = Camera.from_P(cam_id, P, w, h, dist)
+        K_dist = None
+        if "intrinsic_linear" in g and cam_id in g["intrinsic_linear"]:
+            K = np.asarray(g["intrinsic_linear"][cam_id][...], dtype=np.float64).reshape(3, 3)
+            # flydra's helper is built from fc = K[0,0], K[1,1] and cc = K[0,2], K[1,2] only.
+            K_dist = np.array([[K[0, 0], 0.0, K[0, 2]], [0.0, K[1, 1], K[1, 2]], [0.0, 0.0, 1.0]])
+        elif np.any(dist != 0):
+            warns.append(f"camera {cam_id!r}: no calibration/intrinsic_linear; the distortion is taken about "
+                         "P's own K")
+        try:
+            cams[cam_id] = Camera.from_P(cam_id, P, w, h, dist, interface=water,
+                                         K_dist=K_dist if np.any(dist != 0) else None)
+        except ValueError as exc:
+            raise FlydraH5Error(str(exc)) from None
     return cams
+
+
+def _table(h5: h5py.File, name: str) -> np.ndarray | None:
+    if name not in h5:
+        return None
+    obj = h5[name]
+    if not isinstance(obj, h5py.Dataset) or obj.dtype.names is None:
+        return None
+    return obj[...]
+
+
+def read_flydra_kalman(path: Path | str) -> pd.DataFrame | None:
+    """flydra's own tracks (`kalman_estimates`: obj_id, frame, x, y, z, ...), positions in metres."""
+    with h5py.File(path, "r") as h5:
+        k = _table(h5, "kalman_estimates")
+        if k is None:
+            return None
+        df = pd.DataFrame({n: k[n] for n in k.dtype.names if k[n].ndim == 1})
+        # flydra writes kalman positions in metres (its reconstructor is scaled before tracking).
+    return df
 
 
 def read_flydra_h5(path: Path | str) -> Data2D:
@@ -51,6 +133,7 @@ def read_flydra_h5(path: Path | str) -> Data2D:
         h5 = h5py.File(path, "r")
     except OSError as exc:
         raise FlydraH5Error(f"{path}: not an HDF5 file: {exc}") from None
+    notes: list[str] = []
     with h5:
         if "data2d_distorted" not in h5:
             raise FlydraH5Error(f"{path}: no data2d_distorted table; not a flydra 2D data file")
@@ -59,14 +142,26 @@ def read_flydra_h5(path: Path | str) -> Data2D:
             raise FlydraH5Error(f"{path}: data2d_distorted is not a table with camn, frame, x, y columns")
         df = pd.DataFrame({n: raw[n] for n in raw.dtype.names})
         names: dict[int, str] = {}
-        if "cam_info" in h5:
-            ci = h5["cam_info"][...]
+        ci = _table(h5, "cam_info")
+        if ci is not None:
             names = {int(r["camn"]): _text(r["cam_id"]) for r in ci}
-        by_id = read_flydra_calibration(h5)
+        by_id = read_flydra_calibration(h5, notes)
         fps = None
+        tl = _table(h5, "textlog")
+        if tl is not None and "message" in tl.dtype.names:
+            fps = fps_from_textlog([_text(m) for m in tl["message"]])
         for key in ("fps", "framerate"):
-            if key in h5.attrs:
+            if fps is None and key in h5.attrs:
                 fps = float(h5.attrs[key])
+        clock = _table(h5, "trigger_clock_info")
     rows = _rows_from_braid_df(df)
     cameras = {camn: by_id[cid] for camn, cid in names.items() if cid in by_id} if by_id else None
-    return Data2D(rows=rows, cam_names=names, fps=fps, calibration=None, source=str(path), cameras=cameras)
+    if by_id and names:
+        absent = sorted(cid for cid in names.values() if cid not in by_id)
+        if absent:
+            notes.append(f"camera(s) {', '.join(absent)} have 2D data but no calibration: their points are not used")
+    data = Data2D(rows=rows, cam_names=names, fps=fps, calibration=None, source=str(path), cameras=cameras,
+                  notes=notes)
+    if clock is not None and len(clock):
+        data.clock_samples = clock
+    return data

@@ -106,11 +106,23 @@ def _copy_table(h5: h5py.File, folder: Path, name: str, dt: np.dtype, report: Fi
         del mm
 
 
-def finalize(folder: Path | str) -> FinalizeReport:
+def finalize(folder: Path | str, out: Path | str | None = None) -> FinalizeReport:
+    """Raw files of `folder` -> its recording.h5 (or `out`, e.g. on another disk when this one is
+    full). Written to a temporary file first: a failure (a full disk) leaves no half file behind."""
     folder = Path(folder)
     meta = read_meta(folder)
-    report = FinalizeReport(h5_path=folder / H5_NAME)
-    tmp = folder / (H5_NAME + ".tmp")
+    report = FinalizeReport(h5_path=Path(out) if out is not None else folder / H5_NAME)
+    tmp = report.h5_path.with_name(report.h5_path.name + ".tmp")
+    try:
+        _write_h5(folder, meta, report, tmp)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # frees what it took: the raw files stay, nothing is lost
+        raise
+    os.replace(tmp, report.h5_path)
+    return report
+
+
+def _write_h5(folder: Path, meta: dict, report: FinalizeReport, tmp: Path) -> None:
     last_t: list[float] = []
     from flytrack_host.latency import LatencyStats  # (import cycle)
 
@@ -142,6 +154,4 @@ def finalize(folder: Path | str) -> FinalizeReport:
                 continue
             h5.attrs[k] = json.dumps(v)
         h5.attrs["recovered_partial_bytes"] = json.dumps(report.partial_bytes_dropped)
-    os.replace(tmp, report.h5_path)
     report.last_host_time = max(last_t) if last_t else None
-    return report

@@ -91,6 +91,33 @@ CAMERA_STATUS = np.dtype(
     ]
 )
 
+# One row per action of each rule firing (flytrack_host.actuation). For a high-speed camera on a trigger
+# pulse output, `scheduled_frame` of a row with FIRING_FRAME_EXACT is the trigger frame of its buffer's
+# trigger point (the firmware started the pulse with that frame), which aligns its video with the tracks.
+FIRINGS = np.dtype(
+    [
+        ("rule", "S32"),
+        ("output", "S32"),
+        ("kind", "S16"),
+        ("obj_id", "<u4"),
+        ("condition_frame", "<i8"),  # trigger frame whose estimate made the rule fire
+        ("scheduled_frame", "<i8"),  # trigger frame the action was meant for (-1: unknown)
+        ("frame_time", "<f8"),  # trigger time (host clock) of condition_frame
+        ("estimate_time", "<f8"),  # host time the estimate of condition_frame was made
+        ("time_sent", "<f8"),  # host time the command left for the device
+        ("time_ack", "<f8"),  # host time the device acknowledged (NaN: no acknowledgement)
+        ("x", "<f4"),  # the (predicted) position the condition was true at
+        ("y", "<f4"),
+        ("z", "<f4"),
+        ("flags", "u1"),  # FIRING_* bits
+        ("error", "S96"),  # empty when the action succeeded
+    ]
+)
+FIRING_DRY_RUN = 1  # the rule is a dry run: nothing was sent
+FIRING_PREDICTED = 2  # evaluated on the state predicted to scheduled_frame
+FIRING_FRAME_EXACT = 4  # the device placed the action at scheduled_frame exactly (trigger pulse, acked)
+FIRING_FAILED = 8
+
 TABLES: dict[str, np.dtype] = {
     "data2d_distorted": DATA2D,
     "kalman_estimates": KALMAN,
@@ -99,6 +126,7 @@ TABLES: dict[str, np.dtype] = {
     "trigger_clock_info": TRIGGER_CLOCK,
     "latency": LATENCY,
     "camera_status": CAMERA_STATUS,
+    "actuation_firings": FIRINGS,
 }
 
 

@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
 from flytrack_host.sim.run import ROOT, DemoConfig, DemoError, DemoReport, run_demo, write_json
 
@@ -62,6 +63,10 @@ def summary_table(r: DemoReport) -> Table:
             f"{k.replace('simulated ', 'sim ')} {v:.1f}" for k, v in r.cpu_seconds.items()))
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
+    if r.actuation:
+        from flytrack_host.sim.closed_loop import closed_loop_line
+
+        t.add_row("closed loop", *closed_loop_line(r.actuation))
     return t
 
 
@@ -77,12 +82,32 @@ def demo_command(
     json_path: Path | None = typer.Option(None, "--json", help="Write every figure of the summary here."),
     trigger: str = typer.Option("auto", "--trigger", help="auto | simavr | software"),
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    rules: Path | None = typer.Option(
+        None, "--rules", help="Closed-loop rules file (e.g. examples/closed_loop.toml): its rules drive the "
+        "firmware's high-speed camera line, a Modbus TCP server and a CAN bus on loopback, scored against the "
+        "flight's ground truth (JSON `actuation`)."),
+    serve: bool = typer.Option(False, "--serve", help="Serve Braid's event stream and the live page while it "
+                               "runs (on --http, default 127.0.0.1:8397)."),
+    http: str = typer.Option("127.0.0.1:8397", "--http", help="With --serve: " + HTTP_HELP),
+    pose: str | None = typer.Option(None, "--pose", help=POSE_HELP),
+    pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
+    pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
+    pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
 ) -> None:
     """Simulated rig end to end: flight model, firmware trigger in simavr, rendered cameras, real edge
     extractors, UDP on loopback, the real host; scores against ground truth."""
     console = Console()
     cfg = DemoConfig(cameras=cameras, animals=animals, fps=fps, seconds=seconds, noise=noise, seed=seed,
-                     out=out, trigger=trigger, progress=not no_progress)
+                     out=out, trigger=trigger, progress=not no_progress, rules=rules)
+    try:
+        outputs = LiveOutputs.from_options(http=http if serve else None, pose=pose, pose_rate=pose_rate,
+                                           pose_lead_ms=pose_lead_ms, pose_lock=pose_lock)
+        outputs.http_required = True  # --serve asked for it: a busy port is an error
+    except OutputsError as exc:
+        Console(stderr=True).print(f"[red]error[/red] {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
+    cfg.attach.append(lambda pipe: outputs.attach(pipe, echo=lambda s: console.print(s, highlight=False,
+                                                                                      soft_wrap=True)))
     try:
         report = run_demo(cfg, console)
     except DemoError as exc:

@@ -60,6 +60,10 @@ class EdgeLineParser:
         # gives the true host time of the pulse (what the host's clock model should reproduce).
         self.anchor: float | None = None
         self.last_cycle: int | None = None
+        # Rising edges of the firmware's pulse output (the high-speed camera line), as trigger frames.
+        self.pulse_frames: list[int] = []
+        self._trig0: int | None = None
+        self._period: int | None = None
 
     def true_time(self) -> float:
         """Host time of the last trigger edge by its cycle (NaN when the run is not paced)."""
@@ -90,8 +94,19 @@ class EdgeLineParser:
             if parts[1] == "trigger" and parts[2] == "1":
                 n = self.next_frame
                 self.next_frame += 1
-                self.last_cycle = int(parts[0])
+                c = int(parts[0])
+                if self.last_cycle is not None:
+                    self._period = c - self.last_cycle
+                if self._trig0 is None:
+                    self._trig0 = c
+                self.last_cycle = c
                 return n
+            if parts[1] == "pulse0" and parts[2] == "1":
+                c = int(parts[0])
+                if self._trig0 is not None and self._period:  # by cycles: the line order within a cycle varies
+                    self.pulse_frames.append((c - self._trig0 + 16) // self._period)
+                else:
+                    self.pulse_frames.append(self.next_frame - 1)
             return None
         self.bad_lines += 1
         return None
@@ -110,6 +125,7 @@ class FrameFeedStats:
     # (n_frames, n_cams) host time each camera's frame started into its edge's input pipe
     written_time: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     priority_raised: bool = False
+    pulse_frames: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # pulse0 rising edges
 
 
 class FrameFeeder:
@@ -136,11 +152,12 @@ class FrameFeeder:
         self._edge_true = ctx.RawArray("d", [math.nan] * gt.n_frames)
         # edges, rendered, render_s, write_s, done, bad lines, priority raised, pre-roll frames
         self._counters = ctx.RawArray("d", 8)
+        self._pulses = ctx.RawArray("q", [-1] * 1024)  # frames of the pulse output's rising edges
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
             target=_feed,
             args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format, warmup_frames,
-                  self._handoff, self._edge_t, self._counters, self._written, self._edge_true),
+                  self._handoff, self._edge_t, self._counters, self._written, self._edge_true, self._pulses),
             name="flytrack-sim-frames",
             daemon=True,
         )
@@ -209,6 +226,7 @@ class FrameFeeder:
             write_s=float(self._counters[3]),
             bad_lines=int(self._counters[5]),
             priority_raised=bool(self._counters[6]),
+            pulse_frames=np.array([p for p in self._pulses if p >= 0], dtype=np.int64),
         )
 
 
@@ -333,6 +351,7 @@ def _feed(
     counters,
     written_t,
     edge_true,
+    pulses=None,
 ) -> None:
     counters[6] = raise_priority()
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
@@ -342,6 +361,7 @@ def _feed(
     render_s = put_s = 0.0
     buf = b""
     parser = EdgeLineParser()
+    n_pulses = 0
     no_pos = np.zeros((0, 3))
 
     def render(n: int) -> list[np.ndarray]:
@@ -391,6 +411,12 @@ def _feed(
                 for raw in lines:
                     n = parser.feed(raw.decode("ascii", "replace"))
                     counters[5] = parser.bad_lines
+                    if pulses is not None and parser.pulse_frames:
+                        for pf in parser.pulse_frames:
+                            if n_pulses < len(pulses):
+                                pulses[n_pulses] = pf
+                                n_pulses += 1
+                        parser.pulse_frames.clear()
                     if n is None:
                         continue
                     t_edge = time.time()

@@ -34,4 +34,13 @@ def check_goals(report: Any) -> list[GoalCheck]:
         GoalCheck("merges", "0", float(s.merges), s.merges == 0),
         GoalCheck("latency P50 (ms)", "< 3", lat["p50_ms"], below(lat["p50_ms"], 3.0)),
         GoalCheck("frames tracked in time", "all", kept_up, kept_up == 1.0),
-    ]
+    ] + _closed_loop(report)
+
+
+def _closed_loop(report: Any) -> list[GoalCheck]:
+    act = getattr(report, "actuation", None)
+    if not act:
+        return []
+    from flytrack_host.sim.closed_loop import goal_checks
+
+    return [GoalCheck(*g) for g in goal_checks(act)]

@@ -24,7 +24,8 @@ import socket
 import subprocess
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,22 @@ from flytrack_host.sim.trigger_source import DemoTrigger
 ROOT = Path(__file__).resolve().parents[3]
 # Frames each camera sends before the trigger starts: the edges take their background from them.
 PREROLL_FRAMES = 3
+
+
+@dataclass
+class DemoContext:
+    """What a fault injector may touch in a running demo (flytrack_host.faults)."""
+
+    host: Any
+    session: Any
+    edges: Any
+    feeder: Any
+    trigger: Any
+    cameras: list[Camera]
+    port: int
+    fps: float
+    edge_bin: Path
+    out: Path
 
 
 class DemoError(RuntimeError):
@@ -68,6 +85,13 @@ class DemoConfig:
     progress: bool = True
     flight: FlightParams = field(default_factory=FlightParams)
     render: RenderParams | None = None
+    rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)
+    # Called with the host pipeline before it starts: live outputs join its sinks (`--serve`).
+    attach: list[Callable[[Any], object]] = field(default_factory=list)
+    # Fault injection (flytrack_host.faults): an object with start(ctx: DemoContext) and stop(), started
+    # once the trigger runs; and the host on a fixed-rate clock instead of the trigger's (--no-trigger).
+    fault: Any = None
+    host_fixed_clock: bool = False
 
     def check(self) -> None:
         if not 2 <= self.cameras <= 64:
@@ -127,6 +151,7 @@ class DemoReport:
     notes: list[str] = field(default_factory=list)
     host_summary: dict[str, Any] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=dict)  # per part of the simulated rig
+    actuation: dict[str, Any] = field(default_factory=dict)  # closed loop vs ground truth (with --rules)
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -263,7 +288,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     cpu = CpuSampler()
     cpu.add("host", os.getpid())
-    edges = feeder = host = live = session = None
+    edges = feeder = host = live = session = lab = engine = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
     live_frames = [0]
@@ -292,6 +317,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             calibration=calib_path.name if calib_path else None, recording_folder="recordings",
             live_subscribers=[f"127.0.0.1:{live_port}"], name="simulated-rig",
         )
+        if cfg.rules is not None:  # the closed loop: lab devices on loopback, the rules in the rig file
+            from flytrack_host.actuation.rules import RulesError
+            from flytrack_host.sim.closed_loop import ClosedLoopLab
+
+            try:
+                lab = ClosedLoopLab(cfg.rules, out)
+            except RulesError as exc:
+                raise DemoError(str(exc)) from None
+            rig = lab.rig(rig)
         write_rig(rig, rig_path)
         from flytrack_host.pipeline import HostPipeline
         from flytrack_host.rig import load_rig
@@ -312,9 +346,22 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             pos = np.array([e.state[:3] for e in r.estimates], dtype=np.float64).reshape(-1, 3)
             results.append(HostResult(int(r.trigger_frame), time.time(), ids, pos))
 
-        host = HostPipeline(rig, cameras_for_host, clock=session.clock, fps=fps, hold_until_synchronized=True,
+        host = HostPipeline(rig, cameras_for_host, clock=None if cfg.host_fixed_clock else session.clock, fps=fps,
+                            hold_until_synchronized=True,
                             on_result=on_result, rig_text=rig_path.read_text(),
                             recording_path=out / "recording.flytrack")
+        if lab is not None:
+            try:
+                engine = lab.engine(rig, fps, session)
+            except RulesError as exc:
+                raise DemoError(str(exc)) from None
+            engine.attach(host)
+            engine.start()
+        for fn in cfg.attach:
+            try:
+                fn(host)
+            except OSError as exc:
+                raise DemoError(f"a live output could not start: {exc}") from None
         host.start()
         session.attach(host)
         live = _LiveCounter(live_port, live_frames)
@@ -325,6 +372,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             time.sleep(0.01)
         cpu.mark_start()
         session.start(host)  # waits until the cameras are quiet, arms the frame-0 tie, STARTs
+        if cfg.fault is not None:
+            cfg.fault.start(DemoContext(host, session, edges, feeder, trig, cams, port, fps, edge_bin, out))
 
         # 4. Run until every frame was rendered, with a progress bar.
         budget = cfg.seconds * 4 + 30
@@ -352,6 +401,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
         cpu.sample()
     finally:
+        if cfg.fault is not None:
+            cfg.fault.stop()
         if session is not None:
             session.stop()
             trigger_summary = session.summary()
@@ -363,11 +414,18 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         if feeder is not None:
             feeder.stop()
         trig.close()
+        if lab is not None and engine is None:
+            lab.close()
 
     fs = feeder.stats()
     report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
                      notes, wall0, cams, warmup, trigger_summary, preroll)
     report.cpu_seconds = cpu.totals()
+    if lab is not None and engine is not None:
+        try:
+            report.actuation = lab.report(engine, gt, fs.pulse_frames if trig.mode == "simavr" else None)
+        finally:
+            lab.close()
     return report
 
 
@@ -516,8 +574,8 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
     frames_triggered = max(fs.edges, fs.frames_rendered)
     return DemoReport(
-        config={k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()
-                if k not in ("flight", "render")},
+        config={f.name: (str(v) if isinstance(v, Path) else v) for f in fields(cfg)
+                if f.name not in ("flight", "render", "attach", "fault") for v in [getattr(cfg, f.name)]},
         trigger=trig.kind_label,
         trigger_note=trig.note,
         scores=scores,

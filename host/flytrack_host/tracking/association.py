@@ -46,6 +46,9 @@ class PointSet:
     orientation_ok: NDArray[np.bool_]  # (N,) angle known and the point elongated enough to use it
     rank: NDArray[np.intp]  # (N,) position of the point among its camera's rows of this set
     max_per_camera: int  # the most points any camera has in this set
+    # (N, 3) where each point's ray line starts: None = its camera's centre; set for refractive cameras,
+    # whose lines start on the interface (CameraArray.ray_lines).
+    origins: F64 | None = None
 
     @property
     def n(self) -> int:
@@ -130,7 +133,8 @@ def associate(
         ok &= points.area[:, None] > params.min_area_px
     if not ok.any():
         return AssociationResult(assign, best, 0, 0)
-    dm = ray_mahalanobis(mean, cov_pos, centers[slot], points.rays)
+    origins = centers[slot] if points.origins is None else points.origins
+    dm = ray_mahalanobis(mean, cov_pos, origins, points.rays)
     ok &= dm < params.max_mahalanobis
     cost = np.where(ok, dm, np.inf)
 

@@ -22,6 +22,9 @@ hundreds of thousands of hypotheses. Here the search is guided instead, with the
    smallest error. An accepted hypothesis starts a target; its points, and the nearest unclaimed point
    of each other camera within the threshold, are used up. Hypotheses that lost a point to an
    accepted one are evaluated again on the points left (next round), within the same budget.
+With refractive cameras (CameraArray.refractive) epipolar geometry does not hold: seeds are gated by
+the reprojection error of the midpoint of the two refracted rays instead of the Sampson distance, and
+hypotheses are triangulated as the least-squares point of their refracted rays (refraction.py).
 The C kernel's birth prefilter (kernel/tracker_kernel.c) applies the same seed gate, so the NumPy
 birth search only runs when some seed exists (both paths make the same births).
 """
@@ -33,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from flytrack_host.refraction import triangulate_rays
 from flytrack_host.tracking.association import PointSet
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams
@@ -94,6 +98,13 @@ def seed_pairs(cams: CameraArray, points: PointSet, rows: NDArray[np.intp], gate
     sl = points.slot[rows]
     keep = sl[i] != sl[j]
     a, b = rows[i[keep]], rows[j[keep]]
+    if cams.refractive:
+        d2, ok = _pair_error2_refractive(cams, points, a, b)
+        a, b, d2 = a[ok], b[ok], d2[ok]
+        ok = d2 <= gate_px * gate_px
+        a, b, d2 = a[ok], b[ok], d2[ok]
+        order = np.argsort(d2, kind="stable")
+        return np.stack([a[order], b[order]], axis=1), np.sqrt(d2[order])
     d2 = sampson2(cams, points, a, b)
     ok = d2 <= gate_px * gate_px
     a, b, d2 = a[ok], b[ok], d2[ok]
@@ -115,6 +126,53 @@ def sampson2(cams: CameraArray, points: PointSet, a: NDArray[np.intp], b: NDArra
     with np.errstate(divide="ignore", invalid="ignore"):
         d2 = num * num / den
     return np.where(np.isfinite(d2), d2, np.inf)
+
+
+def _pair_error2_refractive(
+    cams: CameraArray, points: PointSet, a: NDArray[np.intp], b: NDArray[np.intp]
+) -> tuple[F64, NDArray[np.bool_]]:
+    """Refractive cameras: squared reprojection error (summed over both cameras, undistorted px) of
+    the midpoint of the rays of points a[k] and b[k], and whether the rays meet in front of both."""
+    oa, ob = _origins(cams, points, a), _origins(cams, points, b)
+    da, db = points.rays[a], points.rays[b]
+    w = oa - ob
+    aa = np.einsum("ij,ij->i", da, da)
+    ab = np.einsum("ij,ij->i", da, db)
+    bb = np.einsum("ij,ij->i", db, db)
+    aw = np.einsum("ij,ij->i", da, w)
+    bw = np.einsum("ij,ij->i", db, w)
+    den = aa * bb - ab * ab
+    s_num, t_num = ab * bw - bb * aw, aa * bw - ab * aw
+    ok = (den > 0) & (s_num > 0) & (t_num > 0)
+    den = np.where(ok, den, 1.0)
+    X = 0.5 * (oa + da * (s_num / den)[:, None] + ob + db * (t_num / den)[:, None])
+    pa, fa = cams.project_ideal(points.slot[a], X)
+    pb, fb = cams.project_ideal(points.slot[b], X)
+    e2 = (pa[:, 0] - points.u_ideal[a]) ** 2 + (pa[:, 1] - points.v_ideal[a]) ** 2
+    e2 += (pb[:, 0] - points.u_ideal[b]) ** 2 + (pb[:, 1] - points.v_ideal[b]) ** 2
+    ok &= fa & fb & np.isfinite(e2)
+    return np.where(ok, e2, np.inf), ok
+
+
+def _origins(cams: CameraArray, points: PointSet, rows: NDArray[np.intp]) -> F64:
+    return cams.centers[points.slot[rows]] if points.origins is None else points.origins[rows]
+
+
+def triangulate_points(
+    cams: CameraArray, points: PointSet, rows: NDArray[np.intp], mask: NDArray[np.bool_] | None = None
+) -> F64:
+    """Triangulate M points from PointSet rows (M, k) (mask (M, k): rows used): DLT on undistorted
+    pixels, or for refractive cameras the least-squares point of the refracted rays weighted by
+    1 / distance^2 (so it approximates the angular error)."""
+    uv = np.stack([points.u_ideal[rows], points.v_ideal[rows]], axis=-1)
+    if not cams.refractive:
+        return triangulate_batch(cams.P[points.slot[rows]], uv, mask)
+    o, d = _origins(cams, points, rows), points.rays[rows]
+    w = np.ones(rows.shape) if mask is None else mask.astype(np.float64)
+    X = triangulate_rays(o, d, w)
+    c = cams.centers[points.slot[rows]]
+    dist2 = np.sum((np.nan_to_num(X)[:, None, :] - c) ** 2, axis=-1)
+    return triangulate_rays(o, d, w / np.maximum(dist2, 1e-12))
 
 
 def in_front(cams: CameraArray, points: PointSet, a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.bool_]:
@@ -209,10 +267,14 @@ def _round(
         """For points X (M, 3): per camera the distance (M, C) to the nearest free point and its row
         (inf / -1 where none or X is behind the camera); cameras in exclude (M, k, -1 = none) skipped.
         Written elementwise: tiny matrix products through BLAS cost more in call overhead."""
-        h = X[:, 0, None, None] * Pm[:, :, 0] + X[:, 1, None, None] * Pm[:, :, 1]
-        h += X[:, 2, None, None] * Pm[:, :, 2] + Pm[:, :, 3]  # (M, C, 3)
+        if cams.refractive:
+            pu, front = cams.project_ideal_all(X)  # (M, C, 2)
+            h = np.concatenate([pu, np.ones(front.shape)[..., None]], axis=-1)
+        else:
+            h = X[:, 0, None, None] * Pm[:, :, 0] + X[:, 1, None, None] * Pm[:, :, 1]
+            h += X[:, 2, None, None] * Pm[:, :, 2] + Pm[:, :, 3]  # (M, C, 3)
+            front = h[..., 2] > 1e-9
         w = h[..., 2]
-        front = w > 1e-9
         wi = 1.0 / np.where(front, w, 1.0)
         du = (h[..., 0] * wi)[:, fs] - fu  # (M, R)
         dv = (h[..., 1] * wi)[:, fs] - fv
@@ -229,9 +291,7 @@ def _round(
 
     # 1. Seeds triangulated, extended by the nearest free points of the other cameras.
     sa, sb = slot[seeds[:, 0]], slot[seeds[:, 1]]
-    uv2 = np.stack([points.u_ideal[seeds], points.v_ideal[seeds]], axis=-1)  # (M, 2, 2)
-    P2 = cams.P[np.stack([sa, sb], axis=1)]
-    X2 = triangulate_batch(P2, uv2)
+    X2 = triangulate_points(cams, points, seeds)
     X2 = np.where(np.isfinite(X2), X2, 0.0)
     hyp = np.full((M, kmax), -1, dtype=np.intp)
     hyp[:, :2] = seeds
@@ -284,8 +344,7 @@ def _fit(cams: CameraArray, points: PointSet, hyp: NDArray[np.intp]) -> tuple[F6
     errors (M,) (inf where behind a camera or not finite) and camera counts (M,)."""
     mask = hyp >= 0
     r = np.where(mask, hyp, 0)
-    uv = np.stack([points.u_ideal[r], points.v_ideal[r]], axis=-1)
-    X = triangulate_batch(cams.P[points.slot[r]], uv, mask)
+    X = triangulate_points(cams, points, r, mask)
     return X, _errors(cams, points, hyp, X), mask.sum(axis=1)
 
 

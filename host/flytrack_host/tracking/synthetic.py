@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from flytrack_host.camera import Camera
 from flytrack_host.protocol import POINT_DTYPE
+from flytrack_host.refraction import FlatInterface
 from flytrack_host.tracking.types import FrameBundle
 
 F64 = NDArray[np.float64]
@@ -24,7 +25,8 @@ ARENA_HI = np.array([1.5, 0.15, 0.3])
 
 
 def arena_cameras(
-    n_cameras: int, width: int = 640, height: int = 480, distortion: bool = True, seed: int = 0
+    n_cameras: int, width: int = 640, height: int = 480, distortion: bool = True, seed: int = 0,
+    interface: FlatInterface | None = None,
 ) -> dict[int, Camera]:
     """`n_cameras` cameras on a ring around the arena (plus one overhead from 5 cameras on), each
     with the focal length that just fits the whole arena in its image, and mild lens distortion."""
@@ -53,7 +55,7 @@ def arena_cameras(
         xn = np.abs(Xc[:, :2] / Xc[:, 2:3])
         margin = 20.0
         f = min((width / 2 - margin) / xn[:, 0].max(), (height / 2 - margin) / xn[:, 1].max())
-        cams[i] = Camera.look_at(f"cam{i}", pos, centre, width, height, f, dist=dist)
+        cams[i] = Camera.look_at(f"cam{i}", pos, centre, width, height, f, dist=dist, interface=interface)
     return cams
 
 
@@ -103,12 +105,13 @@ def make_scenario(
     width: int = 640,
     height: int = 480,
     seed: int = 1,
+    interface: FlatInterface | None = None,
 ) -> Scenario:
     """Build a scenario. With `close_pass_m`, targets 0 and 1 fly head-on past each other at that
     distance mid-way through. `camera_outages`: (camera, first_frame, last_frame) spans where that
     camera sends nothing. `corrupt_fraction`: share of points whose x_dist or area is set to NaN/inf."""
     rng = np.random.default_rng(seed)
-    cams = arena_cameras(n_cameras, width, height, seed=seed)
+    cams = arena_cameras(n_cameras, width, height, seed=seed, interface=interface)
     n_frames = int(round(duration_s * fps))
     t = np.arange(n_frames) / fps
     # Positions (targets, frames, 3); NaN where a target is absent.

@@ -128,11 +128,31 @@ class Tracker:
         self._coast = np.empty(0, dtype=np.int64)
         self._weak = np.empty(0, dtype=np.int64)
         self._dup = np.empty(0, dtype=np.int64)
-        self.kernel_path, why = select_kernel(params)
+        if self.cams.refractive:
+            # The C kernel's observation model is pinhole + distortion; refraction (Camera.interface,
+            # e.g. <water>) is only in the NumPy path.
+            if params.kernel == "c":
+                raise ckernel.KernelUnavailable(
+                    "TrackingParams.kernel='c' asks for the C tracker kernel, but the calibration has a "
+                    "refractive interface (<water>), which only the NumPy path models")
+            self.kernel_path, why = "numpy", "the calibration has a refractive interface (<water>), which the C " \
+                "kernel does not model"
+        elif self.cams.dist_frame:
+            # flydra calibrations whose distortion is about another K than P's (Camera.K_dist): the C
+            # kernel's model has one K per camera.
+            if params.kernel == "c":
+                raise ckernel.KernelUnavailable(
+                    "TrackingParams.kernel='c' asks for the C tracker kernel, but a camera's distortion is "
+                    "about another K than its projection's (flydra's intrinsic_linear), which only the NumPy "
+                    "path models")
+            self.kernel_path, why = "numpy", "a camera's distortion is about another K than P's (flydra's " \
+                "intrinsic_linear), which the C kernel does not model"
+        else:
+            self.kernel_path, why = select_kernel(params)
         msg = f"tracker: {'C kernel' if self.kernel_path == 'c' else 'NumPy'} path ({why})"
         if msg not in _logged:  # once per process and reason
             _logged.add(msg)
-            log.info(msg)
+            (log.warning if "does not model" in why else log.info)(msg)
         self._kern: ckernel.TrackerKernel | None = None
         if self.kernel_path == "c":
             self._kern = ckernel.TrackerKernel(self.cams, params)
@@ -367,10 +387,14 @@ class Tracker:
             tab[5, inf_ori] = np.nan
         u, v, ui, vi, area, ori, ecc = tab
         self.stats["points"] += int(slot.size)
-        rays = self.cams.ray_directions(slot, ui, vi)
+        origins = None
+        if self.cams.refractive:
+            origins, rays = self.cams.ray_lines(slot, ui, vi)
+        else:
+            rays = self.cams.ray_directions(slot, ui, vi)
         ori_ok = np.isfinite(ori) & (ecc >= self.params.min_eccentricity_for_orientation)  # NaN: False
         return PointSet(slot, index, u, v, ui, vi, area, ori, ecc, starts, rays, tab[:2].T, ori_ok,
-                        rank, max_per_camera)
+                        rank, max_per_camera, origins)
 
     def _gather_raw(self, bundle: FrameBundle, counts: NDArray[np.int64]) -> tuple[bytes | None, int]:
         """For the C kernel: the cameras' protocol point bytes joined in slot order, and counts[slot]."""

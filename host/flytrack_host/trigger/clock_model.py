@@ -241,3 +241,53 @@ class ClockModel:
             "rejected_rtt": float(self.rejected_rtt),
             "restarts": float(self.restarts),
         }
+
+
+# ---------------------------------------------------------------------------------------------
+# Samples taken early in a frame (strawlab triggerbox): the timer has wrapped but the pulse count
+# has not been incremented yet, so (count + fraction) is exactly one frame short.
+# ---------------------------------------------------------------------------------------------
+EARLY_FRACTION = 0.15  # fraction of a frame (15 % = 1.5 ms at 100 fps) below which a sample is suspect
+
+
+@dataclass
+class CountCorrection:
+    frames: np.ndarray  # corrected (count + fraction) per sample, in frames
+    early_fixed: int  # samples found one frame short (count not yet incremented) and corrected
+    count_offset: int  # constant offset added to every count (firmware convention)
+
+
+def correct_clock_counts(
+    count: np.ndarray, fraction: np.ndarray, host_time: np.ndarray, count_offset: int = 0,
+    early_fraction: float = EARLY_FRACTION,
+) -> CountCorrection:
+    """Frame positions (count + count_offset + fraction) of clock samples, with the early-frame error
+    fixed: a line host = a * frames + b is fitted on the samples whose fraction is >= early_fraction
+    (they cannot have the error); a sample with a smaller fraction that sits one frame (+-0.5) ahead
+    of its (count + fraction) on that line gets count + 1. Needs 3 unaffected samples, else nothing is
+    changed. count_offset: Braid's and the strawlab firmware's counts number the pulse under way from 1
+    (pass -1 to make frame 0 the first pulse) where others count completed pulses (0)."""
+    count = np.asarray(count, dtype=np.float64)
+    fraction = np.asarray(fraction, dtype=np.float64)
+    host = np.asarray(host_time, dtype=np.float64)
+    frames = count + count_offset + fraction
+    good = np.isfinite(frames) & np.isfinite(host)
+    clean = good & (fraction >= early_fraction)
+    if clean.sum() < 3 or np.ptp(frames[clean]) <= 0:
+        return CountCorrection(frames, 0, count_offset)
+    f0, h0 = float(frames[clean].mean()), float(host[clean].mean())
+    fc, hc = frames[clean] - f0, host[clean] - h0
+    a = float(np.dot(fc, hc) / np.dot(fc, fc))  # seconds per frame
+    # One robust pass: drop samples far off (long round trips) before the final line.
+    r = hc - a * fc
+    keep = np.abs(r - np.median(r)) <= max(5 * 1.4826 * float(np.median(np.abs(r - np.median(r)))), 1e-6)
+    if keep.sum() >= 3:
+        f0, h0 = float(frames[clean][keep].mean()), float(host[clean][keep].mean())
+        fc, hc = frames[clean][keep] - f0, host[clean][keep] - h0
+        a = float(np.dot(fc, hc) / np.dot(fc, fc))
+    predicted = f0 + (host - h0) / a
+    lag = predicted - frames
+    fix = good & (fraction < early_fraction) & (np.abs(lag - 1.0) < 0.5)
+    out = frames.copy()
+    out[fix] += 1.0
+    return CountCorrection(out, int(fix.sum()), count_offset)

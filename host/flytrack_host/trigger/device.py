@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import serial
 
+from flytrack_host import hostclock
 from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.protocol.errors import ProtocolError
 
@@ -157,7 +158,7 @@ class TriggerDevice(SerialTrigger):
                 break
             if not data:
                 continue
-            t_rx = time.time()
+            t_rx = hostclock.now()
             if len(getattr(self, "_raw_seen", b"")) < 64:
                 self._raw_seen += data
             for frame in splitter.feed(data):
@@ -198,7 +199,7 @@ class TriggerDevice(SerialTrigger):
             # The leading delimiter closes any partial frame left in the device (line noise, a
             # host that died mid-write): this request then always starts a fresh frame.
             wire = b"\0" + tl.encode_message(msg, self._seq)
-            t0 = time.time()
+            t0 = hostclock.now()
             try:
                 self._ser.write(wire)
             except (serial.SerialException, OSError) as exc:
@@ -277,6 +278,14 @@ class TriggerDevice(SerialTrigger):
             raise TriggerError(f"pulse width {width_s} s is longer than the timer can count")
         self._request(tl.Pulse(channel, tl.FRAME_NOW if frame is None else int(frame), width_ticks))
         return width_ticks
+
+    def pulse_timed(self, channel: int, frame: int | None, width_s: float) -> tuple[float, float]:
+        """As `pulse`, returning (host time the request was written, host time its ACK arrived)."""
+        if not width_s > 0:
+            raise TriggerError(f"pulse width must be positive, got {width_s} s")
+        width_ticks = max(1, min(0xFFFF, round(width_s / self._tick_s())))
+        _, t0, t1 = self._request_timed(tl.Pulse(channel, tl.FRAME_NOW if frame is None else int(frame), width_ticks))
+        return t0, t1
 
     def set_output(self, channel: int, level: int | bool) -> None:
         self._request(tl.SetOutput(channel, 1 if level else 0))

@@ -9,6 +9,13 @@ payload, then a checksum = sum of the payload mod 256. The clock reply 'P' carri
 u32 pulse number, u16 TCNT1}. The board runs Timer1 fast PWM with TOP = ICR1 at 16 MHz.
 
 It has no pulse channel: `pulse()` raises TriggerError.
+
+Early-frame samples: a query answered in the first moments of a frame (small TCNT1) may find the timer
+wrapped but the pulse count not yet incremented, which puts the sample exactly one frame early. Once the
+clock model has a fit, such a sample (TCNT1 below EARLY_FRACTION of the period) is compared with the
+model's prediction and moved one frame on when that is where it belongs (`early_corrected`); before
+the first fit it is not used (`early_skipped`). clock_model.correct_clock_counts does the same for
+recorded samples (flydra/Braid trigger_clock_info).
 """
 
 from __future__ import annotations
@@ -19,7 +26,9 @@ import time
 
 import serial
 
-from .clock_model import ClockModel, LinkTiming
+from flytrack_host import hostclock
+
+from .clock_model import EARLY_FRACTION, ClockModel, LinkTiming
 from .common import ClockThread, RateChoice, SerialTrigger, TriggerError, choose_rate, open_serial
 from .device import ClockReading
 
@@ -56,6 +65,8 @@ class StrawlabTriggerbox(SerialTrigger):
         self._lock = threading.Lock()
         self._token = 0
         self._levels = [0, 0]  # analog outputs 0 and 1, as last set (O= sets both at once)
+        self.early_corrected = 0  # clock samples one frame early (count not yet incremented), corrected
+        self.early_skipped = 0  # early-frame samples not used because the model had no fit yet
         self._clock_thread: ClockThread | None = None
         if reset_wait_s > 0:
             time.sleep(reset_wait_s)
@@ -124,17 +135,30 @@ class StrawlabTriggerbox(SerialTrigger):
         if self.rate is None:
             raise TriggerError("frame rate unknown: call set_rate() first")
         self._token = (self._token + 1) & 0xFF
-        t0 = time.time()
+        t0 = hostclock.now()
         payload = self._query(b"P" + bytes([self._token]), b"P")
-        t1 = time.time()
+        t1 = hostclock.now()
         if len(payload) != 7:
             raise TriggerError(f"triggerbox clock reply has {len(payload)} bytes, expected 7")
         token, pulses, tcnt = struct.unpack("<BIH", payload)
         if token != self._token:
             raise TriggerError(f"triggerbox answered query {token}, expected {self._token}")
         dev_t = ((pulses - 1) * (self.rate.top + 1) + tcnt) * self.rate.tick_s
+        use = True
+        if tcnt < EARLY_FRACTION * (self.rate.top + 1):
+            if self.model.fitted:
+                period = (self.rate.top + 1) * self.rate.tick_s
+                pred = self.model.host_to_device(self.model.sample_host_time(t0, t1))
+                if abs(pred - (dev_t + period)) < abs(pred - dev_t):
+                    dev_t += period
+                    pulses += 1
+                    self.early_corrected += 1
+            else:
+                use = False
+                self.early_skipped += 1
         r = ClockReading(t0, t1, pulses, tcnt, self.rate.top, True, dev_t)
-        self.model.add_sample(t0, t1, dev_t)
+        if use:
+            self.model.add_sample(t0, t1, dev_t)
         return r
 
     def pulse(self, channel: int = 0, frame: int | None = None, width_s: float = 0.001) -> int:

@@ -130,3 +130,30 @@ def test_wire_timing_removes_the_midpoint_bias() -> None:
     assert 0.3e-3 < late < 0.5e-3  # (reply - request) / 2 plus half the extra latency
     assert with_link.sample_host_time(1.0, 1.01) == pytest.approx(1.0 + link.request_s + link.device_s)
     assert midpoint.sample_host_time(1.0, 1.01) == pytest.approx(1.005)
+
+
+def test_recorded_samples_with_the_early_frame_error_are_corrected() -> None:
+    """flydra/Braid trigger_clock_info rows: (framecount, tcnt/255, host times); rows taken in the first
+    8 % of a frame carry a count one short, as real triggerboxes record them."""
+    from flytrack_host.trigger.clock_model import correct_clock_counts
+
+    rng = np.random.default_rng(3)
+    period, t0 = 0.01, 1.7e9
+    true = np.sort(rng.uniform(5, 3000, 400))  # frame position of each sample
+    host = t0 + true * period * (1 + 20e-6) + rng.normal(0, 50e-6, true.size)
+    count = np.floor(true)
+    frac = np.round((true - count) * 255) / 255  # tcnt as the u8 Braid keeps
+    early = frac < 0.08
+    assert early.sum() > 20
+    count_rec = count - early  # the triggerbox's early-frame error
+    # Braid's numbering: the count is the pulse under way from 1 (count_offset=-1 maps it to frame 0 = first).
+    res = correct_clock_counts(count_rec + 1, frac, host, count_offset=-1)
+    assert res.early_fixed == int(early.sum())
+    assert np.abs(res.frames - (count + frac)).max() < 1e-9
+    # Uncorrected, those rows are a whole period off the line through the others.
+    assert np.abs((count_rec + frac) - (count + frac))[early].min() == 1.0
+    # Samples with nothing wrong are left alone; too few clean samples: nothing changes.
+    clean = correct_clock_counts(count, frac, host)
+    assert clean.early_fixed == 0 and np.array_equal(clean.frames, count + frac)
+    few = correct_clock_counts(count_rec[:3], frac[:3], host[:3])
+    assert few.early_fixed == 0

@@ -1,0 +1,260 @@
+"""What every output device shares: connect / perform / close, and the worker thread that drives it.
+
+The tracking thread only puts a job on the device's bounded queue (`OutputWorker.submit`, never
+blocks; a full queue drops the job, counted and recorded as an error). The worker connects, performs
+the jobs one by one and reports each outcome; a failure closes the connection, and the worker
+reconnects on its own every `RECONNECT_S` (also while no job comes), so a device that was absent at
+start or went away mid-run is back as soon as it answers. Failures are logged rate-limited.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from flytrack_host.actuation.rules import Action
+from flytrack_host.rig import ActuatorConfig
+
+log = logging.getLogger("flytrack.actuation")
+
+RECONNECT_S = 0.5
+LEAD_SAMPLES = 50
+LEAD_MARGIN_S = 0.5e-3
+
+
+class OutputError(RuntimeError):
+    """A device failure with a clear cause (absent, refused, timed out)."""
+
+
+@dataclass
+class Job:
+    rule: str
+    obj_id: int
+    condition_frame: int
+    scheduled_frame: int
+    frame_time: float
+    estimate_time: float
+    pos: tuple[float, float, float]
+    action: Action
+    predicted: bool
+    queued_at: float = field(default_factory=time.time)
+
+
+@dataclass
+class Outcome:
+    job: Job
+    output: str
+    kind: str
+    time_sent: float = math.nan
+    time_ack: float = math.nan
+    scheduled_frame: int = -1
+    frame_exact: bool = False
+    error: str = ""
+
+
+@dataclass
+class Done:
+    """What `Output.perform` returns: when the command left, when the device acknowledged it (NaN
+    for a device that does not), and the frame it landed on when the device places it exactly."""
+
+    time_sent: float
+    time_ack: float
+    scheduled_frame: int | None = None
+    frame_exact: bool = False
+    note: str = ""  # e.g. "late: pulsed at once"
+
+
+class Output:
+    """One device. Subclasses implement `_connect`, `_perform` and `_close`."""
+
+    kind = "?"
+    arm_frames = 0  # frames ahead the device must have the command (the trigger firmware: 1)
+
+    initial_lead_s = 0.0  # until measured: time from queueing a command to its acknowledgement
+
+    def __init__(self, cfg: ActuatorConfig, context: dict[str, Any] | None = None):
+        self.cfg = cfg
+        self.context = context or {}
+        self.connected = False
+        self._lead: deque[float] = deque(maxlen=LEAD_SAMPLES)  # measured queued -> acknowledged times
+        self._lead_s = self.initial_lead_s
+
+    @property
+    def name(self) -> str:
+        return self.cfg.name
+
+    @property
+    def lead_s(self) -> float:
+        """How long before its frame an action must be queued: the device's stated latency plus the
+        90th percentile of the measured time from queueing to acknowledgement (waiting for the worker
+        thread, for a serial link busy with a clock query, the round trip) and a margin."""
+        return self.cfg.latency_ms / 1e3 + self._lead_s
+
+    def connect(self) -> None:
+        self._connect()
+        self.connected = True
+
+    def perform(self, job: Job) -> Done:
+        done = self._perform(job)
+        if math.isfinite(done.time_ack):
+            self._lead.append(max(0.0, done.time_ack - job.queued_at))
+            v = sorted(self._lead)
+            self._lead_s = max(self.initial_lead_s, v[int(0.9 * (len(v) - 1))] + LEAD_MARGIN_S)
+        return done
+
+    def close(self) -> None:
+        self.connected = False
+        try:
+            self._close()
+        except Exception as exc:  # closing a broken link can fail too; it is being dropped anyway
+            log.debug("closing %s: %r", self.name, exc)
+
+    def _connect(self) -> None:
+        raise NotImplementedError
+
+    def _perform(self, job: Job) -> Done:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        pass
+
+
+class RateLimitedLog:
+    """Logs the first `burst` messages of a key, then at most one every `every_s` with a count."""
+
+    def __init__(self, sink: Callable[[str], None], burst: int = 5, every_s: float = 10.0):
+        self.sink = sink
+        self.burst = burst
+        self.every_s = every_s
+        self._n: dict[str, int] = {}
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+
+    def __call__(self, key: str, message: str) -> None:
+        n = self._n[key] = self._n.get(key, 0) + 1
+        now = time.monotonic()
+        if n <= self.burst or now - self._last.get(key, -math.inf) >= self.every_s:
+            held = self._held.pop(key, 0)
+            self._last[key] = now
+            self.sink(message + (f" ({held} more like it not shown)" if held else ""))
+        else:
+            self._held[key] = self._held.get(key, 0) + 1
+
+
+@dataclass
+class WorkerStats:
+    sent: int = 0
+    ok: int = 0
+    errors: int = 0
+    dropped: int = 0  # queue full
+    connects: int = 0
+    connect_failures: int = 0
+    last_error: str = ""
+
+
+class OutputWorker:
+    """A thread per device with a bounded queue; `on_done(outcome)` is called for every job."""
+
+    def __init__(self, output: Output, on_done: Callable[[Outcome], None], warn: RateLimitedLog):
+        self.output = output
+        self.on_done = on_done
+        self.warn = warn
+        self.q: queue.Queue[Job | None] = queue.Queue(maxsize=output.cfg.queue)
+        self.stats = WorkerStats()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"actuation-{output.name}", daemon=True)
+        self._next_connect = 0.0
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def submit(self, job: Job) -> bool:
+        try:
+            self.q.put_nowait(job)
+            return True
+        except queue.Full:
+            self.stats.dropped += 1
+            self.stats.last_error = "queue full"
+            self.warn(f"{self.output.name}:full", f"output {self.output.name}: queue full "
+                      f"({self.output.cfg.queue} commands waiting), command dropped; the device is too slow")
+            self.on_done(Outcome(job, self.output.name, self.output.kind, error="dropped: queue full"))
+            return False
+
+    def _try_connect(self) -> bool:
+        if self.output.connected:
+            return True
+        if time.monotonic() < self._next_connect:
+            return False
+        try:
+            self.output.connect()
+        except Exception as exc:
+            self.stats.connect_failures += 1
+            self.stats.last_error = f"cannot connect: {exc}"
+            self._next_connect = time.monotonic() + RECONNECT_S
+            self.warn(f"{self.output.name}:connect", f"output {self.output.name} ({self.output.kind}): "
+                      f"cannot connect: {exc}; retrying every {RECONNECT_S:g} s")
+            return False
+        self.stats.connects += 1
+        if self.stats.connects > 1 or self.stats.connect_failures:
+            self.warn(f"{self.output.name}:up", f"output {self.output.name} ({self.output.kind}): connected")
+        return True
+
+    def _run(self) -> None:
+        while True:
+            try:
+                job = self.q.get(timeout=RECONNECT_S)
+            except queue.Empty:
+                if self._stop.is_set():
+                    break
+                self._try_connect()  # reconnect while idle too
+                continue
+            if job is None:
+                break
+            self._do(job)
+        self.output.close()
+
+    def _do(self, job: Job) -> None:
+        out = Outcome(job, self.output.name, self.output.kind)
+        if not self._try_connect():
+            self._next_connect = 0.0  # a job is waiting: try once more now
+            if not self._try_connect():
+                out.error = f"not connected: {self.stats.last_error}"
+                self.stats.errors += 1
+                self.on_done(out)
+                return
+        self.stats.sent += 1
+        try:
+            done = self.output.perform(job)
+        except Exception as exc:
+            out.time_sent = time.time()
+            out.error = f"{type(exc).__name__}: {exc}"
+            self.stats.errors += 1
+            self.stats.last_error = out.error
+            self.warn(f"{self.output.name}:perform", f"output {self.output.name} ({self.output.kind}) failed: "
+                      f"{out.error}; reconnecting")
+            self.output.close()
+            self._next_connect = 0.0
+            self.on_done(out)
+            return
+        self.stats.ok += 1
+        out.time_sent, out.time_ack = done.time_sent, done.time_ack
+        out.scheduled_frame = job.scheduled_frame if done.scheduled_frame is None else done.scheduled_frame
+        out.frame_exact = done.frame_exact
+        out.error = done.note
+        self.on_done(out)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Finish the queued jobs (up to `timeout_s`), then close the device."""
+        self._stop.set()
+        try:
+            self.q.put_nowait(None)
+        except queue.Full:
+            pass
+        self._thread.join(timeout_s)

@@ -1,0 +1,67 @@
+"""A pulse on the FlyTrack trigger firmware's output at an exact trigger frame (SPEC PULSE), or a
+stimulus line set at once (SET_OUTPUT, channels 1-3).
+
+Channel 0 is the firmware's hardware compare output (OC1B): the pulse starts with the trigger pulse
+of the frame asked for, to the timer tick, so a high-speed camera wired there has its buffer's
+trigger point at exactly that trigger frame (recorded as `scheduled_frame`, flag FRAME_EXACT). The
+firmware arms the pulse for frame n at the end of frame n-1's trigger pulse, hence `arm_frames = 1`
+in the reachability the engine computes. A PULSE that arrives too late is refused (BAD_ARG); the
+high-speed camera still gets its pulse, at the next frame the firmware can reach, and the firing
+records that frame (from the trigger clock) and that it was late.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
+from flytrack_host.trigger.common import TriggerError
+
+DEFAULT_WIDTH_MS = 1.0
+
+
+class TriggerPulseOutput(Output):
+    kind = "trigger_pulse"
+    arm_frames = 1
+    # PULSE + ACK at 115200 baud (~22 bytes with framing, ~1.9 ms) and a clock query it may wait behind.
+    initial_lead_s = 0.006
+
+    def _device(self) -> Any:
+        get = self.context.get("trigger")
+        dev = get() if callable(get) else get
+        if dev is None:
+            raise OutputError("no FlyTrack trigger is open (needs [trigger] kind = \"flytrack\" or \"software\", "
+                              "and flytrack run without --no-trigger)")
+        if not hasattr(dev, "pulse_timed"):
+            raise OutputError(f"the trigger ({type(dev).__name__}) has no pulse outputs; the FlyTrack firmware has")
+        return dev
+
+    def _connect(self) -> None:
+        self._device()
+
+    def _perform(self, job: Job) -> Done:
+        dev = self._device()
+        a = job.action
+        if self.cfg.channel != 0:
+            t0 = time.time()
+            dev.set_output(self.cfg.channel, a.level or 0)
+            return Done(t0, time.time())
+        width = (a.width_ms or DEFAULT_WIDTH_MS) / 1e3
+        try:
+            t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width)
+            return Done(t0, t1, job.scheduled_frame, True)
+        except TriggerError as exc:
+            if "BAD_ARG" not in str(exc) or job.scheduled_frame < 0:
+                raise
+        # Too late for that frame: pulse at the earliest frame the firmware can still reach.
+        t0, t1 = dev.pulse_timed(0, None, width)
+        clock = self.context.get("clock")
+        est = -1
+        if clock is not None:
+            f = clock.host_time_to_frame(t1)
+            if math.isfinite(f):
+                est = int(math.floor(f)) + 2
+        return Done(t0, t1, est, False, note=f"late: frame {job.scheduled_frame} had passed; pulsed at the "
+                                             f"earliest frame (~{est})")

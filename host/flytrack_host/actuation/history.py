@@ -1,0 +1,129 @@
+"""A rule over time: per-object stretches of true/false, firing on entries, and the rule's gates.
+
+`RuleEvaluator.step` is deterministic in trigger frames (times are frame x period), so the live
+engine, `flytrack rules replay` and the demo's ground truth all get the same answer from the same
+states. A rule fires for an object on the frame its condition has held `hold_ms` after having been
+false for at least `after_false_ms` (an object first seen with the condition already true has no
+"before" and does not fire); each true stretch fires at most once. Then the rule's gates: arming
+window (seconds from trigger frame 0), cooldown and maximum rate (whatever the object); a firing a
+gate stops is counted in `suppressed` and uses up that stretch.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from flytrack_host.actuation.conditions import condition_mask, turn_rate_deg_s
+from flytrack_host.actuation.prediction import predict_states
+from flytrack_host.actuation.rules import Rule
+
+_EPS = 1e-9
+
+
+@dataclass
+class Fire:
+    rule: str
+    obj_id: int
+    condition_frame: int  # the frame whose estimate made the rule fire
+    scheduled_frame: int  # the frame the action is meant for (the condition was judged there)
+    pos: np.ndarray  # position the condition was judged on (predicted when `predicted`)
+    predicted: bool
+
+
+@dataclass
+class _Obj:
+    state: bool
+    since: int  # first frame of the current stretch
+    prev_false: int = -1  # length (frames) of the false stretch before this true one; -1 unknown
+    fired: bool = False
+    last_vel: np.ndarray | None = None
+    last_frame: int = -1
+
+
+@dataclass
+class RuleEvaluator:
+    rule: Rule
+    period_s: float
+    objs: dict[int, _Obj] = field(default_factory=dict)
+    last_fire_frame: int | None = None
+    recent: deque = field(default_factory=deque)  # frames of firings within the last minute
+    suppressed: dict[str, int] = field(default_factory=dict)
+    frames: int = 0
+
+    def _select(self, ids: np.ndarray) -> np.ndarray:
+        o = self.rule.objects
+        if o == "any" or len(ids) == 0:
+            return np.ones(len(ids), dtype=bool)
+        if o == "first":
+            return ids == ids.min()
+        return ids == int(o)
+
+    def step(self, frame: int, target_frame: int, ids: np.ndarray, states: np.ndarray) -> list[Fire]:
+        """One frame's estimates (ids (N,), states (N, 6)); the action would reach `target_frame`.
+        Returns the firings (already through the gates)."""
+        self.frames += 1
+        r = self.rule
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        states = np.asarray(states, dtype=np.float64).reshape(-1, 6)
+        if r.predict:
+            ahead = min((target_frame - frame) * self.period_s, r.max_predict_ms / 1e3)
+            judged = predict_states(states, ahead)
+            at = target_frame
+        else:
+            judged = states
+            at = target_frame  # the action still lands on the reachable frame, judged on frame `frame`
+        turn = np.full(len(ids), np.nan)
+        for i, oid in enumerate(ids.tolist()):
+            ob = self.objs.get(oid)
+            if ob is not None and ob.last_vel is not None and frame > ob.last_frame:
+                turn[i] = turn_rate_deg_s(ob.last_vel[None], states[i:i + 1, 3:6],
+                                          (frame - ob.last_frame) * self.period_s)[0]
+        mask = condition_mask(r.when, judged[:, :3], judged[:, 3:6], turn) & self._select(ids)
+        fires: list[Fire] = []
+        hold = r.when.hold_ms / 1e3
+        after = r.when.after_false_ms / 1e3
+        seen = set()
+        for i, (oid, m) in enumerate(zip(ids.tolist(), mask.tolist(), strict=True)):
+            seen.add(oid)
+            ob = self.objs.get(oid)
+            if ob is None:
+                ob = self.objs[oid] = _Obj(state=m, since=at)
+            elif m != ob.state:
+                if m:
+                    ob.prev_false = at - ob.since
+                    ob.fired = False
+                ob.state, ob.since = m, at
+            ob.last_vel, ob.last_frame = states[i, 3:6].copy(), frame
+            if not m or ob.fired or ob.prev_false < 1:
+                continue
+            if (at - ob.since) * self.period_s + _EPS < hold or ob.prev_false * self.period_s + _EPS < after:
+                continue
+            ob.fired = True
+            why = self._gate(frame, at)
+            if why:
+                self.suppressed[why] = self.suppressed.get(why, 0) + 1
+                continue
+            self.last_fire_frame = at
+            self.recent.append(at)
+            fires.append(Fire(r.name, oid, frame, at, judged[i, :3].copy(), r.predict))
+        for gone in set(self.objs) - seen:  # the track died: a new one starts without history
+            del self.objs[gone]
+        return fires
+
+    def _gate(self, frame: int, at: int) -> str | None:
+        r = self.rule
+        t = frame * self.period_s
+        if t + _EPS < r.armed_after_s or (r.armed_until_s is not None and t > r.armed_until_s):
+            return "not armed"
+        if self.last_fire_frame is not None and (at - self.last_fire_frame) * self.period_s + _EPS < r.cooldown_s:
+            return "cooldown"
+        if r.max_per_minute is not None:
+            window = round(60.0 / self.period_s)
+            while self.recent and self.recent[0] <= at - window:
+                self.recent.popleft()
+            if len(self.recent) >= r.max_per_minute:
+                return "max rate"
+        return None

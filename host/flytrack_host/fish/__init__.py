@@ -1,0 +1,1 @@
+"""Offline 3D shape tracking of schooling fish (seed 004, Butail & Paley 2012)."""

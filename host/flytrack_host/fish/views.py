@@ -1,0 +1,88 @@
+"""The camera seam of the fish tracker: what the shape fit needs from a camera is where a world point lands
+in the image (`project`) and which 3D line a pixel sees (`lines`, origin + unit direction).
+
+`AirView` wraps FlyTrack's camera model (pinhole + OpenCV distortion, `flytrack_host.camera.Camera`).
+A camera looking through a flat water surface or tank wall plugs in here by providing the same two
+methods, with `lines` returning the refracted (underwater) ray; the rest of the tracker does not change.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from flytrack_host.camera import Camera
+
+F64 = NDArray[np.float64]
+
+
+@runtime_checkable
+class View(Protocol):
+    name: str
+    width: int
+    height: int
+
+    def project(self, Xw: ArrayLike) -> F64: ...
+
+    def lines(self, uv: ArrayLike) -> tuple[F64, F64]: ...
+
+
+class AirView:
+    """A camera in the same medium as the fish (or the tank's refraction ignored)."""
+
+    def __init__(self, camera: Camera) -> None:
+        self.camera = camera
+        self.name = camera.name
+        self.width = camera.width
+        self.height = camera.height
+
+    def project(self, Xw: ArrayLike) -> F64:
+        X = np.asarray(Xw, dtype=float)
+        shape = X.shape[:-1]
+        return self.camera.project(X.reshape(-1, 3)).reshape(*shape, 2)
+
+    def lines(self, uv: ArrayLike) -> tuple[F64, F64]:
+        """Distorted pixels (N,2) -> line origins (N,3) and unit directions (N,3) in the world."""
+        c, d = self.camera.rays(np.asarray(uv, dtype=float).reshape(-1, 2))
+        return np.broadcast_to(c, d.shape).copy(), d
+
+    @property
+    def center(self) -> F64:
+        return self.camera.center
+
+
+def as_view(cam: object) -> View:
+    if isinstance(cam, Camera):
+        return AirView(cam)
+    if isinstance(cam, View):
+        return cam
+    raise TypeError(f"not a camera: {cam!r}")
+
+
+def views_from_calibration(cams: Mapping[str, object], names: list[str]) -> list[View]:
+    """The views named (in order) from a loaded calibration; a missing name is one clear error."""
+    missing = [n for n in names if n not in cams]
+    if missing:
+        raise KeyError(
+            f"calibration has no camera {', '.join(missing)} (it has {', '.join(sorted(cams)) or 'none'}); "
+            "name the cameras with --cameras in the order of the videos"
+        )
+    return [as_view(cams[n]) for n in names]
+
+
+def tank_rig(top_size: tuple[int, int] = (1280, 1024), side_size: tuple[int, int] = (512, 384),
+             distortion: float = -0.04) -> dict[str, Camera]:
+    """The synthetic rig of seed 004 §5.1 in air: a 0.61 x 0.30 x 0.40 m tank (x, y, z; floor at z = 0),
+    a top camera above it, a side camera facing the long wall (tracking) and one facing the short wall
+    (validation only), each with a little barrel distortion."""
+    cx, cy = 0.305, 0.15
+    top = Camera.look_at("top", (cx, cy, 1.25), (cx, cy, 0.2), *top_size, focal_px=top_size[0] * 1.05 / 0.66,
+                         up=(0.0, 1.0, 0.0), dist=(distortion, 0, 0, 0, 0))
+    side = Camera.look_at("side", (cx, -0.95, 0.2), (cx, cy, 0.2), *side_size, focal_px=side_size[0] * 1.1 / 0.68,
+                          dist=(distortion, 0, 0, 0, 0))
+    val = Camera.look_at("end", (-0.75, cy, 0.2), (cx, cy, 0.2), *side_size, focal_px=side_size[0] * 1.05 / 0.40,
+                         dist=(distortion, 0, 0, 0, 0))
+    return {"top": top, "side": side, "end": val}

@@ -1,0 +1,87 @@
+"""Start the live outputs on a pipeline, as `flytrack run` and `flytrack demo --serve` do.
+
+    outputs = LiveOutputs.from_options(http="127.0.0.1:8397", pose="127.0.0.1:7300")
+    outputs.attach(pipe)        # before pipe.start(); the pipeline closes them when it stops
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from flytrack_host.outputs.pose import PoseStream, parse_lock
+from flytrack_host.web.server import LiveServer, parse_bind
+
+DEFAULT_HTTP = "127.0.0.1:8397"
+HTTP_HELP = ("Serve Braid's event stream (/events) and the live page on HOST:PORT; 'off' for none. "
+             "Any address other than loopback needs the token printed at start.")
+POSE_HELP = "Send the VR pose stream (UDP datagrams, see flytrack_host.outputs.pose) to HOST:PORT."
+
+
+class OutputsError(ValueError):
+    """A live-output option is wrong; the message names it."""
+
+
+@dataclass
+class LiveOutputs:
+    http: tuple[str, int] | None = None
+    http_required: bool = True  # False for the default address: busy, it is skipped with a warning
+    token: str | None = None
+    pose: tuple[str, int] | None = None
+    pose_rate_hz: float = 200.0
+    pose_lead_s: float = 0.0
+    pose_lock: str | int = "auto"
+    pose_drop_s: float = 0.5
+    server: LiveServer | None = None
+    pose_stream: PoseStream | None = None
+    started: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_options(cls, http: str | None = DEFAULT_HTTP, pose: str | None = None, pose_rate: float = 200.0,
+                     pose_lead_ms: float = 0.0, pose_lock: str = "auto", pose_drop_s: float = 0.5,
+                     token: str | None = None) -> LiveOutputs:
+        try:
+            h = None if http is None or http.strip().lower() in ("off", "none", "") else parse_bind(http)
+            p = None
+            if pose:
+                p = parse_bind(pose, default_port=7300)
+                if p[1] == 0:
+                    raise ValueError("the pose destination needs a port")
+            lock = parse_lock(pose_lock)
+        except ValueError as exc:
+            raise OutputsError(str(exc)) from None
+        return cls(http=h, http_required=http != DEFAULT_HTTP, token=token, pose=p, pose_rate_hz=pose_rate,
+                   pose_lead_s=pose_lead_ms / 1e3,
+                   pose_lock=lock, pose_drop_s=pose_drop_s)
+
+    def attach(self, pipe: Any, echo: Callable[[str], object] = print) -> None:
+        """Join the pipeline's sinks and start. Raises OSError when the HTTP port cannot be bound,
+        OutputsError for a bad pose setting."""
+        if self.http is not None:
+            server = LiveServer(self.http[0], self.http[1], token=self.token)
+            try:
+                server.attach(pipe)
+            except OSError as exc:
+                if self.http_required:
+                    raise
+                # The default port is taken (another host, a second run): tracking matters more
+                # than the live view, so go on without it and say so.
+                line = (f"warning: live view and Braid events off: cannot listen on "
+                        f"{self.http[0]}:{self.http[1]} ({exc.strerror or exc}); choose another with --http")
+            else:
+                self.server = server
+                line = server.banner()
+            self.started.append(line)
+            echo(line)
+        if self.pose is not None:
+            try:
+                self.pose_stream = PoseStream([self.pose], rate_hz=self.pose_rate_hz, lead_s=self.pose_lead_s,
+                                              lock=self.pose_lock, drop_after_s=self.pose_drop_s)
+            except ValueError as exc:
+                raise OutputsError(str(exc)) from None
+            pipe.sinks.append(self.pose_stream)
+            line = (f"pose stream: {self.pose_rate_hz:g} Hz to {self.pose[0]}:{self.pose[1]}, lock "
+                    f"{self.pose_lock}, lead {self.pose_lead_s * 1e3:g} ms")
+            self.started.append(line)
+            echo(line)

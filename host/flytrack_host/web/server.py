@@ -1,0 +1,443 @@
+"""The host's live HTTP server: Braid's event stream at `/events` and the live page.
+
+    server = LiveServer("127.0.0.1", 8397)
+    server.attach(pipe)          # before pipe.start(): joins pipe.sinks, starts serving
+    print(server.banner())       # the URL (with the token when one is needed)
+
+Routes: `/` the page and `/static/*` its assets (package data, no CDN); `/events` Braid's server-sent
+events (message version 3, see `flytrack_host.outputs.braid`); `/ui/events` the page's state as
+server-sent events (`event: state`, ~20 Hz); `/api/state` one state snapshot; `/api/stats` the
+server's own counts.
+
+Threads: the tracking thread only appends to a bounded deque in `on_frame`. One publisher thread
+turns frames into Braid events and page snapshots and offers them to each client's bounded backlog
+(`web.clients`); each connection has its own thread (stdlib `ThreadingHTTPServer`) that writes. A
+client that stops reading is dropped when its backlog is full, and counted.
+
+Bound to a loopback address no token is asked. Bound to any other address, every request needs the
+token (printed at start, as Braid does) as `?token=` or the `flytrack_token` cookie that a page
+loaded with `?token=` receives; a wrong or missing token gets 401.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hmac
+import ipaddress
+import json
+import logging
+import math
+import re
+import secrets
+import socket
+import tempfile
+import threading
+import time
+from collections import deque
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+from flytrack_host.outputs import braid
+from flytrack_host.tracking.types import FrameResult
+from flytrack_host.web.clients import ClientSet, StreamClient
+from flytrack_host.web.state import LiveState
+
+log = logging.getLogger("flytrack.web")
+
+DEFAULT_PORT = 8397  # Braid's model server port
+MAX_REQUEST_LINE = 8192
+MAX_HEADER_BYTES = 16384
+MAX_CONNECTIONS = 128
+COOKIE = "flytrack_token"
+_STATIC_NAME = re.compile(r"^[A-Za-z0-9_-]+\.(html|js|css|png|svg|ico)$")
+_TYPES = {"html": "text/html; charset=utf-8", "js": "text/javascript; charset=utf-8",
+          "css": "text/css; charset=utf-8", "png": "image/png", "svg": "image/svg+xml", "ico": "image/x-icon"}
+
+
+def is_loopback(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and "localhost"; "" and 0.0.0.0 (every interface) are not."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def parse_bind(value: str, default_port: int = DEFAULT_PORT) -> tuple[str, int]:
+    """"HOST:PORT", "HOST" or ":PORT" -> (host, port); a clear ValueError otherwise."""
+    host, sep, port_s = value.rpartition(":") if ":" in value else (value, "", "")
+    if not sep:
+        host, port_s = value, ""
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        port = int(port_s) if port_s else default_port
+    except ValueError:
+        raise ValueError(f"bad port in {value!r}: expected HOST:PORT, e.g. 127.0.0.1:{default_port}") from None
+    if not 0 <= port <= 65535:
+        raise ValueError(f"port {port} out of range 0-65535")
+    return host, port
+
+
+def _clean(x: Any) -> Any:
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_clean(v) for v in x]
+    return x
+
+
+def to_json(x: Any) -> bytes:
+    try:
+        return json.dumps(x, allow_nan=False, separators=(",", ":")).encode()
+    except ValueError:  # a NaN somewhere: JSON has none, the page's JSON.parse would fail
+        return json.dumps(_clean(x), allow_nan=False, separators=(",", ":"), default=str).encode()
+
+
+class _HttpServer(ThreadingHTTPServer):
+    daemon_threads = True
+    request_queue_size = 64
+    live: LiveServer
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if self.live._connections >= MAX_CONNECTIONS:
+            self.live.counts["refused_connections"] += 1
+            with contextlib.suppress(OSError):
+                request.sendall(b"HTTP/1.0 503 Service Unavailable\r\nContent-Length: 0\r\n\r\n")
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: _HttpServer
+    timeout = 10.0  # seconds: reading a request, and each write (a stuck client is let go)
+    server_version = "FlyTrack"
+
+    # --- request checks ---------------------------------------------------------------------------
+    def setup(self) -> None:
+        super().setup()
+        with self.server.live._lock:
+            self.server.live._connections += 1
+
+    def finish(self) -> None:
+        with contextlib.suppress(OSError):
+            super().finish()
+        with self.server.live._lock:
+            self.server.live._connections -= 1
+
+    def parse_request(self) -> bool:
+        if len(self.raw_requestline) > MAX_REQUEST_LINE:
+            self.requestline = ""
+            self.request_version = "HTTP/1.0"
+            self.command = ""
+            self.send_error(HTTPStatus.REQUEST_URI_TOO_LONG, f"request line over {MAX_REQUEST_LINE} bytes")
+            return False
+        if not super().parse_request():
+            return False
+        size = sum(len(k) + len(v) + 4 for k, v in self.headers.items())
+        if size > MAX_HEADER_BYTES:
+            self.send_error(HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE, f"headers over {MAX_HEADER_BYTES} bytes")
+            return False
+        return True
+
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
+        self.server.live._count_error(int(code))
+        super().send_error(code, message, explain)
+
+    def log_message(self, format: str, *args: Any) -> None:
+        log.debug("%s %s", self.address_string(), format % args)
+
+    def _authorised(self, query: dict[str, list[str]]) -> tuple[bool, bool]:
+        """(allowed, token came in the query: set the cookie)."""
+        token = self.server.live.token
+        if token is None:
+            return True, False
+        given = query.get("token", [None])[0]
+        if given is not None:
+            return hmac.compare_digest(given.encode(), token.encode()), True
+        for part in (self.headers.get("Cookie") or "").split(";"):
+            k, _, v = part.strip().partition("=")
+            if k == COOKIE:
+                return hmac.compare_digest(v.encode(), token.encode()), False
+        return False, False
+
+    # --- methods ----------------------------------------------------------------------------------
+    def _not_allowed(self) -> None:
+        self.send_error(HTTPStatus.METHOD_NOT_ALLOWED, "only GET is served")
+
+    do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _not_allowed
+
+    def do_HEAD(self) -> None:
+        self._not_allowed()
+
+    def do_GET(self) -> None:
+        live = self.server.live
+        url = urlsplit(self.path)
+        query = parse_qs(url.query, max_num_fields=20)
+        ok, set_cookie = self._authorised(query)
+        if not ok:
+            live.counts["unauthorised"] += 1
+            self.send_error(HTTPStatus.UNAUTHORIZED, "wrong or missing token: open the URL printed at start "
+                                                     "(…/?token=…)")
+            return
+        self._cookie = f"{COOKIE}={live.token}; Path=/; HttpOnly; SameSite=Strict" if set_cookie else None
+        path = url.path
+        if path == "/events":
+            self._stream("braid", live._calibration_event())
+        elif path == "/ui/events":
+            self._stream("ui", live._last_ui_event)
+        elif path == "/api/state":
+            self._send(200, "application/json", live._last_state_json or to_json(live.state.snapshot()))
+        elif path == "/api/stats":
+            self._send(200, "application/json", to_json(live.stats()))
+        elif path in ("/", "/index.html"):
+            self._static("index.html")
+        elif path == "/favicon.ico":
+            self._headers(204, "image/x-icon", 0)
+        elif path.startswith("/static/"):
+            self._static(path[len("/static/"):])
+        else:
+            self.send_error(HTTPStatus.NOT_FOUND, "no such page: /, /events, /ui/events, /api/state, /api/stats")
+
+    def _headers(self, code: int, ctype: str, length: int | None) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        if length is not None:
+            self.send_header("Content-Length", str(length))
+        self.send_header("Cache-Control", "no-cache")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        if self._cookie:
+            self.send_header("Set-Cookie", self._cookie)
+        self.end_headers()
+
+    def _send(self, code: int, ctype: str, body: bytes) -> None:
+        self._headers(code, ctype, len(body))
+        self.wfile.write(body)
+
+    def _static(self, name: str) -> None:
+        if not _STATIC_NAME.match(name):
+            self.send_error(HTTPStatus.NOT_FOUND, "no such asset")
+            return
+        try:
+            body = resources.files("flytrack_host.web").joinpath("static", name).read_bytes()
+        except (FileNotFoundError, IsADirectoryError, OSError):
+            self.send_error(HTTPStatus.NOT_FOUND, "no such asset")
+            return
+        self._send(200, _TYPES[name.rsplit(".", 1)[1]], body)
+
+    def _stream(self, kind: str, first: bytes | None) -> None:
+        live = self.server.live
+        client = live.clients.add(kind, self.connection, self.address_string())
+        if client is None:
+            self.send_error(HTTPStatus.SERVICE_UNAVAILABLE, f"too many streaming clients ({live.clients.max_clients})")
+            return
+        try:
+            self._headers(200, "text/event-stream", None)
+            if first:
+                self.wfile.write(first)
+                client.sent_bytes += len(first)
+            self.wfile.flush()
+            self._pump(client)
+        except OSError:  # reset, broken pipe, write timeout: the client went away
+            pass
+        finally:
+            live.clients.remove(client)
+
+    def _pump(self, client: StreamClient) -> None:
+        idle = 0.0
+        while True:
+            data = client.take(timeout=1.0)
+            if data is None:
+                return
+            if not data:
+                idle += 1.0
+                if idle < 5.0:
+                    continue
+                data = b": keep-alive\n\n"  # an SSE comment: finds clients that left while idle
+            idle = 0.0
+            self.wfile.write(data)
+            self.wfile.flush()
+            client.sent_bytes += len(data)
+
+
+class LiveServer:
+    """HTTP server for Braid's event stream and the live page; a `ResultSink` of the pipeline."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str | None = None,
+                 calibration_xml: str | None = None, ui_hz: float = 20.0, max_clients: int = 64,
+                 client_backlog_bytes: int = 2 << 20, frame_backlog: int = 2000):
+        self.host = host
+        self.port = port
+        # Any address other than loopback needs the token (generated unless given).
+        self.token = None if is_loopback(host) and token is None else (token or secrets.token_urlsafe(16))
+        self.calibration_xml = calibration_xml
+        self.ui_period = 1.0 / ui_hz
+        self.clients = ClientSet(max_clients=max_clients, limit_bytes=client_backlog_bytes)
+        self.state = LiveState()
+        self.counts: dict[str, int] = {"frames_in": 0, "frames_dropped": 0, "frames_published": 0,
+                                       "unauthorised": 0, "bad_requests": 0, "refused_connections": 0,
+                                       "publish_errors": 0, "ui_snapshots": 0}
+        self._frames: deque[tuple[FrameResult, float, float]] = deque()
+        self._frame_backlog = frame_backlog
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._connections = 0
+        self._httpd: _HttpServer | None = None
+        self._threads: list[threading.Thread] = []
+        self._last_state_json: bytes | None = None
+        self._last_ui_event: bytes | None = None
+        self._closed = False
+
+    # --- life -------------------------------------------------------------------------------------
+    def attach(self, pipe: Any) -> LiveServer:
+        """Feed on `pipe`'s frames (joins its sinks), read its state for the page, and start serving."""
+        self.state.pipe = pipe
+        if self.calibration_xml is None:
+            self.calibration_xml = calibration_xml_of(pipe)
+        if self._httpd is None:
+            self.start()  # first: a port that cannot be bound leaves the pipeline untouched
+        pipe.sinks.append(self)
+        return self
+
+    def start(self) -> None:
+        httpd = _HttpServer((self.host, self.port), _Handler)
+        httpd.live = self
+        self._httpd = httpd
+        self.port = httpd.server_address[1]
+        for name, target in (("flytrack-web-http", httpd.serve_forever), ("flytrack-web-publish", self._publish)):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}/"
+
+    def banner(self) -> str:
+        tok = f"?token={self.token}" if self.token else ""
+        return (f"live view: {self.url}{tok}   Braid events: {self.url}events{tok}"
+                + ("   (token required: this address is not loopback)" if self.token else ""))
+
+    def close(self) -> None:
+        """Publish what is pending and a final page state, end every stream, stop serving."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._wake.set()
+        for t in self._threads:
+            if t.name == "flytrack-web-publish":
+                t.join(5.0)
+        self.clients.close_all(graceful=True)
+        end = time.monotonic() + 2.0
+        while self.clients.count() and time.monotonic() < end:
+            time.sleep(0.02)
+        self.clients.close_all(graceful=False)
+        if self._httpd is not None:
+            self._httpd.shutdown()
+            self._httpd.server_close()
+
+    # --- ResultSink (tracking thread: append and return) ------------------------------------------
+    def on_frame(self, result: FrameResult, frame_time: float, estimate_time: float) -> None:
+        q = self._frames
+        if len(q) >= self._frame_backlog:  # the publisher is far behind: lose the oldest, count it
+            q.popleft()
+            self.counts["frames_dropped"] += 1
+        q.append((result, frame_time, estimate_time))
+        self.counts["frames_in"] += 1
+        if not self._wake.is_set():
+            self._wake.set()
+
+    def add_rule_firing(self, text: str) -> None:
+        """Hook for the actuation rules: one line shown in the page's rule panel."""
+        self.state.add_rule_firing(text)
+
+    # --- publisher thread -------------------------------------------------------------------------
+    def _publish(self) -> None:
+        next_ui = time.monotonic()
+        while True:
+            self._wake.wait(max(0.0, next_ui - time.monotonic()))
+            self._wake.clear()
+            stopping = self._stop.is_set()
+            try:
+                self._drain()
+                now = time.monotonic()
+                if now >= next_ui or stopping:
+                    self._ui_tick(final=stopping)
+                    period = self.ui_period if self.clients.count("ui") else 0.5
+                    next_ui = max(next_ui + period, now + 0.2 * period)
+            except Exception as exc:  # a bug here must not end the live outputs for good
+                self.counts["publish_errors"] += 1
+                if self.counts["publish_errors"] <= 10:
+                    log.exception("live server publisher: %r", exc)
+                time.sleep(0.01)
+            if stopping and not self._frames:
+                return
+
+    def _drain(self) -> None:
+        q = self._frames
+        while q:
+            result, frame_time, estimate_time = q.popleft()
+            if result.trigger_frame < 0:
+                continue
+            if self.clients.count("braid"):
+                self.clients.broadcast("braid", braid.encode_frame(result, frame_time))
+            self.state.add_frame(result, frame_time, estimate_time)
+            self.counts["frames_published"] += 1
+
+    def _ui_tick(self, final: bool = False) -> None:
+        snap = self.state.snapshot(self.stats(), final=final)
+        body = to_json(snap)
+        self._last_state_json = body
+        self._last_ui_event = b"event: state\ndata: " + body + b"\n\n"
+        self.counts["ui_snapshots"] += 1
+        self.clients.broadcast("ui", self._last_ui_event)
+
+    def _calibration_event(self) -> bytes | None:
+        return braid.calibration_event(self.calibration_xml) if self.calibration_xml else None
+
+    def _count_error(self, code: int) -> None:
+        if 400 <= code < 500 and code != 401:
+            self.counts["bad_requests"] += 1
+
+    def stats(self) -> dict[str, Any]:
+        s = self.clients.stats
+        return {**self.counts, "clients": s.connected, "clients_by_kind": dict(s.by_kind),
+                "clients_total": s.total, "clients_dropped_slow": s.dropped_slow,
+                "clients_disconnected": s.disconnected, "clients_refused_busy": s.refused_busy,
+                "bytes_sent": s.bytes_sent, "backlog_frames": len(self._frames)}
+
+
+def calibration_xml_of(pipe: Any) -> str | None:
+    """The pipeline's calibration as flydra XML text (Braid sends its reconstructor so), or None."""
+    path = getattr(pipe, "calibration_path", None)
+    if path is not None and Path(path).suffix.lower() == ".xml" and Path(path).is_file():
+        return Path(path).read_text(encoding="utf-8", errors="replace")
+    cams = getattr(pipe, "cameras", None)
+    if not cams:
+        return None
+    try:
+        from flytrack_host.calibration.formats import save_flydra_xml
+
+        with tempfile.TemporaryDirectory() as d:
+            out = Path(d) / "calibration.xml"
+            save_flydra_xml({c.name: c for c in cams.values()}, out)
+            return out.read_text(encoding="utf-8")
+    except Exception as exc:  # the stream works without it; say why it is missing
+        log.warning("no calibration for the event stream: %r", exc)
+        return None
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])

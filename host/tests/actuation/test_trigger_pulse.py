@@ -1,0 +1,86 @@
+"""The rule engine fires the trigger firmware's pulse output (the high-speed camera line) in simavr:
+the pin rises at the start of the trigger frame the animal enters, as the firings table says."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from flytrack_host.recording.schema import FIRING_FRAME_EXACT
+from flytrack_host.rig import ActuatorConfig
+from flytrack_host.testing import missing_part
+from flytrack_host.trigger import simulator
+from flytrack_host.trigger.device import TriggerDevice
+from flytrack_host.trigger.simulator import SimulatedTrigger, rising
+
+FPS = 100.0
+
+
+@pytest.fixture(scope="module")
+def built() -> tuple:
+    if not simulator.tools_available():
+        missing_part("avr-gcc / simavr not installed: the firmware cannot run here")
+    return simulator.build("atmega328p")
+
+
+def _entry_run(act, dev: TriggerDevice, predict: bool, v: float = 1.0) -> tuple[int, object]:  # noqa: ANN001
+    """One object flying along x at `v` m/s into the box (x >= 1), frames fed in real time ~2 ms after
+    each trigger pulse (as the tracker would); returns (true entry frame, engine)."""
+    for _ in range(8):
+        dev.query_clock()
+    model = dev.model
+    assert model.fitted
+    rule = {"name": "enter", "predict": predict, "when": {"inside": {"box": {"min": [1, -1, -1], "max": [2, 1, 1]}}}}
+    eng = act.engine([{"output": "hscam", "width_ms": 0.5}], [ActuatorConfig(name="hscam", kind="trigger_pulse")],
+                     FPS, context={"trigger": dev, "clock": model}, rule=rule)
+    eng.start()
+    f0 = int(dev.query_clock().frame_count) + 5
+    n = 40
+    # x(f) = 1 - 0.0155 * (20 - (f - f0)) + ...: crosses 1.0 between frames f0+19 and f0+20... computed below
+    xs = 0.7 + v / FPS * np.arange(n) + 0.003
+    entry = f0 + int(np.argmax(xs >= 1.0))
+    for k in range(n):
+        f = f0 + k
+        ft = model.frame_to_host_time(f)
+        time.sleep(max(0.0, ft + 0.002 - time.time()))
+        eng.on_frame(act.result(f, {1: (float(xs[k]), v)}), ft, time.time())
+    act.wait_for(lambda: eng.firings.count >= 1, 5.0)
+    eng.close()
+    return entry, eng
+
+
+def test_pulse_lands_on_the_entry_frame(act, built) -> None:  # noqa: ANN001
+    harness, elf = built
+    with SimulatedTrigger(elf=elf, harness=harness, realtime=True) as sim:
+        dev = TriggerDevice(sim.pty, reset_wait_s=0)
+        dev.set_rate(FPS)
+        dev.start()
+        try:
+            entry, eng = _entry_run(act, dev, predict=True)
+            time.sleep(0.05)
+            entry2, eng2 = _entry_run(act, dev, predict=False)
+            time.sleep(0.05)
+        finally:
+            dev.stop()
+            dev.close()
+    _, edges = sim.edges()
+    trig = rising(edges, "trigger")
+    pulses = rising(edges, "pulse0")
+    assert len(pulses) == 2
+
+    def frame_of(cycle: int) -> int:  # frame n begins at the n+1-th rising edge of the trigger
+        return int(np.searchsorted(np.asarray(trig), cycle, side="right")) - 1
+
+    t = eng.firings.table()
+    assert len(t) == 1 and t["flags"][0] & FIRING_FRAME_EXACT and not t["error"][0]
+    assert int(t["scheduled_frame"][0]) == frame_of(pulses[0])  # the table says where the pin fired
+    err_pred = frame_of(pulses[0]) - entry
+    t2 = eng2.firings.table()
+    err_nopred = frame_of(pulses[1]) - entry2
+    assert int(t2["scheduled_frame"][0]) == frame_of(pulses[1])
+    print(f"\npulse frame - entry frame: with prediction {err_pred:+d}, without {err_nopred:+d}; "
+          f"estimate -> ACK {1e3 * (t['time_ack'][0] - t['estimate_time'][0]):.2f} ms")
+    assert abs(err_pred) <= 1
+    assert err_nopred >= 2  # the firmware arms a frame ahead: the estimate's frame + 2 at the earliest
