@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -87,7 +89,8 @@ def absurd_cases(draw: st.DrawFn) -> tuple:
     return rng.normal(size=(T, 6)), P, z, H, r
 
 
-@settings(max_examples=200, deadline=None)
+# make mutation lowers the examples (FLYTRACK_HYPOTHESIS_EXAMPLES) to test many mutants in its time.
+@settings(max_examples=int(os.environ.get("FLYTRACK_HYPOTHESIS_EXAMPLES", "200")), deadline=None)
 @given(absurd_cases())
 def test_joseph_posterior_stays_symmetric_positive_definite(case: tuple) -> None:
     x, P, z, H, r = case
