@@ -31,7 +31,8 @@ _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.recording.cli", "app", "recording", "Recordings: recover after a crash, summarise."),
     ("flytrack_host.tracking.bench", "app", "bench", "Benchmarks that print measured figures."),
     ("flytrack_host.trigger.cli", "app", "trigger", "Trigger box: info, start, stop, watch, pulse, flash."),
-    ("flytrack_host.calibration.cli", "app", "calibrate", "Calibration: selfcal, dlt, align, report, convert."),
+    ("flytrack_host.calibration.cli", "app", "calibrate",
+     "Calibration: selfcal, dlt, align, intrinsics, collect, report, convert."),
 ]
 # (module, function, command name): top-level commands that live in their components.
 _COMMANDS: list[tuple[str, str, str]] = [

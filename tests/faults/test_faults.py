@@ -94,7 +94,10 @@ def test_a_flood_is_counted_and_logged_with_counts(rows):
     r = _row(rows, "flood")
     rx = r["receiver"]
     assert rx["internal_errors"] == 0
-    assert sum(rx["errors_by_name"].values()) + rx["rejected_camera"] >= 20_000
+    # Every datagram that reached the host is counted (the kernel may drop some of a flood on a busy
+    # machine: the edges' own datagrams lost that way show in the receiver's loss count).
+    assert sum(rx["errors_by_name"].values()) + rx["rejected_camera"] >= 10_000
+    assert r["frames_lost"] <= r["receiver_lost"], (r["frames_lost"], r["receiver_lost"])
     assert r["message_count"] <= 6
 
 

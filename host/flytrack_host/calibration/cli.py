@@ -363,8 +363,10 @@ def report_cmd(
 def convert_cmd(
     src: Path = typer.Argument(..., help="Any calibration file (flydra XML, pymvg JSON, OpenCV YAML, anipose)."),
     dst: Path = typer.Argument(..., help="Output: .xml (flydra), .json (pymvg) or .toml (anipose)."),
+    fmt: str | None = typer.Option(None, "--format", help="Output format when DST's suffix does not say: "
+                                   "flydra-xml, pymvg-json or anipose-toml."),
 ) -> None:
     """Convert a calibration between formats."""
     cams = load_calibration(src)
-    save_calibration(cams, dst)
+    save_calibration(cams, dst, fmt=fmt)
     console.print(f"{len(cams)} cameras written to {dst}", highlight=False)

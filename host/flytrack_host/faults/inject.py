@@ -173,24 +173,28 @@ class MisnumberingEdge(Fault):
 
 
 class GarbageFlood(Fault):
-    """`n` random datagrams, then `n_valid` well-formed FEATURES with random camera indices, as fast
-    as a separate Python process sends them (`flood`), from its own socket on the edges' address."""
+    """`n` random datagrams, then `n_valid` well-formed FEATURES with random camera indices, from a
+    separate process on the edges' address, paced at `rate` datagrams a second (`flood`)."""
 
     n = 20_000
     n_valid = 5_000
+    rate = 25_000.0
 
     def inject(self, ctx: Any) -> None:
         subprocess.run([sys.executable, "-m", "flytrack_host.faults.inject", "127.0.0.1", str(ctx.port),
-                        str(self.n), str(self.n_valid)], check=True, timeout=120)
+                        str(self.n), str(self.n_valid), str(self.rate)], check=True, timeout=120)
         self.info["sent"] = self.n + self.n_valid
 
 
-def flood(host: str, port: int, n: int, n_valid: int) -> None:
+def flood(host: str, port: int, n: int, n_valid: int, rate: float) -> None:
     rng = np.random.default_rng(5)
     dst = (host, port)
+    t0 = time.monotonic()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for _ in range(n):
+        for i in range(n):
             s.sendto(rng.integers(0, 256, int(rng.integers(1, 600)), dtype=np.uint8).tobytes(), dst)
+            if i % 500 == 0:
+                time.sleep(max(0.0, t0 + i / rate - time.monotonic()))
         for i in range(n_valid):
             f = FeatureFrame(camera_index=int(rng.integers(0, 65536)), seq=i, camera_frame=i,
                              device_timestamp_ns=ROGUE_MARK, total_points=1, points=make_points(1))
@@ -278,5 +282,5 @@ class EdgeRestart(Fault):
             self.truth[self.camera] = dict(edge.written)
 
 
-if __name__ == "__main__":  # the flood's own process: python -m flytrack_host.faults.inject HOST PORT N N_VALID
-    flood(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]))
+if __name__ == "__main__":  # the flood's own process: python -m flytrack_host.faults.inject HOST PORT N N_VALID RATE
+    flood(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5]))
