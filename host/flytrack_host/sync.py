@@ -429,7 +429,10 @@ class FrameSynchronizer:
             w.popleft()
         if math.isfinite(t) and len(w) >= 3 and not continuous:
             floor = min(x[1] for x in w)
-            if frame.recv_time - t < floor - self.early_s:
+            lag = frame.recv_time - t
+            # Before its own pulse (absolute) and earlier than its camera's frames came of late
+            # (relative: a clock-model step moves both, a long stall of this camera only the floor).
+            if lag < -self.early_s and lag < floor - self.early_s:
                 return "early"  # claims a pulse that had not happened when such frames arrive
         if not math.isfinite(t) and self.max_accepted >= 0 and tf > self.max_accepted + self.future_frames:
             return "future"
@@ -465,14 +468,17 @@ class FrameSynchronizer:
         edge whose first frames came late and bunched up, or a counter that jumped. Frames cannot come
         before their pulse: move its mapping back by the whole periods it is ahead."""
         w = cam.lag_win
-        if cam.offset is None or len(w) < 10 or w[-1][0] - w[0][0] < 0.2:
+        if cam.offset is None or len(w) < 8 or w[-1][0] - w[0][0] < 0.1:
             return []
         others = [min(x[1] for x in c.lag_win) for c in self.cams.values()
-                  if c is not cam and c.alive and len(c.lag_win) >= 10]
+                  if c is not cam and c.alive and len(c.lag_win) >= 8]
         if not others:
             return []
-        d = min(x[1] for x in w) - statistics.median(others)
-        if d >= -self.early_s:
+        mine = min(x[1] for x in w)
+        d = mine - statistics.median(others)
+        # Ahead of the others (a clock step moves all cameras alike) and before its own pulses (other
+        # cameras late for longer than the window, in a stall, make no camera arrive before its pulse).
+        if d >= -self.early_s or mine >= -self.early_s:
             return []
         k = round(-d / self.period)
         if k < 1:

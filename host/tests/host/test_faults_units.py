@@ -207,11 +207,20 @@ def test_one_sender_per_camera_and_a_new_port_after_silence_is_a_restart(helpers
         assert [f.camera_frame for f in got] == list(range(5))
         assert rx.stats.cameras[0].second_sender == 5
         assert sum("second sender" in m for m in logs) == 1  # once, then counted
-        time.sleep(0.3)  # the first edge is gone; the new one takes over: a restart
+        time.sleep(0.3)  # the first edge went quiet: one stray datagram from elsewhere takes nothing over
+        b.send(77)
+        assert rx.receive(0.2) == [] and rx.stats.cameras[0].restarts == 0
+        a.send(5)  # the owner is back
+        assert [f.camera_frame for f in rx.receive(0.5)] == [5]
+        time.sleep(0.3)  # now it is gone for good; a new edge sends three frames: a restart
         b.seq = 0
-        b.send(0)
-        got = rx.receive(0.5)
-        assert len(got) == 1 and got[0].restarted and rx.stats.cameras[0].restarts == 1
+        for k in range(3):
+            b.send(k)
+        got = []
+        for _ in range(3):
+            got += rx.receive(0.2)
+        assert [f.camera_frame for f in got] == [0, 1, 2]  # held until confirmed, none lost
+        assert got[0].restarted and not got[1].restarted and rx.stats.cameras[0].restarts == 1
         assert rx.stats.cameras[0].reordered == 0 and rx.stats.cameras[0].lost == 0
     finally:
         a.close()
