@@ -203,8 +203,9 @@ def flood(host: str, port: int, n: int, n_valid: int, rate: float) -> None:
 
 
 class _FedEdge:
-    """A real `flytrack-edge` process for a camera, fed flat grey frames by this thread, one per
-    trigger pulse the simulated cameras saw (the feeder's edge counter)."""
+    """A real `flytrack-edge` process for a camera, fed flat grey frames by this thread, one for each
+    frame the simulated cameras rendered (so it keeps their pace, also when a busy machine makes them
+    lag behind the trigger)."""
 
     def __init__(self, ctx: Any, camera: int, log_name: str) -> None:
         from flytrack_host.sim.run import edge_command
@@ -217,10 +218,10 @@ class _FedEdge:
         self.written: dict[int, int] = {}  # camera frame -> trigger frame (pulse) it answers
 
     def feed_until(self, ctx: Any, end_mono: float, stop: threading.Event) -> None:
-        seen = ctx.feeder.edges_seen
+        seen = ctx.feeder.frames_rendered
         assert self.proc.stdin is not None
         while time.monotonic() < end_mono and not stop.is_set() and not ctx.feeder.done:
-            now_seen = ctx.feeder.edges_seen
+            now_seen = ctx.feeder.frames_rendered
             while seen < now_seen:
                 seen += 1
                 try:
@@ -266,12 +267,12 @@ class EdgeRestart(Fault):
         p = ctx.edges.procs[self.camera]
         p.kill()
         p.wait(5.0)
-        t_kill_seen = ctx.feeder.edges_seen
+        t_kill_seen = ctx.feeder.frames_rendered
         self._stop.wait(self.down_s)
         self.edge = _FedEdge(ctx, self.camera, "edge_restarted.log")
         self.truth_after[self.camera] = hostclock.now()
         self.t_end = hostclock.now()
-        self.info["pulses_while_down"] = ctx.feeder.edges_seen - t_kill_seen
+        self.info["pulses_while_down"] = ctx.feeder.frames_rendered - t_kill_seen
         self.edge.feed_until(ctx, time.monotonic() + 3600, self._stop)
 
     def cleanup(self) -> None:
