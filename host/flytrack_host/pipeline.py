@@ -535,8 +535,10 @@ class HostPipeline:
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
+        # Behind real time, judged against the trigger's clock (a fixed-rate clock's frame times are
+        # guesses from arrivals: after a pause they are late until re-anchored, not the host).
         behind = hostclock.now() - bundle.timestamp
-        if behind > self.max_backlog_s and self.tracker is not None:
+        if behind > self.max_backlog_s and self.tracker is not None and not isinstance(self.clock, FixedRateClock):
             # Bounded backlog: after a stall or an overload, frames this old are recorded, not tracked,
             # until the host is back near real time (the tracker predicts across the gap).
             self.behind_skipped += 1
