@@ -222,7 +222,11 @@ static long dvs_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms)
     size_t used;
     size_t n = ft_dvs_stream_feed(&p->st, p->buf + p->off, p->len - p->off, out, cap, &used);
     p->off += used;
+    if (s->invert_polarity)
+        for (size_t i = 0; i < n; i++)
+            out[i].p ^= 1u;
     s->lost = p->st.bad_words;
+    s->triggers = p->st.syncs;
     return (long)n;
 }
 
