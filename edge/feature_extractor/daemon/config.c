@@ -69,7 +69,9 @@ static const opt_doc docs[] = {
     {"verbose", "0|1", "log every control message and source event"},
     {"event-format", "FMT", "events: aedat2, aedat3, aedat4, evt2, evt3, dat or auto (default)"},
     {"slice-us", "US", "event sources: event time per DVS_CLUSTERS slice (default 1000)"},
-    {"realtime", "0|1", "events: play the file at its recorded pace (1, default) or at once (0)"},
+    {"realtime", "0|1",
+     "events: play the file at its recorded pace (1, default) or at once (0); with --input - "
+     "(stdin, e.g. a live producer) events are taken as they arrive"},
     {"reopen-ms", "MS", "dvs128: while unplugged, try to reopen it this often (default 500)"},
     {"dvs-biases", "HEX", "dvs128: 72 hex digits, the 12 x 3 bias bytes to send (default: keep)"},
     {"dvs-invert-polarity", "0|1",

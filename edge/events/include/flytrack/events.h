@@ -78,6 +78,10 @@ ft_ev_reader *ft_ev_open_mem(const uint8_t *buf, size_t len, int format, const c
 /* Fills out with up to cap events (cap >= 16). Returns the number written, 0 at the clean end of
  * the file, -1 once the reader has met damage (after returning every event before it). */
 long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap);
+/* Streams (a pipe, "/dev/stdin"): ft_ev_read returns the events that have arrived rather than wait
+ * to fill out; ft_ev_poll waits at most timeout_ms for input, 1 when ft_ev_read has something to
+ * do (always for files and memory), 0 on timeout. */
+int ft_ev_poll(ft_ev_reader *r, int timeout_ms);
 void ft_ev_get_info(const ft_ev_reader *r, ft_ev_info *info);
 const char *ft_ev_error(const ft_ev_reader *r);      /* "" when none */
 long long ft_ev_error_offset(const ft_ev_reader *r); /* -1 when none */
