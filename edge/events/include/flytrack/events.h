@@ -91,9 +91,10 @@ const char *ft_ev_format_name(int format); /* "aedat2", "aedat3", "aedat4", "evt
 int ft_ev_format_from_name(const char *name); /* the reverse, -1 if unknown */
 
 /* Writers: AEDAT 4.0 (compression = ft_ev_compression) or EVT 3.0 (compression ignored). Events
- * must come in non-decreasing time (both formats are time-ordered); a step back is refused with
- * an error and nothing of that call written. ft_ev_writer_close flushes, frees, and returns 0
- * or -1 with the first error of the writer's life in err. */
+ * must come in non-decreasing time (both formats are time-ordered): a step back (or an EVT 3.0
+ * address over 2047) makes ft_ev_write return -1 with the reason in ft_ev_writer_error, nothing of
+ * that call written, and the writer stays usable. An I/O error fails the writer for good.
+ * ft_ev_writer_close flushes, frees, and returns 0, or -1 with the I/O error in err. */
 typedef struct ft_ev_writer ft_ev_writer;
 ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int height,
                                 int compression, char *err, size_t err_len);
