@@ -535,8 +535,10 @@ class HostPipeline:
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
+        # Behind real time, judged against the trigger's clock (a fixed-rate clock's frame times are
+        # guesses from arrivals: after a pause they are late until re-anchored, not the host).
         behind = hostclock.now() - bundle.timestamp
-        if behind > self.max_backlog_s and self.tracker is not None:
+        if behind > self.max_backlog_s and self.tracker is not None and not isinstance(self.clock, FixedRateClock):
             # Bounded backlog: after a stall or an overload, frames this old are recorded, not tracked,
             # until the host is back near real time (the tracker predicts across the gap).
             self.behind_skipped += 1
@@ -739,6 +741,12 @@ def run_command(
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
+    rules: Path | None = typer.Option(
+        None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
+        "[[actuators]]."),
+    skip_bad_rules: bool = typer.Option(
+        False, "--skip-bad-rules", help="Run with the rules that are valid; each bad one is reported, logged in "
+        "the recording and counted (default: a bad rules file stops the run before it starts)."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
     until Ctrl-C.
@@ -771,13 +779,9 @@ def run_command(
         raise typer.Exit(code=2) from None
     for problem in calibration_problems(rig, cameras):
         Console(stderr=True).print(f"[yellow]warning[/yellow] {problem}", highlight=False, soft_wrap=True)
-    if rig.actuators:
-        # The rig file describes actuators already; this host does not drive them yet. Say so
-        # rather than let a lab believe its stimulus is running.
-        names = ", ".join(f"{a.name} ({a.kind})" for a in rig.actuators)
-        Console(stderr=True).print(f"[yellow]warning[/yellow] actuators are not driven by this version of "
-                                   f"flytrack run: {names}; live estimates go to host.live_subscribers",
-                                   highlight=False, soft_wrap=True)
+    from flytrack_host.actuation.cli import rules_for_run
+
+    run_rules = rules_for_run(rig, rules, skip_bad_rules)  # a bad rules file exits 2 here unless skipped
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
@@ -796,6 +800,7 @@ def run_command(
                         rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
                         clock=session.clock if session else None, fps=session.fps if session else None,
                         hold_until_synchronized=session is not None)
+    engine = run_rules.engine(pipe.fps, session) if run_rules is not None else None
     try:
         outputs.attach(pipe, echo=lambda s: None)  # printed after the first line below
         pipe.start()
@@ -807,6 +812,9 @@ def run_command(
         where = f"{bind or rig.host.listen} (features) or {http} (live outputs)"
         console.print(f"[red]error[/red] cannot listen on {where}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    if engine is not None:  # after start: its messages go into the recording's log too
+        engine.attach(pipe)
+        engine.start()
     if session is not None:
         session.attach(pipe)
         try:

@@ -181,7 +181,8 @@ def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str |
         if fmt is None:
             raise CalibrationFormatError(
                 f"{path}: cannot tell the output format from the suffix {suffix!r}. "
-                "Use .xml (flydra), .json (pymvg) or .toml (anipose), or name the format.")
+                "Use .xml (flydra), .json (pymvg) or .toml (anipose), or pass --format flydra-xml, pymvg-json "
+                "or anipose-toml.")
     writers = {"flydra-xml": save_flydra_xml, "pymvg-json": save_pymvg_json, "anipose-toml": save_anipose_toml}
     if fmt not in writers:
         raise CalibrationFormatError(f"cannot write format {fmt!r}; FlyTrack writes {sorted(writers)}.")

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 from tqdm import tqdm
 
 from flytrack_host.camera import Camera
@@ -164,15 +165,27 @@ def params_with(base: dict | None, toml_path: Path | None = None, sets: list[str
 
     values: dict[str, Any] = dict(base or {})
     if toml_path is not None:
-        data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        try:
+            data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise RetrackError(f"--params {toml_path}: {why}; expected a TOML file whose tracking table "
+                               "holds the parameters, e.g. motion_noise_scale = 0.2") from None
         values.update(data.get("tracking", data))
     for s in sets or []:
         key, sep, val = s.partition("=")
         if not sep:
             raise RetrackError(f"--set {s!r}: write KEY=VALUE, e.g. motion_noise_scale=0.2")
-        values[key.strip()] = tomllib.loads(f"v = {val.strip()}")["v"] if val.strip() else val
+        try:
+            values[key.strip()] = tomllib.loads(f"v = {val.strip()}")["v"] if val.strip() else val
+        except tomllib.TOMLDecodeError:
+            values[key.strip()] = val.strip()  # not a TOML value: the check below names the key and the type
     try:
         return TrackingParams.model_validate(values)
+    except ValidationError as exc:
+        errs = "; ".join(f"{'.'.join(str(x) for x in e['loc'])} = {e.get('input')!r}: {e['msg']}"
+                         for e in exc.errors())
+        raise RetrackError(f"tracking parameters: {errs}") from None
     except Exception as exc:
         raise RetrackError(f"tracking parameters: {exc}") from None
 

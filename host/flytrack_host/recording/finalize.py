@@ -9,8 +9,10 @@ latency histogram and its percentiles (0.1 ms bins) are accumulated over the sam
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -118,6 +120,14 @@ def finalize(folder: Path | str, out: Path | str | None = None) -> FinalizeRepor
     meta = read_meta(folder)
     report = FinalizeReport(h5_path=Path(out) if out is not None else folder / H5_NAME)
     tmp = report.h5_path.with_name(report.h5_path.name + ".tmp")
+    # HDF5 handles a full disk badly (it can crash the process): check the room first. The file is
+    # about the size of the raw files (no compression) plus its index.
+    need = sum(f.stat().st_size for f in folder.iterdir() if f.is_file() and f.suffix != ".tmp") + (1 << 20)
+    tmp.unlink(missing_ok=True)
+    free = shutil.disk_usage(report.h5_path.parent).free
+    if free < need:
+        raise OSError(errno.ENOSPC, f"not enough space: about {need / 1e6:.1f} MB needed, {free / 1e6:.1f} MB free "
+                      f"on the disk of {report.h5_path.parent} (the disk is full)")
     try:
         _write_h5(folder, meta, report, tmp)
     except BaseException:

@@ -355,14 +355,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
                 engine = lab.engine(rig, fps, session)
             except RulesError as exc:
                 raise DemoError(str(exc)) from None
-            engine.attach(host)
-            engine.start()
         for fn in cfg.attach:
             try:
                 fn(host)
             except OSError as exc:
                 raise DemoError(f"a live output could not start: {exc}") from None
         host.start()
+        if engine is not None:  # after start: its messages go into the recording's log too
+            engine.attach(host)
+            engine.start()
         session.attach(host)
         live = _LiveCounter(live_port, live_frames)
         trig.follow_software(session.software)
