@@ -20,6 +20,7 @@
 
 #include "board.h"
 #include "dvs_bridge.h"
+#include "flytrack/dvs.h" /* the word's bits, as the SPEC and the host's codecs have them */
 #include "usb_seam.h"
 
 #define FIFO_BYTES 1024u
@@ -124,23 +125,23 @@ static uint8_t put_word(uint8_t b0, uint8_t b1, uint16_t t) {
 }
 
 static void put_wrap(void) {
-    if (C.pend_wraps || C.pend_reset || !put_word(0, 0, 0x8000u))
+    if (C.pend_wraps || C.pend_reset || !put_word(0, 0, FT_DVS_WRAP_BIT))
         C.pend_wraps++;
     fifo_limits();
 }
 
 static void put_reset(void) {
     C.pend_wraps = 0; /* a reset makes the wraps before it meaningless */
-    if (C.pend_reset || !put_word(0, 0, 0x4000u))
+    if (C.pend_reset || !put_word(0, 0, FT_DVS_RESET_BIT))
         C.pend_reset = 1;
     fifo_limits();
 }
 
 /* Pending special words go out once there is room, after what the FIFO holds. */
 static void flush_pending(void) {
-    if (C.pend_reset && put_word(0, 0, 0x4000u))
+    if (C.pend_reset && put_word(0, 0, FT_DVS_RESET_BIT))
         C.pend_reset = 0;
-    while (!C.pend_reset && C.pend_wraps && put_word(0, 0, 0x8000u))
+    while (!C.pend_reset && C.pend_wraps && put_word(0, 0, FT_DVS_WRAP_BIT))
         C.pend_wraps--;
     fifo_limits();
 }
@@ -236,8 +237,8 @@ stored:
 /* The event whose edge Timer3 has captured, served here in the slow path (before a timestamp reset,
  * so that it keeps the epoch it was stamped in). */
 static void serve_one(void) {
-    uint8_t a0 = ADDR0_PIN, a1 = ADDR1_PIN & 0x7F;
-    uint16_t t = (icr3() >> 1) & 0x3FFF;
+    uint8_t a0 = ADDR0_PIN, a1 = ADDR1_PIN & (uint8_t)~FT_DVS_SYNC_BIT;
+    uint16_t t = (icr3() >> 1) & FT_DVS_TS_MASK;
     TIFR3 = _BV(ICF3);
     ACK_PORT &= (uint8_t)~_BV(ACK_BIT);
     while (!(REQ_PIN & _BV(REQ_BIT)))
@@ -321,7 +322,7 @@ static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16
     if (pending && (uint16_t)((ticks - icr) & TS_TOP) < 0x4000u)
         return 0; /* the pulse came after the waiting event's edge */
     uint16_t ts = ticks >> 1;
-    uint16_t d = (uint16_t)((ts - C.last) & 0x3FFFu);
+    uint16_t d = (uint16_t)((ts - C.last) & FT_DVS_TS_MASK);
     uint8_t after_wrap = d < 0x2000u && ts < C.last;
     if (pre_wrap && (S.slave_armed || after_wrap))
         return 0; /* it goes out after the WRAP word, from the slow path */
@@ -339,7 +340,7 @@ static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16
         ts = 0;
         S.clamped++;
     }
-    if (put_word(0, DVS_WORD_SYNC, ts))
+    if (put_word(0, FT_DVS_SYNC_BIT, ts))
         S.sync_events++;
     else
         S.sync_missed++;
@@ -348,7 +349,7 @@ static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16
 
 /* The counter may wrap with no event to show it: read it (then check no edge came first). */
 static void idle_wrap(void) {
-    uint16_t now = (tcnt3() >> 1) & 0x3FFF;
+    uint16_t now = (tcnt3() >> 1) & FT_DVS_TS_MASK;
     if (TIFR3 & _BV(ICF3))
         return;
     if (now < C.last)
@@ -509,7 +510,7 @@ static void capture(void) {
             uint16_t t = ICR3;
             TIFR3 = _BV(ICF3);
             ACK_PORT &= (uint8_t)~_BV(ACK_BIT);
-            a1 &= 0x7F; /* /REQ (PD7) is low here; bit 7 is the SYNC flag */
+            a1 &= (uint8_t)~FT_DVS_SYNC_BIT; /* /REQ (PD7) is low here; bit 7 is the SYNC flag */
             t >>= 1;
             while (!(REQ_PIN & _BV(REQ_BIT)))
                 ;
