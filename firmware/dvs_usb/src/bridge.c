@@ -15,6 +15,7 @@
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include <avr/wdt.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -602,6 +603,11 @@ static void stopped(void) {
 }
 
 int main(void) {
+    /* a bootloader may leave the watchdog on, and a fresh chip runs at f/8 (CKDIV8 fuse) */
+    MCUSR &= (uint8_t)~_BV(WDRF);
+    wdt_disable();
+    CLKPR = _BV(CLKPCE);
+    CLKPR = 0;
     DDRB = 0;
     PORTB = 0;
     DDRD = 0;
