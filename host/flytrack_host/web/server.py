@@ -45,6 +45,7 @@ from flytrack_host.outputs import braid
 from flytrack_host.tracking.types import FrameResult
 from flytrack_host.web.clients import ClientSet
 from flytrack_host.web.state import LiveState
+from flytrack_host.web.thumbs import Requester, ThumbnailAssembler
 
 log = logging.getLogger("flytrack.web")
 
@@ -221,6 +222,15 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(200, "application/json", to_json(live.stats()))
         elif path in ("/", "/index.html"):
             self._static("index.html")
+        elif path.startswith("/thumb/") and path.endswith(".png"):
+            try:
+                t = live.thumbs.latest.get(int(path[len("/thumb/"):-len(".png")]))
+            except ValueError:
+                t = None
+            if t is None:
+                self.send_error(HTTPStatus.NOT_FOUND, "no image from this camera yet")
+            else:
+                self._send(200, "image/png", t.png)
         elif path == "/favicon.ico":
             self._headers(204, "image/x-icon", 0)
         elif path.startswith("/static/"):
@@ -289,7 +299,7 @@ class LiveServer:
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str | None = None,
                  calibration_xml: str | None = None, ui_hz: float = 20.0, max_clients: int = 64,
-                 client_backlog_bytes: int = 2 << 20, frame_backlog: int = 2000):
+                 client_backlog_bytes: int = 2 << 20, frame_backlog: int = 2000, thumbnails_every_s: float = 0.0):
         self.host = host
         self.port = port
         # Any address other than loopback needs the token (generated unless given).
@@ -298,6 +308,12 @@ class LiveServer:
         self.ui_period = 1.0 / ui_hz
         self.clients = ClientSet(max_clients=max_clients, limit_bytes=client_backlog_bytes)
         self.state = LiveState()
+        # Camera thumbnails from the edges' IMAGE messages; with thumbnails_every_s > 0 the server
+        # asks each edge for a frame that often (CONTROL SEND_FULL_IMAGE on the rig's control port).
+        self.thumbs = ThumbnailAssembler()
+        self.state.thumbs = self.thumbs
+        self.thumbnails_every_s = thumbnails_every_s
+        self._requester: Requester | None = None
         self.counts: dict[str, int] = {"frames_in": 0, "frames_dropped": 0, "frames_published": 0,
                                        "unauthorised": 0, "bad_requests": 0, "refused_connections": 0,
                                        "publish_errors": 0, "ui_snapshots": 0, "connection_errors": 0,
@@ -324,6 +340,9 @@ class LiveServer:
     def attach(self, pipe: Any) -> LiveServer:
         """Feed on `pipe`'s frames (joins its sinks), read its state for the page, and start serving."""
         self.state.pipe = pipe
+        if self.thumbnails_every_s > 0 and self._requester is None:
+            port = pipe.rig.host.control_port
+            self._requester = Requester({c.index: (c.edge, port) for c in pipe.rig.cameras}, self.thumbnails_every_s)
         if self.calibration_xml is None:
             self.calibration_xml = calibration_xml_of(pipe)
         if self._httpd is None:
@@ -365,6 +384,8 @@ class LiveServer:
         if self._httpd is not None:
             self._httpd.shutdown()
             self._httpd.server_close()
+        if self._requester is not None:
+            self._requester.close()
 
     # --- ResultSink (tracking thread: append and return) ------------------------------------------
     def on_frame(self, result: FrameResult, frame_time: float, estimate_time: float) -> None:
@@ -403,6 +424,7 @@ class LiveServer:
                         self.clients.on_ready(key.data, mask)
                 self.clients.admit()
                 self._drain()
+                self._images()
                 now = time.monotonic()
                 if now >= next_ui or stopping:
                     self._ui_tick(final=stopping)
@@ -426,6 +448,16 @@ class LiveServer:
             for key, mask in sel.select(0.05):
                 self.clients.on_ready(key.data, mask)
         self.clients.close_all()
+
+    def _images(self) -> None:
+        pipe = self.state.pipe
+        rx = getattr(pipe, "receiver", None) if pipe is not None else None
+        if rx is not None and getattr(rx, "on_image", False) is None:
+            rx.on_image = self.thumbs.add  # the receiver exists once the pipeline started
+        if self.thumbs.chunks:
+            self.thumbs.assemble()
+        if self._requester is not None:
+            self._requester.tick(time.monotonic())
 
     def _drain(self) -> None:
         q = self._frames
@@ -459,7 +491,10 @@ class LiveServer:
 
     def stats(self) -> dict[str, Any]:
         s = self.clients.stats
-        return {**self.counts, "clients": s.connected, "clients_by_kind": dict(s.by_kind),
+        th = self.thumbs
+        return {**self.counts, "thumbnails": th.images, "thumbnails_incomplete": th.dropped_incomplete,
+                "thumbnail_requests": self._requester.sent if self._requester else 0,
+                "clients": s.connected, "clients_by_kind": dict(s.by_kind),
                 "clients_total": s.total, "clients_dropped_slow": s.dropped_slow,
                 "clients_disconnected": s.disconnected, "clients_refused_busy": s.refused_busy,
                 "bytes_sent": s.bytes_sent, "backlog_frames": len(self._frames)}
