@@ -317,8 +317,9 @@ class LiveServer:
         self.counts: dict[str, int] = {"frames_in": 0, "frames_dropped": 0, "frames_published": 0,
                                        "unauthorised": 0, "bad_requests": 0, "refused_connections": 0,
                                        "publish_errors": 0, "ui_snapshots": 0, "connection_errors": 0,
-                                       "handler_errors": 0}
+                                       "handler_errors": 0, "deaths_added": 0}
         self._frames: deque[tuple[FrameResult, float, float]] = deque()
+        self._live_ids: set[int] = set()
         self._frame_backlog = frame_backlog
         # The publisher polls for frames every POLL_S while clients are connected: on_frame is then only
         # an append. Waking it per frame (Event.set: a futex call and a thread switch on the tracking
@@ -465,8 +466,19 @@ class LiveServer:
             result, frame_time, estimate_time = q.popleft()
             if result.trigger_frame < 0:
                 continue
+            # An object gone without a Death (the tracker restarted after an error or a clock jump,
+            # or frames lost here) gets one, so a Braid client never keeps a stale object.
+            ids = {int(e.obj_id) for e in result.estimates}
+            vanished = self._live_ids - ids - {int(i) for i in result.died}
+            self._live_ids = ids
+            self.counts["deaths_added"] += len(vanished)
             if self.clients.count("braid"):
-                self.clients.broadcast("braid", braid.frame_events(result, frame_time))
+                events = braid.frame_events(result, frame_time)
+                if vanished:
+                    f = int(result.trigger_frame)
+                    events[-1:-1] = [braid.sse_event(braid.envelope({"Death": i}, f, frame_time))
+                                     for i in sorted(vanished)]
+                self.clients.broadcast("braid", events)
             self.state.add_frame(result, frame_time, estimate_time)
             self.counts["frames_published"] += 1
             # Let the GIL go between frames: a tracking thread waiting for it gets it now, not after

@@ -278,3 +278,17 @@ def test_a_braid_client_reading_with_requests_gets_one_event_per_chunk():
         r.close()
     finally:
         s.close()
+
+
+def test_objects_gone_without_a_death_get_one(server):
+    """A tracker restart drops every object without Death messages; Braid clients must hear of it."""
+    r = Reader(server)
+    assert _wait(lambda: server.clients.count("braid") == 1)
+    _feed(server, range(0, 3), n=3)  # objects 1, 2, 3
+    restarted = make_result(3, 1, first_id=10, born=[10])  # a fresh tracker: 1-3 gone, 10 born
+    server.on_frame(restarted, time.time(), time.time())
+    assert _wait(lambda: r.frames == 4)
+    last = [e.json()["msg"] for e in r.events if e.json()["synced_frame"] == 3]
+    assert [next(iter(m)) for m in last] == ["Birth", "Update", "Death", "Death", "Death", "EndOfFrame"]
+    assert [m["Death"] for m in last if "Death" in m] == [1, 2, 3]
+    assert server.stats()["deaths_added"] == 3
