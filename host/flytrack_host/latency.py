@@ -3,8 +3,10 @@
 Parts: arrival (trigger -> the last camera's packet of the frame reached the host) and tracking
 (that moment -> the estimate was ready). Times are host clock seconds; the trigger time comes from
 the trigger clock model. Each frame gives one LATENCY row (kept in the recording); a fixed-bin
-histogram (0.1 ms bins up to 1 s, overflow in the last bin) gives P50, P99 and max without keeping
-every value in memory.
+histogram (0.1 ms bins up to 1 s) gives P50, P99 and max without keeping every value in memory.
+Values of 1 s or more are not folded into the last bin: they are kept exactly (up to
+`OVERFLOW_KEEP` of them), counted (`<part>_overflow`), and a percentile that falls among them is
+computed from them, so an overloaded or stalled run reports its real latency.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from flytrack_host.recording.schema import LATENCY
 BIN_MS = 0.1
 MAX_MS = 1000.0
 PARTS = ("total", "arrival", "tracking")
+OVERFLOW_KEEP = 200_000  # exact values kept past the histogram's end (per part)
 
 
 def latency_summary(lat: np.ndarray) -> dict[str, float]:
@@ -41,11 +44,12 @@ def latency_summary(lat: np.ndarray) -> dict[str, float]:
 
 
 def latency_histogram(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Histogram (counts, bin edges in ms) of trigger -> estimate; the last bin holds overflow."""
+    """Histogram (counts, bin edges in ms) of trigger -> estimate; values of 1 s or more are left out
+    (LatencyStats counts them as overflow)."""
     v = (lat["estimate_time"] - lat["trigger_time"]) * 1e3
     v = v[np.isfinite(v)]
     edges = np.arange(0.0, MAX_MS + BIN_MS / 2, BIN_MS)
-    counts, _ = np.histogram(np.clip(v, 0.0, MAX_MS - BIN_MS / 2), bins=edges)
+    counts, _ = np.histogram(np.clip(v[v < MAX_MS], 0.0, MAX_MS - BIN_MS / 2), bins=edges)
     return counts.astype(np.int64), edges
 
 
@@ -56,7 +60,16 @@ class LatencyStats:
         n = int(round(MAX_MS / BIN_MS))
         self.counts = {p: np.zeros(n, dtype=np.int64) for p in PARTS}
         self.max_ms = dict.fromkeys(PARTS, 0.0)
+        self.overflow: dict[str, list[float]] = {p: [] for p in PARTS}
+        self.overflow_n = dict.fromkeys(PARTS, 0)
         self.n = 0
+
+    def _over(self, part: str, ms: np.ndarray | list[float]) -> None:
+        self.overflow_n[part] += len(ms)
+        keep = self.overflow[part]
+        room = OVERFLOW_KEEP - len(keep)
+        if room > 0:
+            keep.extend(float(x) for x in ms[:room])
 
     def row(self, trigger_frame: int, trigger_time: float, first_arrival: float, last_arrival: float,
             estimate_time: float, n_cameras: int, n_missing: int) -> np.ndarray:
@@ -72,7 +85,10 @@ class LatencyStats:
             if math.isfinite(v):
                 ms = v * 1e3
                 self.max_ms[p] = max(self.max_ms[p], ms)
-                self.counts[p][min(max(int(ms / BIN_MS), 0), n_bins - 1)] += 1
+                if ms >= MAX_MS:
+                    self._over(p, [ms])
+                else:
+                    self.counts[p][min(max(int(ms / BIN_MS), 0), n_bins - 1)] += 1
         r = np.zeros(1, dtype=LATENCY)
         r[0] = (trigger_frame, trigger_time, first_arrival, last_arrival, estimate_time, n_cameras, n_missing)
         return r
@@ -90,6 +106,10 @@ class LatencyStats:
             ms = v[np.isfinite(v)] * 1e3
             if len(ms):
                 self.max_ms[p] = max(self.max_ms[p], float(ms.max()))
+                over = ms >= MAX_MS
+                if over.any():
+                    self._over(p, ms[over])
+                    ms = ms[~over]
                 idx = np.clip((ms / BIN_MS).astype(np.int64), 0, n_bins - 1)
                 self.counts[p] += np.bincount(idx, minlength=n_bins)
 
@@ -99,19 +119,25 @@ class LatencyStats:
 
     def percentile(self, part: str, q: float) -> float:
         c = self.counts[part]
-        total = int(c.sum())
+        in_range = int(c.sum())
+        total = in_range + self.overflow_n[part]
         if total == 0:
             return math.nan
-        k = int(np.searchsorted(np.cumsum(c), math.ceil(q / 100.0 * total)))
+        rank = max(1, math.ceil(q / 100.0 * total))
+        if rank > in_range:  # among the values of 1 s or more: exact, from the kept ones
+            kept = sorted(self.overflow[part])
+            return kept[min(rank - in_range, len(kept)) - 1]
+        k = int(np.searchsorted(np.cumsum(c), rank))
         return min((k + 0.5) * BIN_MS, self.max_ms[part])
 
     def summary(self) -> dict[str, float]:
         out: dict[str, float] = {"n": float(self.n)}
         for p in PARTS:
-            if self.counts[p].sum():
+            if self.counts[p].sum() or self.overflow_n[p]:
                 out[f"{p}_p50_ms"] = self.percentile(p, 50)
                 out[f"{p}_p99_ms"] = self.percentile(p, 99)
                 out[f"{p}_max_ms"] = self.max_ms[p]
+                out[f"{p}_overflow"] = float(self.overflow_n[p])
         return out
 
     def format(self) -> str:
@@ -121,6 +147,8 @@ class LatencyStats:
         lines = [f"latency over {self.n} frames (trigger -> estimate and its parts), ms:"]
         for p in PARTS:
             if f"{p}_p50_ms" in s:
+                over = int(s[f"{p}_overflow"])
                 lines.append(f"  {p:9s} P50 {s[f'{p}_p50_ms']:8.2f}  P99 {s[f'{p}_p99_ms']:8.2f}  "
-                             f"max {s[f'{p}_max_ms']:8.2f}")
+                             f"max {s[f'{p}_max_ms']:8.2f}"
+                             + (f"  ({over} frames at {MAX_MS / 1e3:g} s or more)" if over else ""))
         return "\n".join(lines)

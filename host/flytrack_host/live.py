@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.protocol import OBJECT_DTYPE, LiveEstimates, ProtocolError, decode_datagram, encode
 from flytrack_host.tracking.types import FrameResult
 
@@ -75,11 +76,11 @@ class LiveSender:
         objs, dropped = estimates_to_objects(result)
         self.stats.dropped_objects += dropped
         n_parts = max(1, -(-len(objs) // LIVE_MAX_OBJECTS))
-        tt = trigger_time if np.isfinite(trigger_time) else time.time()
+        tt = trigger_time if np.isfinite(trigger_time) else hostclock.now()
         datagrams = []
         for part in range(n_parts):
             chunk = objs[part * LIVE_MAX_OBJECTS : (part + 1) * LIVE_MAX_OBJECTS]
-            latency_ms = (time.time() - tt) * 1e3
+            latency_ms = (hostclock.now() - tt) * 1e3
             msg = LiveEstimates(
                 trigger_frame=max(int(result.trigger_frame), 0),
                 trigger_time=float(tt),
@@ -184,7 +185,7 @@ class LiveClient:
 
     def _handle(self, data: bytes) -> None:
         self.stats.datagrams += 1
-        now = time.time()
+        now = hostclock.now()
         try:
             msg = decode_datagram(data)
         except ProtocolError as exc:

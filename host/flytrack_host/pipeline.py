@@ -29,10 +29,12 @@ from typing import Any, Protocol
 import numpy as np
 import typer
 
+from flytrack_host import hostclock
 from flytrack_host.camera import Camera
 from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
 from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
+from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.receiver import Receiver, StatusReport
 from flytrack_host.recording.schema import (
     ASSOCIATION,
@@ -69,6 +71,16 @@ TrackerFactory = Callable[[Mapping[int, Camera], TrackingParams, float], Any]
 _POINT_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff", "orientation",
                  "eccentricity", "cur_val", "mean_val", "sumsq_val")
 _FLOAT_FIELDS = tuple(f for f in _POINT_FIELDS if f != "cur_val")
+_UNTRACKED_WHY = {
+    "early": "is numbered ahead of its arrival (a misbehaving or replaying edge?)",
+    "future": "claims a trigger frame in the future",
+    "discontinuity": "breaks its camera's numbering (jump back or far ahead)",
+    "unknown_camera": "is from a camera the synchroniser does not know",
+    "late": "came after its trigger frame was tracked (late)",
+}
+RECORDING_INCOMPLETE_EXIT = 3  # `flytrack run` exit code when the recording lost data (a full disk)
+MAX_BACKLOG_S = 0.5  # a frame this far behind real time is recorded, not tracked: the host catches up
+STALL_S = 0.2  # a turn of the tracking thread this late means the host was not scheduled
 
 
 class ResultSink(Protocol):
@@ -92,21 +104,45 @@ def default_tracker_factory(cameras: Mapping[int, Camera], params: TrackingParam
     return mod.Tracker(cameras, params, period)
 
 
-def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int) -> np.ndarray:
-    """One DATA2D row per point of a camera frame (one NaN row for a frame without points)."""
+_INT_LIMITS = {name: np.iinfo(DATA2D[name]) for name in DATA2D.names if DATA2D[name].kind in "iu"}
+_FALLBACK = {"trigger_frame": -1}  # out of range: "not mapped"; unsigned fields: 0
+
+
+def _fit(name: str, value: int, bad: list[str]) -> int:
+    """`value` if the DATA2D column holds it, else a fallback, and the column is named in `bad`."""
+    lim = _INT_LIMITS[name]
+    v = int(value)
+    if lim.min <= v <= lim.max:
+        return v
+    bad.append(f"{name}={v}")
+    return _FALLBACK.get(name, 0)
+
+
+def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int,
+                range_errors: list[str] | None = None) -> np.ndarray:
+    """One DATA2D row per point of a camera frame (one NaN row for a frame without points).
+
+    Every integer is range-checked before it is written: a value the column cannot hold (a wild frame
+    number from a misbehaving edge) is stored as -1 (trigger frame) or 0 and named in `range_errors`,
+    and the row is flagged rejected; the frame is never lost."""
     pts = fr.points
     n = len(pts)
+    bad: list[str] = []
     rows = np.zeros(max(n, 1), dtype=DATA2D)
-    rows["trigger_frame"] = tf
-    rows["camera_index"] = fr.camera_index
-    rows["camera_frame"] = fr.camera_frame
+    rows["trigger_frame"] = _fit("trigger_frame", tf, bad)
+    rows["camera_index"] = _fit("camera_index", fr.camera_index, bad)
+    rows["camera_frame"] = _fit("camera_frame", fr.camera_frame, bad)
     rows["timestamp"] = timestamp
     rows["cam_received_timestamp"] = fr.recv_time
-    rows["device_timestamp_ns"] = fr.device_timestamp_ns
-    rows["edge_recv_ns"] = fr.edge_recv_ns
-    rows["edge_done_ns"] = fr.edge_done_ns
-    rows["n_points"] = n
-    rows["total_points"] = fr.total_points
+    rows["device_timestamp_ns"] = _fit("device_timestamp_ns", fr.device_timestamp_ns, bad)
+    rows["edge_recv_ns"] = _fit("edge_recv_ns", fr.edge_recv_ns, bad)
+    rows["edge_done_ns"] = _fit("edge_done_ns", fr.edge_done_ns, bad)
+    rows["n_points"] = _fit("n_points", n, bad)
+    rows["total_points"] = _fit("total_points", fr.total_points, bad)
+    if bad:
+        flags = (flags & ~FLAG_TRACKED) | FLAG_REJECTED
+        if range_errors is not None:
+            range_errors.extend(bad)
     rows["flags"] = flags | (FLAG_TRUNCATED if fr.truncated else 0) | (FLAG_INCOMPLETE if fr.incomplete else 0)
     if n:
         rows["frame_pt_idx"] = np.arange(n)
@@ -187,11 +223,21 @@ class HostPipeline:
         self.tracker_errors = 0
         self.tracker_resets = 0
         self.n_objects = 0
+        self.n_estimates = 0  # estimates reported over the run
+        self.why_nothing: list[str] = []  # why no estimates although points arrived (set by stop)
         self.callback_errors = 0
         self.sinks: list[ResultSink] = list(sinks or [])  # live outputs and actuation, fed per frame
         self.sink_errors = 0
         self.last_synced: SyncedBundle | None = None  # the last bundle tracked (read by the live page)
         self.recording_error: str | None = None  # finalising the recording failed (raw files kept)
+        self.range_errors = 0  # camera frames with a value the recording's column cannot hold
+        self.warn = RateLimitedLog(lambda m: self.log(m, "sync"))
+        self.stalls = 0  # turns of the tracking thread that came STALL_S late or more
+        self._last_turn = 0.0
+        self.behind_skipped = 0  # frames recorded but not tracked because the host was too far behind
+        self.max_backlog_s = MAX_BACKLOG_S
+        self.wall_steps = 0  # wall-clock steps seen (labels moved; timing did not)
+        self._wall_checked = 0.0
         self.loop_errors = 0  # exceptions caught per item in the tracking thread (it goes on)
         self.recorder: Recorder | None = None
         self.receiver: Receiver | None = None
@@ -222,12 +268,12 @@ class HostPipeline:
         self.sync = FrameSynchronizer(
             [c.index for c in self.rig.cameras], self.fps, clock=self.clock,
             deadline_fraction=self.rig.host.sync_deadline_fraction,
-            dead_timeout_s=self.dead_timeout_s, start_time=time.time(),
+            dead_timeout_s=self.dead_timeout_s, start_time=hostclock.now(),
         )
-        self._make_tracker()
         if self.record:
             self._start_recorder()
-        self._started_at = time.time()
+        self._make_tracker(first=True)  # after the recorder: what it says goes into the text log too
+        self._started_at = hostclock.now()
         self.log(f"pipeline started: {len(self.rig.cameras)} cameras, {self.fps:g} fps, "
                  f"listening on {self.receiver.address[0]}:{self.receiver.address[1]}")
         self._thread = threading.Thread(target=self._loop, name="flytrack-tracking", daemon=True)
@@ -252,7 +298,13 @@ class HostPipeline:
             self._thread.join()
         if self.sync is not None:
             self._handle(self.sync.flush())
-        self._stopped_at = time.time()
+        self._stopped_at = hostclock.now()
+        self.why_nothing = self._why_nothing()
+        for w in self.why_nothing:
+            self.log(f"no estimates: {w}", level=logging.WARNING)
+        self.warn.flush()
+        if self.receiver is not None:
+            self.receiver.warn.flush()
         self.log("pipeline stopped")
         self.log(self.latency.format(), "latency")
         # Outputs first: what they still record (actuation firings) gets into the recording.
@@ -286,10 +338,12 @@ class HostPipeline:
             summary = self.stop()
         return summary
 
-    def log(self, message: str, source: str = "host") -> None:
-        t = time.time()
-        self.events.append(f"{time.strftime('%H:%M:%S', time.localtime(t))} {source}: {message}")
-        log.info("%s: %s", source, message)
+    def log(self, message: str, source: str = "host", level: int = logging.INFO) -> None:
+        t = hostclock.now()
+        # The wall clock only labels the line; the recording keeps host time (monotonic).
+        label = time.strftime('%H:%M:%S', time.localtime(hostclock.wall()))
+        self.events.append(f"{label} {source}: {message}")
+        log.log(level, "%s: %s", source, message)
         if self.recorder is not None:
             self.recorder.log(message, source, t)
 
@@ -327,17 +381,18 @@ class HostPipeline:
             self.recorder.append("trigger_clock_info", r)
 
     # --- setup --------------------------------------------------------------------------------
-    def _make_tracker(self) -> None:
+    def _make_tracker(self, first: bool = False) -> None:
         self.tracker = None
         if self.tracker_factory is None:
             return
+        for problem in calibration_problems(self.rig, self.cameras) if first else []:
+            self.log(problem, level=logging.WARNING)
         if not self.cameras:
-            self.log("no calibration: recording 2D data only, no 3D tracking")
             return
-        missing = [c.index for c in self.rig.cameras if c.index not in self.cameras]
-        if missing:
-            self.log(f"cameras {missing} have no calibration: their points cannot be used for 3D")
         self.tracker = self.tracker_factory(self.cameras, self.params, self.period)
+        path = getattr(self.tracker, "kernel_path", None)
+        if path is not None:
+            self.log(f"tracker: {'C kernel' if path == 'c' else 'NumPy'} path")
 
     def _start_recorder(self) -> None:
         meta = {
@@ -381,11 +436,22 @@ class HostPipeline:
         if self._resync_request.is_set():
             self._do_resync()
         d = self.sync.next_deadline()
-        now = time.time()
+        now = hostclock.now()
+        if self._last_turn and now - self._last_turn > STALL_S:
+            self.stalls += 1
+            self.warn("stall", f"host stalled for {now - self._last_turn:.2f} s (not scheduled: overloaded, "
+                      "stopped or swapping); catching up")
+        self._last_turn = now
         timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
         for item in self.receiver.receive(timeout):
             self._guarded(self._item, item)
-        self._handle(self.sync.poll(time.time()))
+        self._handle(self.sync.poll(hostclock.now()))
+        if now - self._wall_checked > 0.25:
+            self._wall_checked = now
+            step = hostclock.CLOCK.check_wall()
+            if step is not None:
+                self.wall_steps += 1
+                self.log(hostclock.wall_step_message(step), "clock")
 
     def _item(self, item: CameraFrame | StatusReport) -> None:
         assert self.sync is not None
@@ -440,20 +506,48 @@ class HostPipeline:
             self._track(o)
         elif isinstance(o, UntrackedFrame):
             self.untracked[o.reason] = self.untracked.get(o.reason, 0) + 1
+            why = _UNTRACKED_WHY.get(o.reason)
+            if why is not None:
+                cam = o.frame.camera_index
+                self.warn(f"untracked:{o.reason}:{cam}",
+                          f"camera {cam}: frame {o.frame.camera_frame} {why}: recorded, not tracked")
             if self.recorder is not None:
                 flag = FLAG_LATE if o.reason == "late" else FLAG_REJECTED
                 t = self.sync.frame_time(o.trigger_frame) if self.sync and o.trigger_frame >= 0 else np.nan
-                self.recorder.append("data2d_distorted", data2d_rows(o.frame, o.trigger_frame, t, flag))
+                self.recorder.append("data2d_distorted", self._rows(o.frame, o.trigger_frame, t, flag))
         elif isinstance(o, SyncEvent):
-            self.log(o.message, "sync")
+            # Rate-limited per kind and camera, with counts: a flapping camera cannot flood the log.
+            self.warn(f"sync:{o.kind}:{o.camera_index}", o.message)
             if o.kind == "clock_jump" and o.global_jump and self.tracker is not None:
                 self.tracker_resets += 1
                 self._make_tracker()
                 self.log("tracker restarted after the trigger clock jump", "sync")
 
+    def _rows(self, fr: CameraFrame, tf: int, t: float, flags: int) -> np.ndarray:
+        bad: list[str] = []
+        rows = data2d_rows(fr, tf, t, flags, bad)
+        if bad:
+            self.range_errors += 1
+            self.warn(f"range:{fr.camera_index}", f"camera {fr.camera_index}: values out of range ({', '.join(bad)}): "
+                      "recorded as -1/0 and flagged rejected")
+        return rows
+
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
+        # Behind real time, judged against the trigger's clock (a fixed-rate clock's frame times are
+        # guesses from arrivals: after a pause they are late until re-anchored, not the host).
+        behind = hostclock.now() - bundle.timestamp
+        if behind > self.max_backlog_s and self.tracker is not None and not isinstance(self.clock, FixedRateClock):
+            # Bounded backlog: after a stall or an overload, frames this old are recorded, not tracked,
+            # until the host is back near real time (the tracker predicts across the gap).
+            self.behind_skipped += 1
+            self.warn("behind", f"host {behind:.2f} s behind real time: frames recorded, not tracked, to "
+                      f"catch up ({self.behind_skipped} so far)")
+            if self.recorder is not None:
+                self.recorder.append_many([("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp,
+                                                                           FLAG_LATE)) for fr in sb.frames.values()])
+            return
         if self.tracker is not None:
             try:
                 result = self.tracker.process(bundle)
@@ -467,11 +561,12 @@ class HostPipeline:
                              "tracker")
                 self.tracker_resets += 1
                 self._make_tracker()
-        t_est = time.time()
+        t_est = hostclock.now()
         self.last_synced = sb  # the live page shows its cameras' points and arrival times
         if result is not None:
             self.frames_tracked += 1
             self.n_objects = len(result.estimates)
+            self.n_estimates += len(result.estimates)
             if self.live is not None:
                 self.live.send(result, bundle.timestamp)
             for sink in self.sinks:
@@ -484,7 +579,7 @@ class HostPipeline:
         lat_row = self.latency.row(bundle.trigger_frame, bundle.timestamp, sb.first_arrival, sb.last_arrival,
                                    t_est, len(sb.frames), len(bundle.missing_cameras))
         if self.recorder is not None:
-            items = [("data2d_distorted", data2d_rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_TRACKED))
+            items = [("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_TRACKED))
                      for fr in sb.frames.values()]
             if result is not None:
                 k, a = result_rows(result, bundle.timestamp)
@@ -546,10 +641,21 @@ class HostPipeline:
             out += f" LOST {lost} rows"
         return out
 
+    def _why_nothing(self) -> list[str]:
+        """Reasons, with numbers, that a run whose points arrived produced no estimate."""
+        stats = getattr(self.tracker, "stats", None)
+        if self.n_estimates or not isinstance(stats, dict) or not stats.get("points"):
+            return []
+        from flytrack_host.tracking.diagnosis import why_no_estimates
+
+        return why_no_estimates(stats, self.cameras, self.params)
+
     def summary(self, recording_h5: Path | None = None) -> dict[str, Any]:
         rs = self.receiver.stats if self.receiver else None
         out: dict[str, Any] = {
-            "duration_s": (self._stopped_at or time.time()) - self._started_at,
+            "why_nothing": list(self.why_nothing),
+            "estimates": self.n_estimates,
+            "duration_s": (self._stopped_at or hostclock.now()) - self._started_at,
             "frames_tracked": self.frames_tracked,
             "bundles_complete": self.sync.bundles_complete if self.sync else 0,
             "bundles_deadline": self.sync.bundles_deadline if self.sync else 0,
@@ -557,6 +663,11 @@ class HostPipeline:
             "tracker_errors": self.tracker_errors,
             "tracker_resets": self.tracker_resets,
             "loop_errors": self.loop_errors,
+            "wall_clock_steps": self.wall_steps,
+            "stalls": self.stalls,
+            "behind_skipped": self.behind_skipped,
+            "range_errors": self.range_errors,
+            "log_counts": self.warn.counts,
             "sink_errors": self.sink_errors,
             "latency": self.latency.summary(),
             "latency_text": self.latency.format(),
@@ -581,6 +692,18 @@ class HostPipeline:
 
 
 # --- `flytrack run` -------------------------------------------------------------------------------
+
+
+def calibration_problems(rig: RigConfig, cameras: Mapping[int, Camera]) -> list[str]:
+    """What is missing for 3D tracking: no calibration at all, or rig cameras absent from it."""
+    if not cameras:
+        where = f" ({rig.calibration_path} has none of the rig's cameras)" if rig.calibration_path else ""
+        return [f"no calibration{where}: recording 2D data only, NO 3D tracking"]
+    missing = [f"{c.index} ({c.calib_name})" for c in rig.cameras if c.index not in cameras]
+    if missing:
+        return [f"camera(s) {', '.join(missing)} are not in the calibration {rig.calibration_path}: their points "
+                "cannot be used for 3D"]
+    return []
 
 
 def load_cameras(rig: RigConfig) -> dict[int, Camera]:
@@ -619,6 +742,12 @@ def run_command(
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
     thumbnails: float = typer.Option(0.0, "--thumbnails", help=THUMBS_HELP),
+    rules: Path | None = typer.Option(
+        None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
+        "[[actuators]]."),
+    skip_bad_rules: bool = typer.Option(
+        False, "--skip-bad-rules", help="Run with the rules that are valid; each bad one is reported, logged in "
+        "the recording and counted (default: a bad rules file stops the run before it starts)."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
     until Ctrl-C.
@@ -649,13 +778,11 @@ def run_command(
     except Exception as exc:
         console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
-    if rig.actuators:
-        # The rig file describes actuators already; this host does not drive them yet. Say so
-        # rather than let a lab believe its stimulus is running.
-        names = ", ".join(f"{a.name} ({a.kind})" for a in rig.actuators)
-        Console(stderr=True).print(f"[yellow]warning[/yellow] actuators are not driven by this version of "
-                                   f"flytrack run: {names}; live estimates go to host.live_subscribers",
-                                   highlight=False, soft_wrap=True)
+    for problem in calibration_problems(rig, cameras):
+        Console(stderr=True).print(f"[yellow]warning[/yellow] {problem}", highlight=False, soft_wrap=True)
+    from flytrack_host.actuation.cli import rules_for_run
+
+    run_rules = rules_for_run(rig, rules, skip_bad_rules)  # a bad rules file exits 2 here unless skipped
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
@@ -674,6 +801,7 @@ def run_command(
                         rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
                         clock=session.clock if session else None, fps=session.fps if session else None,
                         hold_until_synchronized=session is not None)
+    engine = run_rules.engine(pipe.fps, session) if run_rules is not None else None
     try:
         outputs.attach(pipe, echo=lambda s: None)  # printed after the first line below
         pipe.start()
@@ -685,6 +813,9 @@ def run_command(
         where = f"{bind or rig.host.listen} (features) or {http} (live outputs)"
         console.print(f"[red]error[/red] cannot listen on {where}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    if engine is not None:  # after start: its messages go into the recording's log too
+        engine.attach(pipe)
+        engine.start()
     if session is not None:
         session.attach(pipe)
         try:
@@ -724,6 +855,8 @@ def run_command(
         summary = pipe.stop()
     console.print(pipe.status_line(), highlight=False)
     console.print(summary["latency_text"], highlight=False)
+    for w in summary.get("why_nothing") or []:
+        Console(stderr=True).print(f"[yellow]warning[/yellow] no estimates: {w}", highlight=False, soft_wrap=True)
     if session is not None:
         t = session.summary()
         m = t["clock_model"]
@@ -738,4 +871,6 @@ def run_command(
     if rs.get("write_errors") or lost or summary.get("recording_error"):
         console.print(f"[red]recording incomplete[/red]: {rs.get('write_errors', 0)} write errors, {lost} rows lost"
                       + (f"; not finalised ({summary['recording_error']}): run `flytrack recording recover`"
+                         " (its --out writes the file on another disk)"
                          if summary.get("recording_error") else ""), highlight=False)
+        raise typer.Exit(code=RECORDING_INCOMPLETE_EXIT)  # scripts must not take this run for a good one

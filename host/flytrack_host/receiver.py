@@ -11,6 +11,16 @@ datagrams are counted by SPEC error name; SPLIT frames are joined (parts grouped
 frame and part count, so parts that disagree on the count never mix), and a frame whose parts do not
 all arrive within `split_timeout_s` is passed on incomplete (flagged, counted). No datagram can raise
 out of `receive`: an unexpected error while handling one is logged and counted (`internal_errors`).
+
+One sender per camera: the first (address, port) a camera's datagrams come from owns the camera
+index. Datagrams for that index from another port while the owner is sending (heard within
+`sender_switch_s`) are a second edge with the same index, or a replay: rejected, counted
+(`second_sender`), logged. When the owner has been silent that long, the new port is the edge
+restarted (a new process, a new socket): counted as a restart, its sequence numbers start afresh (no
+loss, no reordering counted), and its first frame is flagged `restarted` for the synchroniser.
+A forward sequence gap larger than the edge could have sent in the time since its last datagram is
+a jump of the sender's numbering, not loss (`seq_jumps`). Repeated warnings are rate-limited per kind,
+with counts (`ratelog.RateLimitedLog`).
 """
 
 from __future__ import annotations
@@ -25,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.protocol import (
     EdgeStatus,
     FeatureFrame,
@@ -33,6 +44,7 @@ from flytrack_host.protocol import (
     decode_datagram,
     join_feature_parts,
 )
+from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.rig import RigConfig
 from flytrack_host.sync import CameraFrame
 
@@ -41,6 +53,8 @@ _HALF = 1 << 31
 SEQ_WINDOW = 512  # recent sequence numbers remembered per camera (duplicates, reordering)
 RESTART_GAP = 10_000  # a sequence number this far behind means the edge restarted
 FORWARD_RESTART_GAP = 1_000_000  # ... and this far ahead
+SWITCH_CONFIRM = 3  # datagrams in a row from a new port, the old one silent: the edge restarted
+MAX_DATAGRAM_RATE = 20_000  # per camera and second: a larger gap in the time elapsed is no loss
 
 
 @dataclass
@@ -55,6 +69,8 @@ class CameraRecvStats:
     malformed: int = 0
     split_incomplete: int = 0
     restarts: int = 0
+    second_sender: int = 0  # datagrams from another port while the camera's edge was sending
+    seq_jumps: int = 0  # sequence jumps too large to be loss in the time elapsed
     other: int = 0
 
 
@@ -83,6 +99,8 @@ class _SeqState:
     recent: deque = field(default_factory=lambda: deque(maxlen=SEQ_WINDOW))
     recent_set: set = field(default_factory=set)
     missing: OrderedDict = field(default_factory=OrderedDict)
+    last_time: float = 0.0  # host time of the last datagram
+    before_jump: int | None = None  # what was expected before the last sequence jump
 
 
 def parse_host_port(value: str) -> tuple[str, int]:
@@ -92,7 +110,7 @@ def parse_host_port(value: str) -> tuple[str, int]:
 
 class Receiver:
     def __init__(self, rig: RigConfig, bind: str | None = None, split_timeout_s: float = 0.05,
-                 rcvbuf_bytes: int = 4 << 20, log=None):
+                 rcvbuf_bytes: int = 4 << 20, log=None, sender_switch_s: float = 0.5):
         self.rig = rig
         self.split_timeout_s = split_timeout_s
         self.log = log or (lambda msg: None)
@@ -113,7 +131,11 @@ class Receiver:
             pass
         self.sock.bind((host, port))
         self.sock.setblocking(False)
-        self._warned: set[str] = set()
+        self.warn = RateLimitedLog(self.log)
+        self.sender_switch_s = sender_switch_s
+        self._senders: dict[int, list] = {}  # camera -> [port, monotonic time last heard]
+        self._restarted: set[int] = set()  # cameras whose next frame is the first after a restart
+        self._candidates: dict[int, list] = {}  # camera -> [port, held datagrams] of a would-be new sender
 
     @property
     def address(self) -> tuple[str, int]:
@@ -134,10 +156,10 @@ class Receiver:
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError as exc:  # e.g. ICMP errors surfacing on Linux; keep going
-                    self._warn_once(f"socket error: {exc}")
+                    self._warn_once(f"socket error: {exc}", key="socket_error")
                     break
                 try:
-                    self.handle(data, addr, time.time(), out)
+                    self.handle(data, addr, hostclock.now(), out)
                 except Exception as exc:  # a bug on one datagram must not lose the batch
                     self.stats.internal_errors += 1
                     self._warn_once(f"datagram from {addr[0]} could not be handled: {exc!r}",
@@ -152,9 +174,11 @@ class Receiver:
         st.datagrams += 1
         st.bytes += len(data)
         ip = addr[0]
+        mono = time.monotonic()
         if ip not in self.allowed_ips:
             st.rejected_address += 1
-            self._warn_once(f"datagram from {ip}, which is no camera's edge in the rig file: rejected")
+            self._warn_once(f"datagram from {ip}, which is no camera's edge in the rig file: rejected",
+                            key=f"unknown_address:{ip}")
             return
         try:
             msg = decode_datagram(data)
@@ -170,15 +194,19 @@ class Receiver:
         cam = getattr(msg, "camera_index", None)
         if cam is None or cam not in self.allowed:
             st.rejected_camera += 1
-            self._warn_once(f"datagram for camera index {cam} from {ip}: not in the rig file, rejected")
+            self._warn_once(f"datagram for camera index {cam} from {ip}: not in the rig file, rejected",
+                            key=f"unknown_camera:{ip}")
             return
         if self.allowed[cam] != ip:
             st.rejected_address += 1
-            self._warn_once(f"camera {cam} datagram from {ip}, but the rig file says {self.allowed[cam]}: rejected")
+            self._warn_once(f"camera {cam} datagram from {ip}, but the rig file says {self.allowed[cam]}: rejected",
+                            key=f"wrong_address:{cam}")
             return
         cs = st.cameras[cam]
+        if not self._check_sender(cam, ip, addr[1], mono, data, now, out):
+            return
         cs.packets += 1
-        if not self._check_seq(cam, msg.seq if hasattr(msg, "seq") else None):
+        if not self._check_seq(cam, msg.seq if hasattr(msg, "seq") else None, now):
             return
         if isinstance(msg, FeatureFrame):
             cs.features += 1
@@ -187,6 +215,9 @@ class Receiver:
             else:
                 cs.frames += 1
                 out.append(self._to_frame(msg, msg.points, now, incomplete=False))
+            if cam in self._restarted and out and isinstance(out[-1], CameraFrame) and out[-1].camera_index == cam:
+                out[-1].restarted = True
+                self._restarted.discard(cam)
         elif isinstance(msg, EdgeStatus):
             cs.status += 1
             out.append(StatusReport(cam, msg, now))
@@ -206,24 +237,80 @@ class Receiver:
         cams = [i for i, a in self.allowed.items() if a == ip]
         return cams[0] if len(cams) == 1 else None
 
-    def _check_seq(self, cam: int, seq: int | None) -> bool:
-        """Update loss/duplicate/reorder counters; False for a duplicate (dropped)."""
+    def _check_sender(self, cam: int, ip: str, port: int, mono: float, data: bytes = b"", now: float = 0.0,
+                      out: list | None = None) -> bool:
+        """One sender per camera (see the module doc); False when the datagram is rejected or held."""
+        owner = self._senders.get(cam)
+        if owner is None:
+            self._senders[cam] = [port, mono]
+            return True
+        if owner[0] == port:
+            owner[1] = mono
+            self._candidates.pop(cam, None)
+            return True
+        silent = mono - owner[1]
+        if silent >= self.sender_switch_s:
+            # The owner went quiet. A new sender takes over once it sent SWITCH_CONFIRM datagrams in a
+            # row (a restarted edge does; one stray datagram of a flood does not); they are held until then.
+            cand = self._candidates.get(cam)
+            if cand is None or cand[0] != port:
+                cand = self._candidates[cam] = [port, []]
+            cand[1].append((data, (ip, port), now))
+            if len(cand[1]) < SWITCH_CONFIRM:
+                return False
+            del self._candidates[cam]
+            self._switch(cam, ip, port, mono, silent)
+            st = self.stats
+            for d, a, t in cand[1][:-1]:  # the held ones, in order, then this one (counted once)
+                st.datagrams -= 1
+                st.bytes -= len(d)
+                st.cameras[cam].packets -= 1
+                self.handle(d, a, t, out if out is not None else [])
+            return True
+        self.stats.cameras[cam].second_sender += 1
+        self.warn(f"second_sender:{cam}",
+                  f"camera {cam}: datagrams from a second sender {ip}:{port} while {ip}:{owner[0]} is sending "
+                  f"(two edges with camera index {cam}, or a replay): rejected")
+        return False
+
+    def _switch(self, cam: int, ip: str, port: int, mono: float, silent: float) -> None:
+        owner = self._senders[cam]
+        cs = self.stats.cameras[cam]
+        cs.restarts += 1
+        self._seq[cam] = _SeqState()
+        self._restarted.add(cam)
+        self.log(f"camera {cam}: edge restarted (new sender {ip}:{port} after {silent:.2f} s without datagrams "
+                 f"from port {owner[0]}); mapped again by arrival")
+        self._senders[cam] = [port, mono]
+
+    def _check_seq(self, cam: int, seq: int | None, now: float) -> bool:
+        """Update loss/duplicate/reorder counters; False for a duplicate (dropped). `now` is the
+        datagram's host time (a replay passes the recorded one)."""
         if seq is None:
             return True
         s = self._seq[cam]
         cs = self.stats.cameras[cam]
+        elapsed, s.last_time = now - s.last_time, now
         if s.expected is None:
             s.expected = (seq + 1) % SEQ_MOD
             self._remember(s, seq)
             return True
         d = (seq - s.expected) % SEQ_MOD
         if d < _HALF:
-            if d > FORWARD_RESTART_GAP:
+            if d > 64 + MAX_DATAGRAM_RATE * max(elapsed, 0.0) and d <= FORWARD_RESTART_GAP:
+                # More datagrams than the edge could have sent since its last one: the sender's
+                # numbering jumped (a misbehaving or replaying edge), nothing was lost.
+                cs.seq_jumps += 1
+                s.missing.clear()
+                s.before_jump = s.expected
+                self.warn(f"seq_jump:{cam}", f"camera {cam}: sequence number jumped ahead by {d} in "
+                          f"{elapsed * 1e3:.0f} ms (to {seq}): not counted as loss")
+            elif d > FORWARD_RESTART_GAP:
                 # No link loses a million datagrams in a row: the edge restarted with other numbers.
                 cs.restarts += 1
                 s.missing.clear()
-                self.log(f"camera {cam}: sequence number jumped ahead by {d} (to {seq}); counted as an "
-                         "edge restart, not as loss")
+                self.warn(f"seq_restart:{cam}", f"camera {cam}: sequence number jumped ahead by {d} (to {seq}); "
+                          "counted as an edge restart, not as loss")
             else:
                 cs.lost += d
                 # Remember the newest gaps: a late datagram comes from just before this one.
@@ -244,9 +331,16 @@ class Receiver:
             cs.reordered += 1
             self._remember(s, seq)
             return True
+        if behind > RESTART_GAP and s.before_jump is not None and 0 <= (seq - s.before_jump) % SEQ_MOD < 1000:
+            # Back to the numbering from before the last jump: two streams interleave (a misbehaving
+            # or replaying sender on the edge's port), not a restart.
+            cs.seq_jumps += 1
+            s.before_jump, s.expected = s.expected, (seq + 1) % SEQ_MOD
+            self._remember(s, seq)
+            return True
         if behind > RESTART_GAP:
             cs.restarts += 1
-            self.log(f"camera {cam}: sequence numbers restarted ({seq}); edge restarted?")
+            self.warn(f"seq_restart:{cam}", f"camera {cam}: sequence numbers restarted ({seq}); edge restarted?")
             s.expected = (seq + 1) % SEQ_MOD
             s.missing.clear()
             self._remember(s, seq)
@@ -295,7 +389,7 @@ class Receiver:
             cs.split_incomplete += 1
             cs.frames += 1
             pts = np.concatenate([p.points for p in ordered])
-            out.append(self._to_frame(ordered[0], pts, time.time(), incomplete=True,
+            out.append(self._to_frame(ordered[0], pts, hostclock.now(), incomplete=True,
                                       truncated=any(p.truncated for p in ordered)))
 
     @staticmethod
@@ -316,7 +410,5 @@ class Receiver:
         )
 
     def _warn_once(self, msg: str, key: str | None = None) -> None:
-        k = key or msg
-        if k not in self._warned and len(self._warned) < 1000:
-            self._warned.add(k)
-            self.log(msg)
+        """Rate-limited per kind (`key`, else the message), with counts; never stops logging."""
+        self.warn(key or msg, msg)

@@ -21,7 +21,20 @@ model and the arrival lag of the other cameras. Afterwards the mapping is checke
   still records them); when several consecutive frames agree on the new numbering it is a clock jump:
   logged and the mapping re-established;
 - a frame whose trigger time lies in the future (or far ahead of the other cameras) is future-dated
-  and rejected unless it is confirmed as a jump.
+  and rejected unless it is confirmed as a jump;
+- a frame that arrives earlier than its camera ever does (its arrival lag to the trigger clock below
+  the lowest of the last second by more than `early_fraction` periods + `early_slack_s`), and that does not
+  continue its camera's counter, is misnumbered: it claims a pulse that had not happened yet.
+  Frames cannot come before their pulse, so this is no stall or burst; a replayed or misbehaving
+  edge mixing wrong numbers into a good stream is caught frame by frame (its good frames keep the
+  mapping, so the wrong ones never confirm a jump). Camera frames
+  that jump back to numbers already seen are suspect the same way;
+- an edge restart (the receiver saw a new sender after silence, `CameraFrame.restarted`) maps the
+  camera again by arrival at once, never by the frame-0 tie; the trigger frames it missed while
+  down are counted (`missed`);
+- with the fixed-rate clock (no trigger), a frame arriving before its expected time moves the anchor
+  earlier (the first frame came late); a pause of every camera (all frames paced but late by more
+  than 2 periods for `reanchor_s`) re-anchors the clock, so later latencies are not the pause's.
 
 The frame-0 tie after `synchronize()` (cameras quiet, trigger about to start): every camera's first
 frame within `tie_window_s` of the first camera's is trigger frame 0, however late or bursty it
@@ -91,6 +104,7 @@ class CameraFrame:
     total_points: int = 0
     truncated: bool = False
     incomplete: bool = False  # a split frame with parts missing
+    restarted: bool = False  # the first frame from a restarted edge (the receiver saw a new sender)
 
 
 @dataclass(slots=True)
@@ -113,7 +127,7 @@ class UntrackedFrame:
 
 @dataclass(slots=True)
 class SyncEvent:
-    kind: str  # "dead", "alive", "clock_jump", "drift", "synchronized"
+    kind: str  # "dead", "alive", "clock_jump", "drift", "synchronized", "restart", "reanchor"
     camera_index: int
     message: str
     global_jump: bool = False
@@ -134,6 +148,10 @@ class CameraSyncStats:
     drift: int = 0
     deaths: int = 0
     revivals: int = 0
+    early: int = 0  # frames numbered ahead of their arrival (misnumbered by the edge)
+    restarts: int = 0  # edge restarts (re-mapped by arrival)
+    missed: int = 0  # trigger frames an edge missed while it was down (restart gap)
+    ahead: int = 0  # mappings found ahead of the other cameras' arrivals and re-mapped
 
 
 @dataclass
@@ -148,6 +166,9 @@ class _Cam:
     rel_base: float | None = None  # usual arrival relative to the other cameras (drift baseline)
     rel_window: deque = field(default_factory=deque)  # (trigger frame, d, arrival) of recent frames
     seen_cf: deque = field(default_factory=lambda: deque(maxlen=512))  # recent camera frames accepted
+    lag_win: deque = field(default_factory=deque)  # (arrival, lag to the trigger clock) over ~1 s
+    ahead_check_at: float = 0.0
+    restarted_at: float | None = None
     suspects: list[tuple[CameraFrame, int]] = field(default_factory=list)
     stats: CameraSyncStats = field(default_factory=CameraSyncStats)
 
@@ -176,6 +197,10 @@ class FrameSynchronizer:
         late_tolerance_s: float = 0.25,
         tie_window_s: float = 0.5,
         drift_settle_s: float = 0.5,
+        early_fraction: float = 1.5,
+        early_slack_s: float = 0.005,
+        early_confirm_s: float = 0.2,
+        reanchor_s: float = 0.2,
         on_event: Callable[[SyncEvent], None] | None = None,
     ):
         self.period = 1.0 / fps
@@ -196,6 +221,14 @@ class FrameSynchronizer:
         # A trigger frame's arrivals are compared once every live camera delivered it, or this long
         # after the newest frame passed it (a stalled camera's frames then count where they came).
         self.drift_settle = max(3, int(drift_settle_s * fps))
+        # Host scheduling jitter makes a camera's lag vary by a few ms: only a frame early by more
+        # than that and by more than a period counts (a number more than one ahead).
+        self.early_s = early_fraction * self.period + early_slack_s
+        self.early_confirm_s = early_confirm_s  # early frames confirm a jump only over this long
+        self.lag_window_s = 1.0
+        self.reanchor_frames = max(5, int(reanchor_s * fps))
+        self._late_run: deque = deque()  # (first arrival, lag, frame) of recent bundles (fixed-rate re-anchor)
+        self.reanchors = 0
         self._arrivals: dict[int, dict[int, float]] = {}
         self._eval_next: int | None = None
         self._quiet_tie = False
@@ -217,6 +250,8 @@ class FrameSynchronizer:
             cam.suspects.clear()
             cam.rel_window.clear()
             cam.seen_cf.clear()
+            cam.lag_win.clear()
+        self._late_run.clear()
         self._arrivals.clear()
         self._eval_next = None
         self._quiet_tie = True
@@ -243,6 +278,8 @@ class FrameSynchronizer:
             cam.stats.revivals += 1
             out.append(SyncEvent("alive", cam.index, f"camera {cam.index} is sending again"))
         self._edge_numbered[cam.index] = frame.trigger_frame >= 0
+        if frame.restarted and cam.offset is not None and frame.trigger_frame < 0:
+            out.extend(self._restart(cam, frame))
         if cam.last_cf is not None and frame.camera_frame == cam.last_cf:
             cam.stats.duplicate += 1
             tf = frame.trigger_frame if frame.trigger_frame >= 0 else (cam.last_tf if cam.last_tf is not None else -1)
@@ -252,13 +289,18 @@ class FrameSynchronizer:
         reason = self._suspect_reason(cam, frame, tf, now)
         if reason is not None:
             cam.suspects.append((frame, tf))
-            if self._confirmed(cam):
+            # A good stream with wrong frames mixed in breaks every streak of suspects; a short gap
+            # in the good one (a stalled edge) must not let the wrong ones confirm a jump.
+            span = frame.recv_time - cam.suspects[0][0].recv_time
+            if (reason != "early" or span >= self.early_confirm_s) and self._confirmed(cam):
                 out.extend(self._accept_jump(cam, frame, now))
                 # Earlier confirming frames were reported as suspect; tracking resumes next frame.
                 out.append(UntrackedFrame(frame, cam.last_tf if cam.last_tf is not None else tf, "clock_jump"))
                 return out
             if reason == "future":
                 cam.stats.future += 1
+            elif reason == "early":
+                cam.stats.early += 1
             else:
                 cam.stats.suspect += 1
             out.append(UntrackedFrame(frame, tf, reason))
@@ -268,6 +310,10 @@ class FrameSynchronizer:
         if cam.last_cf is None or frame.camera_frame > cam.last_cf:
             cam.last_cf, cam.last_tf = frame.camera_frame, tf
         self.max_accepted = max(self.max_accepted, tf)
+        self._note_lag(cam, frame, tf)
+        if frame.trigger_frame < 0 and frame.recv_time >= cam.ahead_check_at:
+            cam.ahead_check_at = frame.recv_time + 0.05
+            out.extend(self._check_ahead(cam, frame.recv_time))
         out.extend(self._check_drift(cam, frame, tf))
         if tf <= self.last_closed:
             cam.stats.late += 1
@@ -275,7 +321,15 @@ class FrameSynchronizer:
             return out
         p = self.pending.get(tf)
         if p is None:
-            p = self.pending[tf] = _Pending({}, now, now + self.deadline_s)
+            deadline = now + self.deadline_s
+            others = [c.last_tf for c in self.cams.values() if c is not cam and c.alive and c.last_tf is not None]
+            if others and tf > max(others) + 1:
+                # Ahead of every other camera: a frame numbered wrongly must not close (and make late)
+                # the bundles the others have not delivered yet. It waits for them, or a dead timeout.
+                deadline = now + max(self.deadline_s, self.dead_timeout_s)
+            p = self.pending[tf] = _Pending({}, now, deadline)
+        elif p.deadline > now + self.deadline_s:
+            p.deadline = now + self.deadline_s  # another camera reached it: the usual deadline
         if frame.camera_index in p.frames:
             cam.stats.duplicate += 1
             out.append(UntrackedFrame(frame, tf, "duplicate"))
@@ -366,6 +420,20 @@ class FrameSynchronizer:
         t = self.frame_time(tf)
         if math.isfinite(t) and t > now + self.future_tolerance_s:
             return "future"
+        # A frame that continues its camera's counter (and the mapping) is never misnumbered by the
+        # edge: if it looks early, the clock model moved (a new snapshot), not the frame.
+        d_cf = frame.camera_frame - cam.last_cf if cam.last_cf is not None else 0
+        continuous = cam.last_tf is not None and 0 < d_cf <= 3 and tf - cam.last_tf == d_cf
+        w = cam.lag_win
+        while w and w[0][0] < frame.recv_time - self.lag_window_s:
+            w.popleft()
+        if math.isfinite(t) and len(w) >= 3 and not continuous:
+            floor = min(x[1] for x in w)
+            lag = frame.recv_time - t
+            # Before its own pulse (absolute) and earlier than its camera's frames came of late
+            # (relative: a clock-model step moves both, a long stall of this camera only the floor).
+            if lag < -self.early_s and lag < floor - self.early_s:
+                return "early"  # claims a pulse that had not happened when such frames arrive
         if not math.isfinite(t) and self.max_accepted >= 0 and tf > self.max_accepted + self.future_frames:
             return "future"
         if cam.last_cf is None or cam.last_tf is None:
@@ -385,6 +453,102 @@ class FrameSynchronizer:
             return "discontinuity"
         return None
 
+    def _note_lag(self, cam: _Cam, frame: CameraFrame, tf: int) -> None:
+        t = self.frame_time(tf)
+        if not math.isfinite(t):
+            return
+        w = cam.lag_win
+        w.append((frame.recv_time, frame.recv_time - t))
+        while w and w[0][0] < frame.recv_time - self.lag_window_s:
+            w.popleft()
+
+    def _check_ahead(self, cam: _Cam, now: float) -> list[SyncOutput]:
+        """A camera whose frames all arrive well before their mapped pulses, compared with the other
+        cameras' arrivals (so a clock-model step, common to all, cancels), is mapped ahead: a restarted
+        edge whose first frames came late and bunched up, or a counter that jumped. Frames cannot come
+        before their pulse: move its mapping back by the whole periods it is ahead."""
+        w = cam.lag_win
+        if cam.offset is None or len(w) < 8 or w[-1][0] - w[0][0] < 0.1:
+            return []
+        others = [min(x[1] for x in c.lag_win) for c in self.cams.values()
+                  if c is not cam and c.alive and len(c.lag_win) >= 8]
+        if not others:
+            return []
+        mine = min(x[1] for x in w)
+        d = mine - statistics.median(others)
+        # Ahead of the others (a clock step moves all cameras alike) and before its own pulses (other
+        # cameras late for longer than the window, in a stall, make no camera arrive before its pulse).
+        if d >= -self.early_s or mine >= -self.early_s:
+            return []
+        k = round(-d / self.period)
+        if k < 1:
+            return []
+        cam.offset += k
+        if cam.last_tf is not None:
+            cam.last_tf -= k
+        w.clear()
+        cam.rel_window.clear()
+        cam.stats.ahead += 1
+        note = ""
+        if cam.restarted_at is not None and now - cam.restarted_at < 3.0:
+            cam.stats.missed = max(0, cam.stats.missed - k)  # its gap was counted from the wrong mapping
+            note = " (after its restart)"
+        return [SyncEvent("ahead", cam.index, f"camera {cam.index}: frames numbered {k} ahead of their arrival "
+                                              f"against the other cameras{note}: re-mapped")]
+
+    def _restart(self, cam: _Cam, frame: CameraFrame) -> list[SyncOutput]:
+        """An edge restarted (new sender): map its counter again by arrival; count what it missed."""
+        old_tf = cam.last_tf
+        cam.stats.restarts += 1
+        cam.suspects.clear()
+        cam.seen_cf.clear()
+        cam.lag_win.clear()
+        cam.rel_window.clear()
+        cam.rel_base = None
+        new_tf = self._frame_at(frame.recv_time - self._lag(cam.index))
+        cam.offset = frame.camera_frame - new_tf
+        cam.last_cf, cam.last_tf = None, None
+        cam.restarted_at = frame.recv_time
+        missed = max(0, new_tf - (old_tf if old_tf is not None else new_tf) - 1)
+        cam.stats.missed += missed
+        return [SyncEvent("restart", cam.index,
+                          f"camera {cam.index}: edge restarted; its camera frame {frame.camera_frame} is trigger "
+                          f"frame {new_tf} (by arrival); {missed} trigger frames missed while it was down")]
+
+    def _check_reanchor(self, f: int, first_arrival: float, n_frames: int = 2) -> list[SyncOutput]:
+        """Fixed-rate clock only: re-anchor after a pause of every camera (see the module doc)."""
+        clock = self.clock
+        if not isinstance(clock, FixedRateClock) or not clock.anchored:
+            return []
+        lag = first_arrival - clock.frame_to_host_time(f)
+        run = self._late_run
+        if -2 * self.period < lag < 0 and n_frames >= 2:  # one camera alone may be misnumbered
+            # A frame cannot come before its pulse: the first frame (the anchor) came late. The clock
+            # follows the earliest arrivals, so no estimate is timed before its own frame.
+            clock.start_time = (clock.start_time or 0.0) + lag
+            run.clear()
+            return []
+        if lag <= max(2 * self.period, 0.01):
+            run.clear()
+            return []
+        run.append((first_arrival, lag, f))
+        if len(run) < self.reanchor_frames:
+            return []
+        # Paced: a burst after a stall delivers its frames together; a resumed rig a period apart.
+        if run[-1][0] - run[0][0] < 0.5 * (run[-1][2] - run[0][2]) * self.period:
+            run.popleft()
+            return []
+        shift = min(x[1] for x in run)
+        clock.start_time = (clock.start_time or 0.0) + shift
+        run.clear()
+        for c in self.cams.values():
+            c.lag_win.clear()
+            if c.lag_ewma is not None:
+                c.lag_ewma -= shift
+        self.reanchors += 1
+        return [SyncEvent("reanchor", -1, f"fixed-rate clock re-anchored at trigger frame {f}: frames came "
+                                          f"{shift * 1e3:.0f} ms after their expected time (a pause of the cameras?)")]
+
     def _confirmed(self, cam: _Cam) -> bool:
         s = cam.suspects
         if len(s) < self.jump_confirm:
@@ -400,6 +564,7 @@ class FrameSynchronizer:
         out: list[SyncOutput] = []
         old_tf = cam.last_tf
         cam.stats.clock_jumps += 1
+        cam.lag_win.clear()
         if frame.trigger_frame >= 0:
             new_tf = frame.trigger_frame
             global_jump = True  # the trigger's own count moved: every camera sees it
@@ -413,6 +578,8 @@ class FrameSynchronizer:
         if global_jump:
             out.extend(self._close_through(max(self.pending), "flush") if self.pending else [])
             self._arrivals.clear()  # drift comparisons start again in the new numbering
+            for c in self.cams.values():
+                c.lag_win.clear()
             self._eval_next = None
             if new_tf <= self.last_closed:
                 self.last_closed = new_tf
@@ -443,7 +610,11 @@ class FrameSynchronizer:
         t = self.frame_time(tf)
         if math.isfinite(t):  # the late joiners' placement only; drift never looks at the clock
             lag = frame.recv_time - t
-            cam.lag_ewma = lag if cam.lag_ewma is None else cam.lag_ewma + 0.1 * (lag - cam.lag_ewma)
+            if cam.lag_ewma is None:
+                cam.lag_ewma = lag
+            else:  # a stall's late frames move it by at most 2 periods each (no pollution by outliers)
+                step = max(-2 * self.period, min(2 * self.period, lag - cam.lag_ewma))
+                cam.lag_ewma += 0.1 * step
         if len(self.cams) < 3:
             return []  # with two cameras, which one drifted cannot be told from arrivals
         if self._eval_next is None:
@@ -504,6 +675,7 @@ class FrameSynchronizer:
             # Arriving `shift` periods later than the others: its frames belong `shift` later.
             cam.offset -= shift
             cam.last_tf += shift
+            cam.lag_win.clear()  # its lags to the clock change by the shift
             for rec in self._arrivals.values():  # its unsettled arrivals carry the old numbering
                 rec.pop(cam.index, None)
             msg += "; re-mapped"
@@ -524,6 +696,9 @@ class FrameSynchronizer:
                 self.bundles_deadline += 1
             for i in p.frames:
                 self.cams[i].stats.tracked += 1
+            arr = sorted(fr.recv_time for fr in p.frames.values())
+            # The second earliest arrival when there are several: one misnumbered frame cannot move it.
+            events = self._check_reanchor(f, arr[1] if len(arr) > 1 else arr[0], len(arr))
             bundle = FrameBundle(
                 trigger_frame=f,
                 timestamp=self.frame_time(f),
@@ -532,5 +707,6 @@ class FrameSynchronizer:
             )
             out.append(SyncedBundle(bundle, p.frames, p.first_arrival,
                                     max(fr.recv_time for fr in p.frames.values()), closed_by))
+            out.extend(events)
         self.last_closed = max(self.last_closed, tf)
         return out

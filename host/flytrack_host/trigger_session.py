@@ -40,6 +40,7 @@ from typing import Any, Protocol
 
 import serial
 
+from flytrack_host import hostclock
 from flytrack_host.rig import TriggerConfig
 from flytrack_host.trigger.clock_model import ClockModel
 from flytrack_host.trigger.common import TriggerError
@@ -255,9 +256,9 @@ class TriggerSession:
     # --- starting ---------------------------------------------------------------------------------
     def wait_quiet(self, pipe: _Pipeline) -> bool:
         """Wait until no camera frame arrived for `quiet_s` (at most `max_quiet_wait_s`)."""
-        t_begin = time.time()
+        t_begin = hostclock.now()
         while True:
-            now = time.time()
+            now = hostclock.now()
             if now - max(pipe.last_frame_recv, t_begin) >= self.quiet_s:
                 return True
             if now - t_begin > self.max_quiet_wait_s:
@@ -280,7 +281,7 @@ class TriggerSession:
         self.clock.clear()
         self._last_count = None
         self.device.start()
-        self.started_at = time.time()
+        self.started_at = hostclock.now()
         self._expect_running = True
         self.log(f"trigger started at {self.fps:.6f} fps; the first pulse is trigger frame 0")
         # A few samples at once: bundles get trigger times from the first frames on.
@@ -300,13 +301,13 @@ class TriggerSession:
             # timeout. The port itself failing, or several misses in a row, is.
             port_gone = isinstance(exc, (OSError, serial.SerialException))
             if self.lost_since is None and (port_gone or self._failures_in_row >= LOST_AFTER_FAILURES):
-                self.lost_since = time.time()
+                self.lost_since = hostclock.now()
                 self.stats.lost += 1
                 self.log(f"trigger not answering ({exc}); the run goes on with the last clock model")
             return None
         self._failures_in_row = 0
         if self.lost_since is not None:
-            self.log(f"trigger answering again after {time.time() - self.lost_since:.1f} s")
+            self.log(f"trigger answering again after {hostclock.now() - self.lost_since:.1f} s")
             self.lost_since = None
         self.stats.clock_samples += 1
         if self._pipe is not None:
@@ -404,7 +405,7 @@ class TriggerSession:
     # --- reporting --------------------------------------------------------------------------------
     def status(self) -> str:
         if self.lost_since is not None:
-            return (f"trigger LOST {time.time() - self.lost_since:.1f} s: using the last clock model "
+            return (f"trigger LOST {hostclock.now() - self.lost_since:.1f} s: using the last clock model "
                     f"({self.stats.clock_errors} errors)")
         m = self.model
         resid = f"{m.residual_s * 1e6:.0f} us" if m.fitted else "-"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import shutil
 from pathlib import Path
 
 import typer
@@ -19,6 +21,8 @@ console = Console()
 def recover(
     path: Path = typer.Argument(..., help="The recording folder (holds meta.json and *.bin files)."),
     force: bool = typer.Option(False, help="Rewrite recording.h5 even if it already exists."),
+    out: Path | None = typer.Option(None, "--out", help="Write the HDF5 file here instead of PATH/recording.h5 "
+                                    "(e.g. on another disk when the recording's disk is full)."),
 ) -> None:
     """Complete a recording whose process died: turn its raw files into recording.h5."""
     if not path.exists():
@@ -28,13 +32,23 @@ def recover(
         console.print(f"[red]error[/red] {path}: not a folder (give the recording folder, which holds "
                       "meta.json and the *.bin files)", highlight=False)
         raise typer.Exit(code=2)
-    if (path / H5_NAME).exists() and not force:
-        console.print(f"{path}: already finalised ({H5_NAME} exists); use --force to rebuild it")
+    target = out if out is not None else path / H5_NAME
+    if target.exists() and not force:
+        console.print(f"{path}: already finalised ({target} exists); use --force to rebuild it")
         return
     try:
-        rep = finalize(path)
+        rep = finalize(path, out=out)
     except RecordingError as exc:
         console.print(f"[red]error[/red] {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
+    except (OSError, RuntimeError) as exc:  # h5py reports a full disk as OSError or RuntimeError
+        full = getattr(exc, "errno", None) == errno.ENOSPC or "space" in str(exc).lower()
+        why = "the disk is full" if full else f"{type(exc).__name__}: {exc}"
+        free = shutil.disk_usage(target.parent).free if target.parent.exists() else 0
+        console.print(f"[red]error[/red] cannot write {target}: {why} ({free / 1e6:.1f} MB free there). "
+                      f"Nothing is lost: the raw files in {path} are untouched. Free some space on that disk and "
+                      f"run this again, or write the file elsewhere: flytrack recording recover {path} "
+                      "--out OTHER_DISK/recording.h5", highlight=False, soft_wrap=True)
         raise typer.Exit(code=2) from None
     console.print(f"[green]recovered[/green] {rep.h5_path}", highlight=False)
     for name, n in rep.rows.items():

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.recording.schema import TABLES, dtype_to_json
 
 RAW_SUFFIX = ".bin"
@@ -111,7 +112,8 @@ class Recorder:
             "format": "flytrack-recording",
             "format_version": FORMAT_VERSION,
             "tables": {name: dtype_to_json(dt) for name, dt in TABLES.items()},
-            "start_time": time.time(),
+            "start_time": hostclock.now(),  # host time (monotonic timeline), as every row's
+            "start_wall_time": hostclock.wall(),  # the wall clock then: a label only
             "hostname": socket.gethostname(),
             "flush_interval_s": self.flush_interval_s,
             "max_queue_bytes": self.max_queue_bytes,
@@ -152,7 +154,7 @@ class Recorder:
             self._put(items, sum(r.nbytes for _, r in items))
 
     def log(self, message: str, source: str = "host", host_time: float | None = None) -> None:
-        t = time.time() if host_time is None else host_time
+        t = hostclock.now() if host_time is None else host_time
         self._put((TEXTLOG_KEY, {"host_time": t, "source": source, "message": message}), 64 + len(message))
 
     @property
@@ -303,7 +305,7 @@ class Recorder:
             why.append(f"recorder queue full ({self.max_queue_bytes} bytes): {st.queue_full_drops} dropped so far")
         if st.write_errors:
             why.append(f"{st.write_errors} write errors so far, last: {self.last_error}")
-        line = {"host_time": time.time(), "source": "recorder",
+        line = {"host_time": hostclock.now(), "source": "recorder",
                 "message": f"DATA LOST: {what} not recorded ({'; '.join(why)})"}
         fd = self._fds[TEXTLOG_KEY]
         data = (json.dumps(line) + "\n").encode()

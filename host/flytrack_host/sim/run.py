@@ -46,6 +46,22 @@ ROOT = Path(__file__).resolve().parents[3]
 PREROLL_FRAMES = 3
 
 
+@dataclass
+class DemoContext:
+    """What a fault injector may touch in a running demo (flytrack_host.faults)."""
+
+    host: Any
+    session: Any
+    edges: Any
+    feeder: Any
+    trigger: Any
+    cameras: list[Camera]
+    port: int
+    fps: float
+    edge_bin: Path
+    out: Path
+
+
 class DemoError(RuntimeError):
     """The demo cannot run; the message says which part is missing and how to get it."""
 
@@ -72,6 +88,10 @@ class DemoConfig:
     rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)
     # Called with the host pipeline before it starts: live outputs join its sinks (`--serve`).
     attach: list[Callable[[Any], object]] = field(default_factory=list)
+    # Fault injection (flytrack_host.faults): an object with start(ctx: DemoContext) and stop(), started
+    # once the trigger runs; and the host on a fixed-rate clock instead of the trigger's (--no-trigger).
+    fault: Any = None
+    host_fixed_clock: bool = False
 
     def check(self) -> None:
         if not 2 <= self.cameras <= 64:
@@ -168,7 +188,7 @@ def _free_udp_port() -> int:
 def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list[str]:
     """The command line of one edge extractor reading raw 8-bit frames from stdin, with the camera's
     calibration for its undistorted coordinates (the same numbers as the calibration file)."""
-    K = cam.K
+    K = cam.Kd  # the distortion's K (flydra: intrinsic_linear): undistorted pixels are then P's
     return [
         str(edge_bin),
         "--source", "raw", "--input", "-",
@@ -326,7 +346,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             pos = np.array([e.state[:3] for e in r.estimates], dtype=np.float64).reshape(-1, 3)
             results.append(HostResult(int(r.trigger_frame), time.time(), ids, pos))
 
-        host = HostPipeline(rig, cameras_for_host, clock=session.clock, fps=fps, hold_until_synchronized=True,
+        host = HostPipeline(rig, cameras_for_host, clock=None if cfg.host_fixed_clock else session.clock, fps=fps,
+                            hold_until_synchronized=True,
                             on_result=on_result, rig_text=rig_path.read_text(),
                             recording_path=out / "recording.flytrack")
         if lab is not None:
@@ -334,14 +355,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
                 engine = lab.engine(rig, fps, session)
             except RulesError as exc:
                 raise DemoError(str(exc)) from None
-            engine.attach(host)
-            engine.start()
         for fn in cfg.attach:
             try:
                 fn(host)
             except OSError as exc:
                 raise DemoError(f"a live output could not start: {exc}") from None
         host.start()
+        if engine is not None:  # after start: its messages go into the recording's log too
+            engine.attach(host)
+            engine.start()
         session.attach(host)
         live = _LiveCounter(live_port, live_frames)
         trig.follow_software(session.software)
@@ -351,6 +373,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             time.sleep(0.01)
         cpu.mark_start()
         session.start(host)  # waits until the cameras are quiet, arms the frame-0 tie, STARTs
+        if cfg.fault is not None:
+            cfg.fault.start(DemoContext(host, session, edges, feeder, trig, cams, port, fps, edge_bin, out))
 
         # 4. Run until every frame was rendered, with a progress bar.
         budget = cfg.seconds * 4 + 30
@@ -378,6 +402,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
         cpu.sample()
     finally:
+        if cfg.fault is not None:
+            cfg.fault.stop()
         if session is not None:
             session.stop()
             trigger_summary = session.summary()
@@ -549,8 +575,8 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
     frames_triggered = max(fs.edges, fs.frames_rendered)
     return DemoReport(
-        config={f.name: (str(v) if isinstance(v := getattr(cfg, f.name), Path) else v) for f in fields(cfg)
-                if f.name not in ("flight", "render", "attach")},
+        config={f.name: (str(v) if isinstance(v, Path) else v) for f in fields(cfg)
+                if f.name not in ("flight", "render", "attach", "fault") for v in [getattr(cfg, f.name)]},
         trigger=trig.kind_label,
         trigger_note=trig.note,
         scores=scores,

@@ -11,6 +11,8 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from flytrack_host import hostclock
+
 from .common import TriggerError, check_port_exists
 from .flash import BOARDS, avrdude_command, firmware_mcu
 
@@ -109,7 +111,7 @@ def watch(
                 if not m.fitted:
                     console.print("waiting for clock samples...", highlight=False)
                     continue
-                frame = m.host_time_to_frame(time.time())
+                frame = m.host_time_to_frame(hostclock.now())
                 console.print(f"frame {frame:12.2f}  gain {m.gain:.9f}  offset {m.offset:.6f}  "
                               f"residual {m.residual_s * 1e6:7.1f} us  samples {m.n_samples}  "
                               f"rejected {m.rejected_rtt}", highlight=False)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import serial
 
+from flytrack_host import hostclock
 from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.protocol.errors import ProtocolError
 
@@ -157,7 +158,7 @@ class TriggerDevice(SerialTrigger):
                 break
             if not data:
                 continue
-            t_rx = time.time()
+            t_rx = hostclock.now()
             if len(getattr(self, "_raw_seen", b"")) < 64:
                 self._raw_seen += data
             for frame in splitter.feed(data):
@@ -198,7 +199,7 @@ class TriggerDevice(SerialTrigger):
             # The leading delimiter closes any partial frame left in the device (line noise, a
             # host that died mid-write): this request then always starts a fresh frame.
             wire = b"\0" + tl.encode_message(msg, self._seq)
-            t0 = time.time()
+            t0 = hostclock.now()
             try:
                 self._ser.write(wire)
             except (serial.SerialException, OSError) as exc:

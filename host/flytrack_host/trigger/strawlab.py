@@ -26,6 +26,8 @@ import time
 
 import serial
 
+from flytrack_host import hostclock
+
 from .clock_model import EARLY_FRACTION, ClockModel, LinkTiming
 from .common import ClockThread, RateChoice, SerialTrigger, TriggerError, choose_rate, open_serial
 from .device import ClockReading
@@ -133,9 +135,9 @@ class StrawlabTriggerbox(SerialTrigger):
         if self.rate is None:
             raise TriggerError("frame rate unknown: call set_rate() first")
         self._token = (self._token + 1) & 0xFF
-        t0 = time.time()
+        t0 = hostclock.now()
         payload = self._query(b"P" + bytes([self._token]), b"P")
-        t1 = time.time()
+        t1 = hostclock.now()
         if len(payload) != 7:
             raise TriggerError(f"triggerbox clock reply has {len(payload)} bytes, expected 7")
         token, pulses, tcnt = struct.unpack("<BIH", payload)

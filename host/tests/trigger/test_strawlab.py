@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import select
 import struct
 import threading
 import time
@@ -28,7 +29,9 @@ class _Box:
         self.lagged = 0
         self.commands: list[bytes] = []
         self.icr, self.div, self.running, self.t0 = 19999, 8, False, 0.0
-        threading.Thread(target=self._run, daemon=True).start()
+        self._closing = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
 
     def _reply(self, header: bytes, payload: bytes) -> None:
         cs = (checksum(payload) + (1 if self.corrupt else 0)) & 0xFF
@@ -36,7 +39,11 @@ class _Box:
 
     def _run(self) -> None:
         buf = b""
-        while True:
+        while not self._closing.is_set():
+            # Poll, so that close() can stop this thread before the descriptor is closed: a closed
+            # number is soon reused by the next test's pty, which this thread would then answer.
+            if not select.select([self.master], [], [], 0.02)[0]:
+                continue
             try:
                 buf += os.read(self.master, 64)
             except OSError:
@@ -79,6 +86,8 @@ class _Box:
                     buf = buf[1:]
 
     def close(self) -> None:
+        self._closing.set()
+        self._thread.join()
         os.close(self.master)
         os.close(self.slave)
 

@@ -1,0 +1,5 @@
+import sys
+
+from flytrack_host.faults.suite import main
+
+sys.exit(main())

@@ -1,0 +1,250 @@
+"""Issue 16's fixes, piece by piece and deterministic: misnumbered frames, edge restarts, the
+fixed-rate clock after a pause, the host clock seam, rate-limited logs, range checks, latency overflow,
+one sender per camera. The same faults against the real processes: tests/faults."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from flytrack_host import hostclock
+from flytrack_host.latency import LatencyStats
+from flytrack_host.pipeline import data2d_rows
+from flytrack_host.ratelog import RateLimitedLog
+from flytrack_host.receiver import Receiver
+from flytrack_host.recording.schema import FLAG_REJECTED, FLAG_TRACKED
+from flytrack_host.sync import CameraFrame, FixedRateClock, FrameSynchronizer, SyncedBundle, SyncEvent, UntrackedFrame
+
+FPS = 100.0
+P = 1.0 / FPS
+T0 = 1000.0
+PTS = np.zeros(1, dtype=[("x_dist", "<f4")])
+
+
+class Run:
+    def __init__(self, cams=(0, 1, 2), clock=None):
+        self.sync = FrameSynchronizer(cams, FPS, clock=clock or FixedRateClock(FPS), start_time=T0)
+        self.bundles: list[SyncedBundle] = []
+        self.untracked: list[UntrackedFrame] = []
+        self.events: list[SyncEvent] = []
+        self.now = T0
+
+    def _take(self, outs):
+        for o in outs:
+            {SyncedBundle: self.bundles, UntrackedFrame: self.untracked, SyncEvent: self.events}[type(o)].append(o)
+
+    def add(self, fr: CameraFrame):
+        while True:  # poll every deadline before the frame arrives, as the pipeline does
+            d = self.sync.next_deadline()
+            if d is None or d > fr.recv_time:
+                break
+            self.now = max(self.now, d)
+            self._take(self.sync.poll(self.now))
+        self.now = max(self.now, fr.recv_time)
+        self._take(self.sync.add(fr, fr.recv_time))
+
+    def tracked(self):
+        """(camera, camera frame) -> trigger frame of every tracked frame."""
+        return {(c, f.camera_frame): b.bundle.trigger_frame for b in self.bundles for c, f in b.frames.items()}
+
+    def tracked_list(self):
+        return [(c, f.camera_frame, b.bundle.trigger_frame) for b in self.bundles for c, f in b.frames.items()]
+
+
+def frame(cam, cf, t, restarted=False):
+    return CameraFrame(camera_index=cam, camera_frame=cf, trigger_frame=-1, points=PTS, recv_time=t,
+                       restarted=restarted)
+
+
+def test_wrong_numbers_mixed_into_a_good_stream_are_rejected_frame_by_frame():
+    r = Run()
+    for k in range(300):
+        t = T0 + k * P + 0.002
+        for c in (0, 1, 2):
+            r.add(frame(c, 100 * c + k, t + 0.0001 * c))
+        if 100 <= k < 200:  # camera 1's numbers + 48, from its own address (a replaying edge)
+            r.add(frame(1, 100 + k + 48, t + 0.003))
+    good = r.tracked()
+    assert all(tf == cf - 100 * c for (c, cf), tf in good.items())  # every tracked frame right
+    assert len(good) >= 3 * 298
+    early = [u for u in r.untracked if u.reason == "early"]
+    assert len(early) == 100 and r.sync.stats()[1].early == 100
+    assert not r.sync.stats()[1].clock_jumps
+
+
+def test_a_gap_in_the_good_stream_does_not_let_wrong_numbers_confirm_a_jump():
+    r = Run()
+    for k in range(200):
+        t = T0 + k * P + 0.002
+        for c in (0, 2):
+            r.add(frame(c, k, t))
+        if 100 <= k < 105:  # camera 1's edge stalls 5 frames; three wrong frames come in between
+            if k < 103:
+                r.add(frame(1, k + 48, t))
+            continue
+        r.add(frame(1, k, t))
+    assert all(tf == cf for (_, cf), tf in r.tracked().items())
+    assert r.sync.stats()[1].clock_jumps == 0
+
+
+def test_an_edge_restart_is_mapped_by_arrival_and_its_gap_counted():
+    r = Run()
+    for k in range(100):
+        for c in (0, 1, 2):
+            r.add(frame(c, k, T0 + k * P + 0.002))
+    for k in range(100, 200):  # camera 1's edge is down for 40 frames, then restarts at 0
+        t = T0 + k * P + 0.002
+        for c in (0, 2):
+            r.add(frame(c, k, t))
+        if k >= 140:
+            r.add(frame(1, k - 140, t + 0.0005, restarted=(k == 140)))
+    got = r.tracked_list()
+    assert all(tf == k + 140 for c, k, tf in got if c == 1 and tf >= 100)
+    assert sum(1 for c, _, tf in got if c == 1 and tf >= 140) >= 58
+    s = r.sync.stats()[1]
+    assert s.restarts == 1 and s.missed == 40  # trigger frames 100..139
+    assert any(e.kind == "restart" for e in r.events)
+    # Its first frames are not filed under trigger frames 0 and 1 again.
+    assert sum(1 for c, _, tf in got if c == 1 and tf < 2) == 2
+
+
+def test_the_fixed_rate_clock_is_reanchored_after_every_camera_paused():
+    r = Run()
+    for k in range(300):
+        t = T0 + k * P + 0.002 + (0.5 if k >= 100 else 0.0)  # the cameras pause 0.5 s after frame 99
+        for c in (0, 1, 2):
+            r.add(frame(c, k, t))
+    assert [e for e in r.events if e.kind == "reanchor"]
+    late = [b.last_arrival - b.bundle.timestamp for b in r.bundles if b.bundle.trigger_frame >= 150]
+    assert max(late) < 0.01  # before: every later frame ~0.5 s late
+    assert all(tf == cf for (_, cf), tf in r.tracked().items())
+
+
+def test_a_stall_and_burst_do_not_reanchor_the_fixed_rate_clock():
+    r = Run()
+    for k in range(300):
+        t = T0 + k * P + 0.002
+        if 100 <= k < 150:
+            t = T0 + 150 * P + 0.002 + (k - 100) * 0.0001  # a 0.5 s stall, then the backlog in a burst
+        for c in (0, 1, 2):
+            r.add(frame(c, k, t))
+    assert not [e for e in r.events if e.kind == "reanchor"]
+
+
+def test_the_wall_clock_only_labels_and_steps_are_noticed():
+    c = hostclock.HostClock()
+    t0, w0 = c.now(), c.wall()
+    assert c.check_wall() is None
+    c.step_wall(-30.0)
+    assert abs((c.wall() - w0) - (-30.0)) < 1.0
+    assert 0 <= c.now() - t0 < 1.0  # host time did not move with it
+    assert abs(c.check_wall() + 30.0) < 0.05 and c.steps_seen == 1
+    assert c.check_wall() is None
+
+
+def test_wall_steps_from_the_environment_reach_a_real_process():
+    code = ("import time; from flytrack_host import hostclock as h; t=h.now(); w=h.wall(); time.sleep(0.3); "
+            "print(round(h.wall()-w), round(h.now()-t, 1))")
+    env = dict(os.environ, FLYTRACK_FAULT_WALL_STEPS="0.1:-3600")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["-3600", "0.3"]
+    bad = subprocess.run([sys.executable, "-c", "import flytrack_host.hostclock"], capture_output=True, text=True,
+                         env=dict(os.environ, FLYTRACK_FAULT_WALL_STEPS="soon"))
+    assert bad.returncode != 0 and "AT_SECONDS:STEP_SECONDS" in bad.stderr
+
+
+def test_rate_limited_log_counts_every_kind_and_never_stops_logging():
+    lines: list[str] = []
+    log = RateLimitedLog(lines.append, interval_s=5.0, max_kinds=10)
+    for i in range(5000):  # random camera indices: one kind, not 5000
+        log("unknown_camera", f"camera index {i}: rejected", now=i * 0.001)
+    assert lines == ["camera index 0: rejected"]  # once; the rest counted
+    log.flush(now=5.0)
+    assert lines[-1] == "camera index 4999: rejected (4999 more like this since the last report, 5000 in all)"
+    for k in range(50):  # more kinds than the bound: still logged, in "other"
+        log(f"kind{k}", f"problem {k}", now=10.0)
+    assert log.counts["other"] == 41 and lines[-1] == "problem 9"
+    log("late real problem", "a real problem", now=16.0)  # a later, different problem is logged
+    assert lines[-1].startswith("a real problem") and "42 in all" in lines[-1]
+
+
+def test_values_out_of_range_are_recorded_flagged_and_named():
+    fr = CameraFrame(camera_index=1, camera_frame=2**64 + 5, trigger_frame=-1, points=PTS, recv_time=1.0,
+                     total_points=70000)
+    bad: list[str] = []
+    rows = data2d_rows(fr, 2**70, 1.0, FLAG_TRACKED, bad)
+    assert len(rows) == 1 and rows["trigger_frame"][0] == -1 and rows["camera_frame"][0] == 0
+    assert rows["flags"][0] & FLAG_REJECTED and not rows["flags"][0] & FLAG_TRACKED
+    assert any("camera_frame" in b for b in bad) and any("total_points" in b for b in bad)
+
+
+def test_latency_beyond_the_histogram_is_reported_exactly():
+    s = LatencyStats()
+    for i in range(100):
+        s.row(i, 0.0, 0.0, 0.0, 0.002 if i < 40 else 3600.026, 3, 0)
+    out = s.summary()
+    assert out["total_p50_ms"] == 3600026.0 or abs(out["total_p50_ms"] - 3600026.0) < 1e-3
+    assert out["total_overflow"] == 60
+    assert "60 frames at 1 s or more" in s.format()
+
+
+def test_one_sender_per_camera_and_a_new_port_after_silence_is_a_restart(helpers):
+    import time
+
+    logs: list[str] = []
+    rx = Receiver(helpers.make_rig(1), bind="127.0.0.1:0", log=logs.append, sender_switch_s=0.2)
+    a, b = helpers.EdgeSim(0, rx.address), helpers.EdgeSim(0, rx.address)
+    try:
+        got = []
+        for k in range(5):
+            a.send(k)
+            b.send(k + 1000)  # a second edge with the same index while the first sends
+            time.sleep(0.01)
+            got += rx.receive(0.05)
+        assert [f.camera_frame for f in got] == list(range(5))
+        assert rx.stats.cameras[0].second_sender == 5
+        assert sum("second sender" in m for m in logs) == 1  # once, then counted
+        time.sleep(0.3)  # the first edge went quiet: one stray datagram from elsewhere takes nothing over
+        b.send(77)
+        assert rx.receive(0.2) == [] and rx.stats.cameras[0].restarts == 0
+        a.send(5)  # the owner is back
+        assert [f.camera_frame for f in rx.receive(0.5)] == [5]
+        time.sleep(0.3)  # now it is gone for good; a new edge sends three frames: a restart
+        b.seq = 0
+        for k in range(3):
+            b.send(k)
+        got = []
+        for _ in range(3):
+            got += rx.receive(0.2)
+        assert [f.camera_frame for f in got] == [0, 1, 2]  # held until confirmed, none lost
+        assert got[0].restarted and not got[1].restarted and rx.stats.cameras[0].restarts == 1
+        assert rx.stats.cameras[0].reordered == 0 and rx.stats.cameras[0].lost == 0
+    finally:
+        a.close()
+        b.close()
+        rx.close()
+
+
+def test_a_restarted_edge_whose_first_frames_come_late_and_bunched_is_remapped():
+    # The new edge starts slowly: its first 8 frames arrive together 70 ms late, so the arrival maps
+    # them ~7 frames ahead; once its frames come paced, they arrive before their mapped pulses.
+    r = Run()
+    for k in range(100):
+        for c in (0, 1, 2):
+            r.add(frame(c, k, T0 + k * P + 0.002))
+    for k in range(100, 250):
+        t = T0 + k * P + 0.002
+        for c in (0, 2):
+            r.add(frame(c, k, t))
+        if k >= 140:
+            t1 = max(t, T0 + 147 * P + 0.002 + (k - 140) * 0.0001) if k < 148 else t
+            r.add(frame(1, k - 140, t1, restarted=(k == 140)))
+    wrong = [(cf, tf) for c, cf, tf in r.tracked_list() if c == 1 and tf >= 100 and tf != cf + 140]
+    assert r.sync.stats()[1].ahead == 1
+    assert len(wrong) <= 40  # mapped right again within 0.4 s of the restart
+    after = [(cf, tf) for c, cf, tf in r.tracked_list() if c == 1 and tf >= 140 and cf >= 40]
+    assert len(after) >= 60 and all(tf == cf + 140 for cf, tf in after)  # right from 0.4 s on
+    assert abs(r.sync.stats()[1].missed - 40) <= 1
