@@ -9,11 +9,9 @@
 from __future__ import annotations
 
 import math
-import sys
 import threading
 import time
 import urllib.request
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -23,9 +21,7 @@ from flytrack_host.outputs.braid import ROW_FIELDS, iter_sse
 from flytrack_host.outputs.launch import LiveOutputs
 from flytrack_host.outputs.pose import PoseClient
 from flytrack_host.sim.run import DemoConfig, find_edge_binary, run_demo
-
-sys.path.insert(0, str(Path(__file__).parent))
-import browser as browser_mod  # noqa: E402
+from flytrack_host.web import browser as browser_mod
 
 CAMERAS = 3
 
