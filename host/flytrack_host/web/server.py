@@ -9,10 +9,11 @@ events (message version 3, see `flytrack_host.outputs.braid`); `/ui/events` the 
 server-sent events (`event: state`, ~20 Hz); `/api/state` one state snapshot; `/api/stats` the
 server's own counts.
 
-Threads: the tracking thread only appends to a bounded deque in `on_frame`. One publisher thread
-turns frames into Braid events and page snapshots and offers them to each client's bounded backlog
-(`web.clients`); each connection has its own thread (stdlib `ThreadingHTTPServer`) that writes. A
-client that stops reading is dropped when its backlog is full, and counted.
+Threads: the tracking thread only appends to a bounded deque in `on_frame`. Connection threads
+(stdlib `ThreadingHTTPServer`) answer requests; a streaming request's socket is handed, after the
+headers, to the one publisher thread, which turns frames into Braid events and page states and writes
+every stream with non-blocking sockets, each client with a bounded backlog (`web.clients`). A client
+that stops reading is dropped when its backlog is full, and counted.
 
 Bound to a loopback address no token is asked. Bound to any other address, every request needs the
 token (printed at start, as Braid does) as `?token=` or the `flytrack_token` cookie that a page
@@ -134,6 +135,10 @@ class _HttpServer(ThreadingHTTPServer):
             self.live._handed.discard(request)
             return
         super().shutdown_request(request)
+
+
+class _HttpServer6(_HttpServer):
+    address_family = socket.AF_INET6
 
 
 class _Handler(BaseHTTPRequestHandler):
@@ -352,7 +357,8 @@ class LiveServer:
         return self
 
     def start(self) -> None:
-        httpd = _HttpServer((self.host, self.port), _Handler)
+        cls = _HttpServer6 if ":" in self.host else _HttpServer
+        httpd = cls((self.host, self.port), _Handler)
         httpd.live = self
         self._httpd = httpd
         self.port = httpd.server_address[1]

@@ -189,8 +189,20 @@ def test_oversized_and_malformed_requests_get_clear_errors(server):
 def test_token_needed_off_loopback_and_checked():
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("") and not is_loopback("192.168.1.5")
-    assert LiveServer("0.0.0.0", 0).token  # generated: printed by banner()
     assert parse_bind("0.0.0.0:9000") == ("0.0.0.0", 9000) and parse_bind(":0") == ("127.0.0.1", 0)
+    assert parse_bind("[::1]:8397") == ("::1", 8397)
+    # Every interface: a token is generated, printed by banner(), and asked for.
+    every = LiveServer("0.0.0.0", 0)
+    every.start()
+    try:
+        assert every.token and f"?token={every.token}" in every.banner()
+        local = f"http://127.0.0.1:{every.port}/"
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(local + "api/stats", timeout=10)
+        assert e.value.code == 401
+        assert urllib.request.urlopen(local + f"api/stats?token={every.token}", timeout=10).status == 200
+    finally:
+        every.close()
     with pytest.raises(ValueError, match="bad port"):
         parse_bind("host:http")
     s = LiveServer("127.0.0.1", 0, token="s3cret-token")
