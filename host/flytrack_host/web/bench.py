@@ -187,7 +187,7 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
         pipe = HostPipeline(rig, sc.cameras, clock=FixedRateClock(a.fps, start_time=t_start),
                             recording_path=Path(d) / "bench.flytrack", bind="127.0.0.1:0")
         if mode == "ours":
-            server = LiveServer("127.0.0.1", 0, calibration_xml=calibration_xml_of(pipe))
+            server = LiveServer("127.0.0.1", 0, calibration_xml=calibration_xml_of(pipe), poll_s=a.poll_ms / 1e3)
             server.start()
             server.state.pipe = pipe
             proc = cctx.Process(target=clients_process,
@@ -312,6 +312,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-page", action="store_true", help="No page client (to see its share).")
     ap.add_argument("--rounds", type=int, default=2, help="Rounds of the modes, interleaved.")
     ap.add_argument("--modes", default="ours,sync,none", help="Which runs, comma separated.")
+    ap.add_argument("--poll-ms", type=float, default=5.0, help="The publisher's poll period (LiveServer poll_s).")
     ap.add_argument("--browser", action="store_true", help="Also load the page in chromium during 'ours'.")
     ap.add_argument("--verbose", action="store_true", help="Print the worst frames of the first client.")
     a = ap.parse_args(argv)

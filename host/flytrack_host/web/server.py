@@ -304,13 +304,15 @@ class LiveServer:
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str | None = None,
                  calibration_xml: str | None = None, ui_hz: float = 20.0, max_clients: int = 64,
-                 client_backlog_bytes: int = 2 << 20, frame_backlog: int = 2000, thumbnails_every_s: float = 0.0):
+                 client_backlog_bytes: int = 2 << 20, frame_backlog: int = 2000, thumbnails_every_s: float = 0.0,
+                 poll_s: float = POLL_S):
         self.host = host
         self.port = port
         # Any address other than loopback needs the token (generated unless given).
         self.token = None if is_loopback(host) and token is None else (token or secrets.token_urlsafe(16))
         self.calibration_xml = calibration_xml
         self.ui_period = 1.0 / ui_hz
+        self.poll_s = poll_s
         self.clients = ClientSet(max_clients=max_clients, limit_bytes=client_backlog_bytes)
         self.state = LiveState()
         # Camera thumbnails from the edges' IMAGE messages; with thumbnails_every_s > 0 the server
@@ -419,7 +421,7 @@ class LiveServer:
                 # Every POLL_S with clients (frames, slow clients' backlogs, clients that left), else at
                 # the next page tick; a new client or close() wakes it at once.
                 wait = max(0.0, next_ui - time.monotonic())
-                self._wake.wait(min(wait, POLL_S) if self.clients.clients else min(wait, 0.05))
+                self._wake.wait(min(wait, self.poll_s) if self.clients.clients else min(wait, 0.05))
                 self._wake.clear()  # before draining: a frame appended from now on wakes us again
                 stopping = self._stop.is_set()
                 now = time.monotonic()
