@@ -102,7 +102,16 @@ class RawReader:
         return bytes(self.buf).count(b'"EndOfFrame"')
 
 
-def test_many_clients_get_the_same_stream(server):
+def test_many_clients_get_the_same_stream():
+    server = LiveServer("127.0.0.1", 0, calibration_xml="<multi_camera_reconstructor/>")  # 2 MB backlogs
+    server.start()
+    try:
+        _many_clients(server)
+    finally:
+        server.close()
+
+
+def _many_clients(server: LiveServer) -> None:
     readers = [Reader(server) for _ in range(20)]
     assert _wait(lambda: server.clients.count("braid") == 20)
     for i in range(20):  # 1000 frames/s in bursts of 10, as a fast rig would
@@ -115,7 +124,17 @@ def test_many_clients_get_the_same_stream(server):
     assert server.stats()["clients_dropped_slow"] == 0
 
 
-def test_client_that_never_reads_is_dropped_and_tracking_is_not_held(server):
+def test_client_that_never_reads_is_dropped_and_tracking_is_not_held():
+    # 1 MB backlogs: the reading client may be starved ~0.25 s by a loaded machine and stay.
+    server = LiveServer("127.0.0.1", 0, client_backlog_bytes=1 << 20)
+    server.start()
+    try:
+        _never_reads(server)
+    finally:
+        server.close()
+
+
+def _never_reads(server: LiveServer) -> None:
     good = RawReader(server)
     # A client that sends its request and then never reads a byte.
     lazy = socket.create_connection(("127.0.0.1", server.port))
@@ -123,8 +142,8 @@ def test_client_that_never_reads_is_dropped_and_tracking_is_not_held(server):
     lazy.sendall(b"GET /events HTTP/1.1\r\nHost: x\r\n\r\n")
     assert _wait(lambda: server.clients.count("braid") == 2)
     took = []
-    # 1000 frames a second of 10 targets, ~9 MB: far beyond the 256 kB backlog plus what the
-    # kernel buffers for the lazy client (~3 MB on loopback).
+    # 1000 frames a second of 10 targets, ~9 MB: far beyond the 1 MB backlog plus what the kernel
+    # buffers for the lazy client (~3 MB on loopback).
     for chunk in range(200):
         took += _feed(server, range(chunk * 10, chunk * 10 + 10), n=10)
         time.sleep(0.01)
