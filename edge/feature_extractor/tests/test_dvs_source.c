@@ -54,8 +54,8 @@ static void make_stream(stream *s, size_t words) {
     uint32_t ts = 0;
     for (size_t i = 0; i < words; i++) {
         uint32_t kind = rnd(100);
-        if (kind == 0) { /* garbage: the reserved bit of byte 1 */
-            put_word(s, (uint8_t)rnd(256), (uint8_t)(0x80u | rnd(128)), (uint16_t)rnd(0x4000));
+        if (kind == 0) { /* garbage: RESET and WRAP both set (byte 1's bit 7 is the sync bit now) */
+            put_word(s, (uint8_t)rnd(256), (uint8_t)rnd(256), (uint16_t)(0xC000u | rnd(0x4000)));
             s->n_garbage++;
             continue;
         }
