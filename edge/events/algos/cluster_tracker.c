@@ -10,8 +10,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define DEATH_MASS 0.5f /* a cluster whose decayed mass falls under this has had no event lately   \
-                         */
+/* A cluster whose decayed mass falls under this has had no event lately: it dies. */
+#define DEATH_MASS 0.5f
 
 typedef struct {
     int alive;
