@@ -30,12 +30,14 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices import Output, make_output
-from flytrack_host.actuation.devices.base import Job, Outcome, OutputWorker, RateLimitedLog
+from flytrack_host.actuation.devices.base import Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
 from flytrack_host.actuation.prediction import reachable_frame
 from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
+from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
 log = logging.getLogger("flytrack.actuation")
@@ -71,8 +73,7 @@ class ActuationEngine:
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
         self._pipe: Any = None
-        self._log_sink = log.warning
-        self.warn = RateLimitedLog(self._log)
+        self.warn = RateLimitedLog(lambda m: self._log(m))
         self.workers = {n: OutputWorker(o, self._done, self.warn) for n, o in self.outputs.items()}
         self._dry = {r.name: r.dry_run for r in rules.rules}
         self.rule_problems: list[str] = []  # rules left out at start (flytrack run --skip-bad-rules)
@@ -122,7 +123,7 @@ class ActuationEngine:
     # --- the tracking thread's part -----------------------------------------------------------
     def on_frame(self, result: Any, frame_time: float, estimate_time: float) -> None:
         t0 = time.perf_counter()
-        now = time.time()
+        now = hostclock.now()
         frame = int(result.trigger_frame)
         if frame < self._last_frame:  # the trigger was re-armed (frame 0 again, a new tracker)
             self._log(f"trigger frames restarted ({self._last_frame} -> {frame}): rule histories cleared")
@@ -211,3 +212,4 @@ class ActuationEngine:
         self._closed = True
         for w in self.workers.values():
             w.stop()
+        self.warn.flush()  # the counts of messages held back

@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Job
 from flytrack_host.actuation.devices.trigger_pulse import TriggerPulseOutput
 from flytrack_host.actuation.rules import Action
@@ -49,8 +50,8 @@ def _entry_run(act, dev: TriggerDevice, predict: bool, v: float = 1.0) -> tuple[
     for k in range(n):
         f = f0 + k
         ft = model.frame_to_host_time(f)
-        time.sleep(max(0.0, ft + 0.002 - time.time()))
-        eng.on_frame(act.result(f, {1: (float(xs[k]), v)}), ft, time.time())
+        time.sleep(max(0.0, ft + 0.002 - hostclock.now()))
+        eng.on_frame(act.result(f, {1: (float(xs[k]), v)}), ft, hostclock.now())
     act.wait_for(lambda: eng.firings.count >= 1, 5.0)
     eng.close()
     return entry, eng
@@ -73,7 +74,7 @@ def test_pulse_lands_on_the_entry_frame(act, built) -> None:  # noqa: ANN001
             out = TriggerPulseOutput(ActuatorConfig(name="hscam", kind="trigger_pulse"),
                                      {"trigger": dev, "clock": dev.model})
             now_frame = int(dev.query_clock().frame_count) - 1
-            job = Job("late", 1, now_frame - 2, now_frame, time.time(), time.time(), (0.0, 0.0, 0.0),
+            job = Job("late", 1, now_frame - 2, now_frame, hostclock.now(), hostclock.now(), (0.0, 0.0, 0.0),
                       Action(output="hscam"), True)
             late = out.perform(job)
             time.sleep(0.05)
