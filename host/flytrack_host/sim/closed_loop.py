@@ -174,13 +174,13 @@ class ClosedLoopLab:
 
 
 def closed_loop_line(act: dict[str, Any]) -> tuple[str, str]:
-    """The summary's one closed-loop line: value and note."""
+    """The summary's one closed-loop line: value and note (kept short: the table is 80 columns)."""
     parts_v, parts_n = [], []
-    for name, d in act.get("rules", {}).items():
-        parts_v.append(f"{d['fired']}/{d['expected']} fired")
-        parts_n.append(f"{name}: {d['missed']} missed, {d['false_fires']} false, frame err "
-                       f"{_fmt(d['frame_error_max'], 'd')} ({_fmt(d['frame_error_max_no_prediction'], 'd')} w/o "
-                       f"prediction), ack P50/P99 {_fmt(d['latency_ms_p50'])}/{_fmt(d['latency_ms_p99'])} ms")
+    for d in act.get("rules", {}).values():
+        parts_v.append(f"{d['fired']}/{d['expected']}, {d['missed']} miss, {d['false_fires']} false")
+        err, err_np = _fmt(d["frame_error_max"], "d"), _fmt(d["frame_error_max_no_prediction"], "d")
+        p50, p99 = _fmt(d["latency_ms_p50"], ".1f"), _fmt(d["latency_ms_p99"], ".1f")
+        parts_n.append(f"frame err {err} ({err_np} unpredicted); ack P50/P99 {p50}/{p99} ms")
     return "; ".join(parts_v), "; ".join(parts_n)
 
 
