@@ -188,7 +188,7 @@ def _free_udp_port() -> int:
 def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list[str]:
     """The command line of one edge extractor reading raw 8-bit frames from stdin, with the camera's
     calibration for its undistorted coordinates (the same numbers as the calibration file)."""
-    K = cam.K
+    K = cam.Kd  # the distortion's K (flydra: intrinsic_linear): undistorted pixels are then P's
     return [
         str(edge_bin),
         "--source", "raw", "--input", "-",
