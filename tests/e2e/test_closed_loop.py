@@ -71,6 +71,12 @@ def test_recording_holds_the_firings(demo) -> None:  # noqa: ANN001
     cam = t[t["output"] == b"hscam"]
     exact = cam[(cam["flags"] & FIRING_FRAME_EXACT) != 0]
     assert set(exact["scheduled_frame"].tolist()) <= set(r["pulse_frames_on_pin"])
+    # The text log (exported with the .braidz too) says where each high-speed camera trigger point is.
+    from flytrack_host.recording import load_recording
+
+    lines = [x["message"] for x in load_recording(report.recording).textlog if x["source"] == "actuation"]
+    for f in exact["scheduled_frame"].tolist():
+        assert any(f"hscam: pulse (high-speed camera trigger point) at trigger frame {f} (exact)" in m for m in lines)
 
 
 def test_rules_replay_on_the_recording(demo, tmp_path: Path) -> None:  # noqa: ANN001
@@ -85,10 +91,13 @@ def test_rules_replay_on_the_recording(demo, tmp_path: Path) -> None:  # noqa: A
     replayed = json.loads(js.read_text())["firings"]
     live = report.actuation["rules"]["enters_box"]["fired_frames"]
     # The same evaluator on the recorded tracks and latencies: the same firings, to a frame (the live
-    # engine's device leads are measured, the replay's are the defaults).
+    # engine's device leads are measured, the replay's are the defaults: when the host fell far behind,
+    # the measured leads grew and the frames aimed at differ more).
     assert len(replayed) == len(live)
-    assert all(abs(a["frame"] - b) <= 1 for a, b in zip(replayed, live, strict=True))
+    if report.host_kept_up:
+        assert all(abs(a["frame"] - b) <= 1 for a, b in zip(replayed, live, strict=True))
     res = runner.invoke(app, ["rules", "replay", str(rec), "--rules", str(RULES), "--no-prediction", "--json",
                               str(js), "--plot", str(png)])
     late = json.loads(js.read_text())["firings"]
-    assert len(late) == len(live) and all(a["frame"] >= b for a, b in zip(late, live, strict=True))
+    # Without prediction, the same entries, never on an earlier frame (both replays: same leads).
+    assert len(late) == len(replayed) and all(a["frame"] >= b["frame"] for a, b in zip(late, replayed, strict=True))

@@ -161,10 +161,16 @@ class ActuationEngine:
 
     def _done(self, o: Outcome) -> None:
         self.firings.add(o)
-        if o.error and not o.error.startswith("late"):
-            pass  # the worker has logged it (rate-limited)
-        elif o.error:
+        late = o.error.startswith("late")
+        if late:
             self.warn(f"{o.output}:late", f"output {o.output}: {o.error}")
+        if o.kind == "trigger_pulse" and o.job.action.level is None and (not o.error or late):
+            # The text log travels with every export (.braidz too): a high-speed camera's video is
+            # aligned with the tracks from this line even without the firings table.
+            how = "exact" if o.frame_exact else "estimated from the trigger clock: the PULSE was late"
+            self._log(f"{o.output}: pulse (high-speed camera trigger point) at trigger frame {o.scheduled_frame} "
+                      f"({how}); rule {o.job.rule}, object {o.job.obj_id}")
+        # other failures: the worker has logged them (rate-limited)
 
     # --- reporting ----------------------------------------------------------------------------
     def status(self) -> str:
