@@ -46,9 +46,14 @@ def test_entry_drives_the_pulse_the_coil_and_the_can_frame(demo) -> None:  # noq
     if report.host_kept_up:  # a machine so loaded that the host fell behind loses tracks, hence entries
         assert r["missed"] == 0 and r["false_fires"] == 0
     assert r["fired"] >= 1 or not report.host_kept_up
-    # Each firing reached every device: one coil write, one CAN frame, one pulse on the pin.
-    assert act["modbus_coil_writes"] == r["fired"] and act["can_frames"] == r["fired"]
-    assert r["pulses_on_pin"] == r["fired"]
+    # Each firing reached every device: one coil write, one CAN frame, one pulse on the pin. (A device
+    # that failed says so in the firing; on this machine they all answered, but a starved Modbus server
+    # can miss the 0.5 s timeout: then the write is counted failed, whether or not it landed.)
+    outs = r["outputs"]
+    assert act["can_frames"] == r["fired"] == outs["stimulus_can"]["done"]
+    assert outs["valve"]["done"] <= act["modbus_coil_writes"] <= r["fired"]
+    assert r["pulses_on_pin"] == outs["hscam"]["done"]
+    assert outs["valve"]["done"] + outs["hscam"]["done"] >= 2 * r["fired"] - 1
     assert r["pulse_frames_match_recording"]  # the frame recorded for the camera is where the pin rose
     # The pulse is never later than it would have been without prediction.
     if r["frame_errors"] and r["frame_errors_no_prediction"]:
