@@ -78,6 +78,7 @@ class ActuationEngine:
         self._started = False
         self._closed = False
         self._last_frame = -1
+        self._switch_interval: float | None = None  # Python's, restored at close
 
     @classmethod
     def from_files(cls, rig: RigConfig, rules_path: Path | str, fps: float,
@@ -102,6 +103,7 @@ class ActuationEngine:
             if self.workers and sys.getswitchinterval() > SWITCH_INTERVAL_S:
                 # A device thread waiting for the GIL would otherwise run only when the tracking thread
                 # blocks or after Python's 5 ms switch interval: 1-2 ms added to every action.
+                self._switch_interval = sys.getswitchinterval()
                 sys.setswitchinterval(SWITCH_INTERVAL_S)
             for w in self.workers.values():
                 w.start()
@@ -216,3 +218,5 @@ class ActuationEngine:
         for w in self.workers.values():
             w.stop()
         self.warn.flush()  # the counts of messages held back
+        if self._switch_interval is not None:
+            sys.setswitchinterval(self._switch_interval)
