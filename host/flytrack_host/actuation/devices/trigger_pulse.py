@@ -64,6 +64,9 @@ class TriggerPulseOutput(Output):
             t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width)
             return Done(t0, t1, job.scheduled_frame, True)
         except TriggerError as exc:
+            if "BUSY" in str(exc):
+                raise OutputError("the firmware holds one pulse at a time and one is still waiting for its "
+                                  "frame (or the trigger is stopped): this pulse is dropped") from None
             if "BAD_ARG" not in str(exc) or job.scheduled_frame < 0:
                 raise
         # Too late for that frame: pulse at the earliest frame the firmware can still reach.
