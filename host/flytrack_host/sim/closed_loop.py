@@ -178,10 +178,18 @@ def closed_loop_line(act: dict[str, Any]) -> tuple[str, str]:
     parts_v, parts_n = [], []
     for d in act.get("rules", {}).values():
         parts_v.append(f"{d['fired']}/{d['expected']}, {d['missed']} miss, {d['false_fires']} false")
-        err, err_np = _fmt(d["frame_error_max"], "d"), _fmt(d["frame_error_max_no_prediction"], "d")
+        err, err_np = _span(d.get("frame_errors")), _span(d.get("frame_errors_no_prediction"))
         p50, p99 = _fmt(d["latency_ms_p50"], ".1f"), _fmt(d["latency_ms_p99"], ".1f")
         parts_n.append(f"frame err {err} ({err_np} unpredicted); ack P50/P99 {p50}/{p99} ms")
     return "; ".join(parts_v), "; ".join(parts_n)
+
+
+def _span(errs: list[int] | None) -> str:
+    """Signed frame errors as a range (+0, -3..+1), n/a when there is none."""
+    if not errs:
+        return "n/a"
+    lo, hi = min(errs), max(errs)
+    return f"{lo:+d}" if lo == hi else f"{lo:+d}..{hi:+d}"
 
 
 def _fmt(x: float, kind: str = ".2f") -> str:

@@ -34,7 +34,8 @@ def test_expected_entries_from_ground_truth() -> None:
 
 def _act(**kw: float) -> dict:
     d = {"fired": 5, "expected": 5, "missed": 0, "false_fires": 0, "frame_error_max": 1.0,
-         "frame_error_max_no_prediction": 3.0, "latency_ms_p50": 1.5, "latency_ms_p99": 4.0}
+         "frame_error_max_no_prediction": 3.0, "latency_ms_p50": 1.5, "latency_ms_p99": 4.0,
+         "frame_errors": [0, -1, 1], "frame_errors_no_prediction": [3, 2]}
     d.update(kw)
     return {"rules": {"enters_box": d}}
 
@@ -47,4 +48,5 @@ def test_goals_and_summary_line() -> None:
     # No entry in the flight at all: the count goal is not met (nothing was shown).
     assert not goal_checks(_act(expected=0, fired=0))[0][3]
     assert goal_checks({}) == []
-    assert closed_loop_line(_act()) == ("5/5, 0 miss, 0 false", "frame err 1 (3 unpredicted); ack P50/P99 1.5/4.0 ms")
+    assert closed_loop_line(_act()) == ("5/5, 0 miss, 0 false",
+                                        "frame err -1..+1 (+2..+3 unpredicted); ack P50/P99 1.5/4.0 ms")
