@@ -33,7 +33,7 @@ from flytrack_host import hostclock
 from flytrack_host.camera import Camera
 from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
-from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
+from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
 from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.receiver import Receiver, StatusReport
 from flytrack_host.recording.schema import (
@@ -741,6 +741,7 @@ def run_command(
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
+    thumbnails: float = typer.Option(0.0, "--thumbnails", help=THUMBS_HELP),
     rules: Path | None = typer.Option(
         None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
         "[[actuators]]."),
@@ -763,7 +764,7 @@ def run_command(
     console = Console()
     try:
         outputs = LiveOutputs.from_options(http=http, pose=pose, pose_rate=pose_rate, pose_lead_ms=pose_lead_ms,
-                                           pose_lock=pose_lock)
+                                           pose_lock=pose_lock, thumbnails_every_s=thumbnails)
     except OutputsError as exc:
         console.print(f"[red]error[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None

@@ -30,6 +30,7 @@ import select
 import socket
 import time
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +39,7 @@ from flytrack_host import hostclock
 from flytrack_host.protocol import (
     EdgeStatus,
     FeatureFrame,
+    ImageChunk,
     ProtocolError,
     decode_datagram,
     join_feature_parts,
@@ -115,6 +117,9 @@ class Receiver:
         self.allowed: dict[int, str] = {c.index: str(ipaddress.ip_address(c.edge)) for c in rig.cameras}
         self.allowed_ips = set(self.allowed.values())
         self.stats = ReceiverStats(cameras={i: CameraRecvStats() for i in self.allowed})
+        # IMAGE chunks go here when set (the live page's thumbnails); it runs on the tracking thread,
+        # so it must only hand the chunk on.
+        self.on_image: Callable[[ImageChunk], object] | None = None
         self._seq = {i: _SeqState() for i in self.allowed}
         # (camera, camera_frame, part_count) -> (monotonic time of the first part, part_index -> part)
         self._parts: dict[tuple[int, int, int], tuple[float, dict[int, FeatureFrame]]] = {}
@@ -218,6 +223,8 @@ class Receiver:
             out.append(StatusReport(cam, msg, now))
         else:
             cs.other += 1
+            if self.on_image is not None and isinstance(msg, ImageChunk):
+                self.on_image(msg)
 
     def _cam_for_datagram(self, data: bytes, ip: str) -> int | None:
         """Which camera a bad datagram is counted against: the camera_index field (the first

@@ -289,6 +289,7 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     else
         rc = ft_ev_source_open_dvs128(&e.src, usb, cfg->have_dvs_biases ? cfg->dvs_biases : NULL,
                                       cfg->reopen_ms);
+    e.src.invert_polarity = cfg->dvs_invert_polarity;
     if (rc) {
         logmsg("source %s %s: %s", cfg->source, cfg->input, e.src.error);
         close(e.sock);

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
+from flytrack_host.outputs.launch import POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
 from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
 
@@ -88,7 +88,8 @@ def demo_command(
         "flight's ground truth (JSON `actuation`)."),
     serve: bool = typer.Option(False, "--serve", help="Serve Braid's event stream and the live page while it "
                                "runs (on --http, default 127.0.0.1:8397)."),
-    http: str = typer.Option("127.0.0.1:8397", "--http", help="With --serve: " + HTTP_HELP),
+    http: str = typer.Option("127.0.0.1:8397", "--http", help="With --serve: HOST:PORT to serve on. Any "
+                             "address other than loopback needs the token printed at start."),
     pose: str | None = typer.Option(None, "--pose", help=POSE_HELP),
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),

@@ -35,6 +35,7 @@ def _r(v: float, nd: int = 4) -> float | None:
 class LiveState:
     def __init__(self, pipeline: Any = None, rule_sources: list[Callable[[], list[str]]] | None = None):
         self.pipe = pipeline
+        self.thumbs: Any = None  # web.thumbs.ThumbnailAssembler, set by the server
         self.trails: dict[int, deque[tuple[float, float, float]]] = {}
         self.last_point_time: dict[int, float] = {}
         self.last_seen: dict[int, float] = {}
@@ -189,9 +190,15 @@ class LiveState:
                 "latency_ms": lat_ms,
                 "points": pts,
                 "n_points": len(fr.points) if fr is not None else 0,
-                "thumbnail": None,  # the receiver does not reassemble IMAGE chunks yet
+                "thumbnail": self._thumb(c.index),
             })
         return cams
+
+    def _thumb(self, index: int) -> dict[str, Any] | None:
+        t = self.thumbs.latest.get(index) if self.thumbs is not None else None
+        if t is None:
+            return None
+        return {"id": t.image_id, "camera_frame": t.camera_frame, "age_s": round(time.monotonic() - t.time, 1)}
 
     def _recording(self, p: Any) -> dict[str, Any]:
         rec: dict[str, Any] = {"on": p.recorder is not None, "path": str(p.recording_path) if p.record else None}
