@@ -66,7 +66,7 @@ def summary_table(r: DemoReport) -> Table:
     if r.actuation:
         from flytrack_host.sim.closed_loop import closed_loop_line
 
-        t.add_row("closed loop", *closed_loop_line(r.actuation))
+        t.add_row("closed loop fired", *closed_loop_line(r.actuation))
     return t
 
 
