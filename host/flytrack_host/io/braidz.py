@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flytrack_host import __version__
+from flytrack_host import __version__, hostclock
 from flytrack_host.io.data2d import Data2D, empty_rows
 from flytrack_host.recording.reader import Recording
 from flytrack_host.recording.schema import FLAG_REJECTED
@@ -183,7 +183,7 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
                           "tcnt": np.clip(np.round(c["fraction"] * 255), 0, 255).astype(np.int64),
                           "stop_timestamp": c["stop_timestamp"]}, columns=CLOCK_COLUMNS)
 
-    t0 = float(rec.meta.get("start_time", time.time()))
+    t0 = float(rec.meta.get("start_time", hostclock.wall()))  # a label: the export time if unknown
     log_rows = [(t0, "", t0, f"MainBrain running at {fps:g} fps" if fps else "MainBrain running at unknown fps"),
                 (t0, "", t0, json.dumps({"tracking_params": braid_tracking_params(rec.meta.get("tracking_params"))}))]
     for r in rec.textlog:

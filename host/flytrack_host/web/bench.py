@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.outputs import braid
 from flytrack_host.outputs.pose import PoseClient, PoseStream
 from flytrack_host.pipeline import HostPipeline
@@ -88,10 +89,10 @@ class SyncBraidSink:
 
 def send_all(plan: list, dest: tuple[str, int], t_start: float, fps: float) -> None:
     socks: dict[int, socket.socket] = {}
-    while time.time() < t_start:
+    while hostclock.now() < t_start:
         time.sleep(0.001)
     for frame, cam, dg in plan:
-        wait = t_start + frame / fps - time.time()
+        wait = t_start + frame / fps - hostclock.now()
         if wait > 0:
             time.sleep(wait)
         sock = socks.get(cam) or socks.setdefault(cam, socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
@@ -110,7 +111,7 @@ def _client(sock: socket.socket, out: list, page: bool = False) -> None:
             break
         if not chunk:
             break
-        now = time.time()
+        now = hostclock.now()
         buf += chunk
         cut = buf.rfind(b"\n\n")  # events end with a blank line; TCP may split anywhere
         if cut >= 0:
@@ -169,7 +170,7 @@ def clients_process(addr: tuple[str, int] | None, n: int, conn: Any, page: bool,
 
 
 def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str, Any]:
-    t_start = time.time() + 1.5
+    t_start = hostclock.now() + 1.5
     rig = parse_rig({
         "name": "bench", "trigger": {"kind": "software", "fps": a.fps},
         "host": {"listen": "127.0.0.1:7000", "live_subscribers": []},

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.tracking.types import FrameResult
 
 TRAIL_SECONDS = 3.0
@@ -92,12 +93,14 @@ class LiveState:
 
     # --- snapshot (publisher thread, ~20 Hz) ------------------------------------------------------
     def snapshot(self, server_stats: dict[str, Any] | None = None, final: bool = False) -> dict[str, Any]:
-        now = time.time()
+        now = hostclock.now()
         tracks = [{"id": i, "live": i in self.live_ids, "trail": [[_r(a), _r(b), _r(c)] for a, b, c in tr],
                    "vel": [_r(v, 3) for v in self.velocity.get(i, (math.nan,) * 3)]}
                   for i, tr in sorted(self.trails.items())]
         snap: dict[str, Any] = {
             "time": now,
+            # host time -> the browser's wall clock, for the page's estimate-to-page delay
+            "wall_offset": hostclock.wall() - now,
             "final": final,
             "frame": self.last_frame,
             "frames_published": self.frames,

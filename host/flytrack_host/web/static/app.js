@@ -97,7 +97,7 @@ function render(s) {
   f.updateTimes.push(now); if (f.updateTimes.length > 600) f.updateTimes.shift();
   // The page's delay: from the newest frame's estimate to now, counted when a new frame arrived.
   if (s.last_estimate_time && (!f.prev || s.frame !== f.prev.frame)) {
-    f.delays.push(now - s.last_estimate_time); if (f.delays.length > 600) f.delays.shift();
+    f.delays.push(now - (s.last_estimate_time + (s.wall_offset || 0))); if (f.delays.length > 600) f.delays.shift();
   }
   f.prev = s;
   $("rig").textContent = s.rig || "";
