@@ -261,15 +261,12 @@ def parse_rules(data: dict, path: Path | str = "<rules>") -> RuleSet:
 
 
 def load_rules(path: Path | str) -> RuleSet:
+    from flytrack_host.rig import read_toml_file
+
     path = Path(path)
-    if not path.exists():
-        raise RulesError(path, ["file not found; pass the path of a rules TOML file (see examples/closed_loop.toml)"])
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise RulesError(path, [f"not valid TOML: {exc}"]) from None
-    except UnicodeDecodeError:
-        raise RulesError(path, ["not a text file; a rules file is UTF-8 TOML"]) from None
+    data, problem = read_toml_file(path, "rules", "examples/closed_loop.toml")
+    if data is None:
+        raise RulesError(path, [problem or "unreadable"])
     return parse_rules(data, path)
 
 
