@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import datetime
 import importlib.util
+import threading
+import time
 from pathlib import Path
 
 import depthai as dai
@@ -225,3 +227,47 @@ def test_cli_help_and_no_device() -> None:
     assert "no OAK device" in out.stderr and "Traceback" not in out.output
     out = _flytrack("edge-oak", "--resolution", "4k")
     assert out.exit_code == 2 and "resolution '4k'" in out.stderr
+
+
+class EndlessSource(ScriptedSource):
+    """Frames at about 200 fps for as long as asked (a camera that keeps streaming)."""
+
+    def __init__(self) -> None:
+        super().__init__([])
+        self.n = 0
+        self.image = blob_frame([(40.3, 50.7)])
+        self.blank = blob_frame([])
+
+    def get(self, timeout: float):
+        time.sleep(0.005)
+        self.n += 1
+        # Frame 0 (the background) is empty, then one fly.
+        return img_frame(self.image if self.n > 1 else self.blank, self.n - 1, 5000 * (self.n - 1))
+
+
+def test_live_heartbeat_and_stop_from_another_thread(receiver) -> None:
+    src = EndlessSource()
+    cfg = OakEdgeConfig(port=receiver.port, camera_index=1, width=W, height=H, status_interval=0.1)
+    edge = OakEdge(src, cfg)
+    t = threading.Thread(target=edge.run, daemon=True)
+    t.start()
+    try:
+        running = receiver.wait_for(lambda m: isinstance(m, EdgeStatus) and m.state == CameraState.RUNNING
+                                    and m.frames_seen >= 20, 20.0)
+        assert running, "no heartbeat with 20 frames seen"
+        # The heartbeat keeps coming while frames flow (every 0.1 s here).
+        beats = receiver.wait_for(lambda m: isinstance(m, EdgeStatus) and m.frames_seen >= running[0].frames_seen
+                                  + 5 and m.seq > running[0].seq, 20.0)
+        assert beats, "the heartbeat stopped"
+    finally:
+        edge.stop()
+        t.join(10)
+    assert not t.is_alive()
+    edge.close()
+    receiver.poll(0.3)
+    st = [m for m in receiver.messages if isinstance(m, EdgeStatus)]
+    assert st[-1].state == CameraState.STOPPED
+    fr = features(receiver.messages)
+    assert st[-1].frames_seen == len(fr) == src.n  # every frame read was sent, none lost on loopback
+    assert [m.camera_frame for m in fr] == list(range(len(fr)))
+    assert all(m.n_points == 1 for m in fr[1:150])  # (before the first background update at 200)
