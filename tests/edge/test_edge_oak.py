@@ -15,10 +15,9 @@ import depthai as dai
 import numpy as np
 import pytest
 
-from flytrack_host.edge_oak import DeviceLost, OakEdge, OakEdgeConfig, build_pipeline, frame_from_imgframe
-from flytrack_host.edge_oak.edge import ERR_BAD_FRAME, ERR_SOURCE, OakEdgeError
-from flytrack_host.edge_oak.pipeline import STREAM, CameraSpec, OakConfigError
-from flytrack_host.edge_oak.source import BadFrame
+from flytrack_host.edge_oak.edge import ERR_BAD_FRAME, ERR_SOURCE, OakEdge, OakEdgeConfig, OakEdgeError
+from flytrack_host.edge_oak.pipeline import STREAM, CameraSpec, OakConfigError, build_pipeline
+from flytrack_host.edge_oak.source import BadFrame, DeviceLost, frame_from_imgframe
 from flytrack_host.protocol import CameraState, EdgeStatus, FeatureFrame
 
 # The frames of the C daemon's own tests (test_edge_daemon.py), loaded by path (importlib mode).

@@ -6,17 +6,5 @@ already has a Python binding (`flytrack_host.features`), so the points are compu
 as `flytrack-edge`'s.
 """
 
-from flytrack_host.edge_oak.edge import OakEdge, OakEdgeConfig
-from flytrack_host.edge_oak.pipeline import build_pipeline
-from flytrack_host.edge_oak.source import DepthaiSource, DeviceLost, FrameSource, OakFrame, frame_from_imgframe
-
-__all__ = [
-    "DepthaiSource",
-    "DeviceLost",
-    "FrameSource",
-    "OakEdge",
-    "OakEdgeConfig",
-    "OakFrame",
-    "build_pipeline",
-    "frame_from_imgframe",
-]
+# Submodules are imported by name (edge, pipeline, source, cli), not here: `flytrack` imports this
+# package's cli for its command table, and depthai should load only when an OAK command runs.

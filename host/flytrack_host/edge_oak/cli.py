@@ -44,8 +44,9 @@ def edge_oak_command(
     try:
         spec.check()
         found = available_devices()
-        if device and device not in found or not found:
-            raise OakEdgeError(f"no OAK device {device or ''} found (depthai sees {found or 'none'}): "
+        if not found or (device and device not in found):
+            raise OakEdgeError(f"no OAK device{' ' + device if device else ''} found (depthai sees "
+                               f"{', '.join(found) or 'none'}): "
                                "check the USB/PoE link")
         width, height = spec.size()
         params = ExtractorParams(alpha=alpha, n_sigma=n_sigma, diff_threshold=diff_threshold,
