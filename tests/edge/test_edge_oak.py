@@ -270,3 +270,47 @@ def test_live_heartbeat_and_stop_from_another_thread(receiver) -> None:
     assert st[-1].frames_seen == len(fr) == src.n  # every frame read was sent, none lost on loopback
     assert [m.camera_frame for m in fr] == list(range(len(fr)))
     assert all(m.n_points == 1 for m in fr[1:150])  # (before the first background update at 200)
+
+
+class PacedSource(ScriptedSource):
+    def get(self, timeout: float):
+        time.sleep(0.01)  # about 100 fps, the rig's trigger rate
+        return super().get(timeout)
+
+
+def test_host_pipeline_records_the_oak_points(tmp_path: Path) -> None:
+    """A real HostPipeline receives the OAK edge's datagrams: its recording holds every point the C
+    extractor finds on these frames, under the device's frame numbers and clock."""
+    from flytrack_host.features.extractor import FeatureExtractor
+    from flytrack_host.pipeline import HostPipeline
+    from flytrack_host.recording import load_recording
+    from flytrack_host.rig import parse_rig
+
+    rig = parse_rig({"name": "oakrig", "trigger": {"kind": "software", "fps": 100.0},
+                     "host": {"listen": "127.0.0.1:7000"}, "recording": {"folder": str(tmp_path)},
+                     "cameras": [{"name": "oak0", "index": 0, "edge": "127.0.0.1"}]})
+    pipe = HostPipeline(rig, cameras={0: None}, tracker_factory=None, recording_path=tmp_path / "r",
+                        bind="127.0.0.1:0")
+    pipe.start()
+    frames = [blob_frame(b) for b in TRUTH]
+    src = PacedSource([[img_frame(f, 50 + i, 1000 * i) for i, f in enumerate(frames)]])
+    host, port = pipe.address
+    edge = OakEdge(src, OakEdgeConfig(host=host, port=port, camera_index=0, width=W, height=H,
+                                      max_frames=len(frames)))
+    try:
+        edge.run()
+    finally:
+        edge.close()
+        time.sleep(0.2)
+        summary = pipe.stop()
+    cam = summary["receiver"]["cameras"][0]
+    assert cam["frames"] == len(frames) and cam["lost"] == 0 and cam["malformed"] == 0, cam
+    d2 = load_recording(summary["recording"]).table("data2d_distorted")
+    d2 = d2[np.isfinite(d2["x_dist"])]
+    with FeatureExtractor(W, H) as fx:
+        want = [(50 + i, p) for i, f in enumerate(frames) for p in fx.process(f).points]
+    assert len(d2) == len(want) == sum(len(b) for b in TRUTH)
+    for row, (frame, p) in zip(d2, want, strict=True):
+        assert row["camera_frame"] == frame and row["device_timestamp_ns"] == 1_000_000 * (frame - 50)
+        for k in ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff"):
+            assert row[k] == np.float32(p[k]), k
