@@ -40,6 +40,14 @@ class TrackSet:
     cameras: dict[int, Camera] = field(default_factory=dict)
 
 
+def _columns(df: pd.DataFrame, cols: list[str], path: Path, table: str) -> pd.DataFrame:
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise CompareError(f"{path}: its {table} table has no column {', '.join(missing)} "
+                           f"(it has {', '.join(map(str, df.columns)) or 'none'})")
+    return df[cols].copy()
+
+
 def load_tracks(path: Path | str, calibration: Path | None = None) -> TrackSet:
     from flytrack_host.io.retrack import RetrackError, cameras_for, load_2d
 
@@ -61,9 +69,10 @@ def load_tracks(path: Path | str, calibration: Path | None = None) -> TrackSet:
             a = _read_table(z, "data_association")
         if k is None:
             raise CompareError(f"{path}: no kalman_estimates table")
-        est = k[["obj_id", "frame", "x", "y", "z"]].copy()
+        est = _columns(k, ["obj_id", "frame", "x", "y", "z"], path, "kalman_estimates")
         if a is not None and len(a.columns):
-            assoc = a.rename(columns={"cam_num": "camn"})[["obj_id", "frame", "camn", "pt_idx"]]
+            assoc = _columns(a.rename(columns={"cam_num": "camn"}), ["obj_id", "frame", "camn", "pt_idx"], path,
+                             "data_association")
     else:
         from flytrack_host.recording.finalize import RecordingError
         from flytrack_host.recording.reader import load_recording
@@ -76,7 +85,7 @@ def load_tracks(path: Path | str, calibration: Path | None = None) -> TrackSet:
             k = read_flydra_kalman(path)
             if k is None or not len(k):
                 raise CompareError(f"{path}: no kalman_estimates table") from None
-            est = k[["obj_id", "frame", "x", "y", "z"]].copy()
+            est = _columns(k, ["obj_id", "frame", "x", "y", "z"], path, "kalman_estimates")
             assoc = read_flydra_association(path)
         else:
             k = rec.table("kalman_estimates")

@@ -164,3 +164,20 @@ def test_retrack_with_a_calibration_xml_cannot_hold_says_so(braidz: tuple[Path, 
     assert res.objects == 2
     assert any("could not be written as flydra XML" in n for n in res.notes or [])
     assert load_recording(res.out).calibration is not None
+
+
+def test_compare_names_a_missing_column_instead_of_a_traceback(braidz: tuple[Path, dict], tmp_path: Path) -> None:
+    import gzip
+
+    from flytrack_host.io.compare import CompareError, load_tracks
+
+    src, _ = braidz
+    path = tmp_path / "cut.braidz"
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(path, "w") as zout:
+        for n in zin.namelist():
+            if n.endswith("kalman_estimates.csv.gz"):  # a table cut down to obj_id, frame, x
+                zout.writestr(n, gzip.compress(b"obj_id,frame,timestamp,x\n1,0,0.0,0.1\n"))
+            else:
+                zout.writestr(n, zin.read(n))
+    with pytest.raises(CompareError, match="kalman_estimates table has no column y, z"):
+        load_tracks(path)
