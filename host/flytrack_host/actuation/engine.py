@@ -61,7 +61,10 @@ class ActuationEngine:
         used = {a.output for r in rules.rules for a in r.actions}
         self.outputs: dict[str, Output] = {a.name: make_output(a, context) for a in actuators if a.name in used}
         self.evals = [RuleEvaluator(r, self.period_s) for r in rules.rules]
-        self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) for r in rules.rules]
+        # The same rules without prediction, for the "how far off without it" figure; a rule that does not
+        # predict is its own shadow, so it is not evaluated twice.
+        self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) if r.predict else None
+                       for r in rules.rules]
         self.rule_outputs = [[self.outputs[a.output] for a in r.actions] for r in rules.rules]
         self.firings = FiringLog(record=self._record)
         # The latest firings (the recording keeps them all), and counts per rule.
@@ -127,7 +130,8 @@ class ActuationEngine:
         if frame < self._last_frame:  # the trigger was re-armed (frame 0 again, a new tracker)
             self._log(f"trigger frames restarted ({self._last_frame} -> {frame}): rule histories cleared")
             for ev in (*self.evals, *self.shadow):
-                ev.reset()
+                if ev is not None:
+                    ev.reset()
         self._last_frame = frame
         ids, states = estimates_arrays(result)
         self.frames += 1
@@ -136,7 +140,7 @@ class ActuationEngine:
                                           self.period_s) for o in outs),
                          default=reachable_frame(frame, frame_time, now, 0.0, self.period_s))
             fires = ev.step(frame, target, ids, states)
-            self.shadow_fires.extend(sh.step(frame, target, ids, states))
+            self.shadow_fires.extend(fires if sh is None else sh.step(frame, target, ids, states))
             for f in fires:
                 self._dispatch(f, ev, frame_time, estimate_time)
         dt = time.perf_counter() - t0

@@ -94,7 +94,8 @@ class LiveState:
     # --- snapshot (publisher thread, ~20 Hz) ------------------------------------------------------
     def snapshot(self, server_stats: dict[str, Any] | None = None, final: bool = False) -> dict[str, Any]:
         now = hostclock.now()
-        tracks = [{"id": i, "live": i in self.live_ids, "trail": [[_r(a), _r(b), _r(c)] for a, b, c in tr],
+        live = set(self.live_ids)
+        tracks = [{"id": i, "live": i in live, "trail": [[_r(a), _r(b), _r(c)] for a, b, c in tr],
                    "vel": [_r(v, 3) for v in self.velocity.get(i, (math.nan,) * 3)]}
                   for i, tr in sorted(self.trails.items())]
         snap: dict[str, Any] = {
