@@ -145,7 +145,8 @@ def _run_killed(sc: Scenario, out: Path, timeout_s: float) -> dict[str, Any]:
         d["trigger_frame"].astype(np.int64) != d["camera_frame"].astype(np.int64) - PREROLL_FRAMES)),
         "recovery_s": 0.0, "rogue_tracked": 0, "mota": None, "message_count": 1,
         "message": (f"`flytrack recording recover`: exit {r.returncode}, {len(got)} camera frames back, the last "
-                    f"{t_kill - np.nanmax(t):.2f} s before the kill" if len(t) else f"recover: exit {r.returncode}"),
+                    f"{t_kill - np.nanmax(t):.2f} s before the kill" if len(t) and r.returncode == 0
+                    else f"recover: exit {r.returncode}: {said[-1] if said else '(nothing said)'}"),
         "recover_exit": r.returncode, "frames_recovered": len(got),
         "last_row_before_kill_s": float(t_kill - np.nanmax(t)) if len(t) else None, "fault_error": None})
     return row
