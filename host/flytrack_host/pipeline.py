@@ -78,7 +78,7 @@ _UNTRACKED_WHY = {
     "late": "came after its trigger frame was tracked (late)",
 }
 RECORDING_INCOMPLETE_EXIT = 3  # `flytrack run` exit code when the recording lost data (a full disk)
-MAX_BACKLOG_S = 0.5  # a frame this far behind real time is recorded, not tracked: the host catches up
+MAX_BACKLOG_S = 1.0  # a frame this far behind real time is recorded, not tracked: the host catches up
 STALL_S = 0.2  # a turn of the tracking thread this late means the host was not scheduled
 
 

@@ -106,8 +106,8 @@ def test_a_flood_is_counted_and_logged_with_counts(rows):
 def test_a_stalled_host_catches_up_and_says_so(rows):
     r = _row(rows, "host-stop")
     assert r["host"]["stalls"] >= 1 and r["host"]["behind_skipped"] >= 1
-    # Bounded backlog: nothing tracked later than the backlog bound (0.5 s) plus a loaded host's jitter.
-    assert r["latency_after_p99_ms"] is not None and r["latency_after_p99_ms"] < 800
+    # Bounded backlog: nothing tracked later than the backlog bound (1 s) plus a loaded host's jitter.
+    assert r["latency_after_p99_ms"] is not None and r["latency_after_p99_ms"] < 1300
 
 
 @pytest.mark.slow

@@ -62,7 +62,7 @@ SCENARIOS: list[Scenario] = [
              "marked dead|sending again"),
     Scenario("flood", "25k garbage + random-index datagrams in 1 s", fi.GarbageFlood,
              message="malformed|not in the rig", lost_ok=True),
-    Scenario("host-stop", "host process SIGSTOP 1 s, SIGCONT", fi.HostStop, message="stalled|behind real time",
+    Scenario("host-stop", "host process SIGSTOP 1.5 s, SIGCONT", fi.HostStop, message="stalled|behind real time",
              trigger="auto", seconds=4.0),
     Scenario("host-kill", "host SIGKILLed mid-run, then `recording recover`", fi.NoFault, message="recovered",
              kill_host_after_s=2.0, seconds=6.0),
