@@ -51,7 +51,7 @@ def test_fault_loses_nothing_and_numbering_is_right_within_a_second(rows, name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["wall-1", "wall-30", "wall+3600"])
+@pytest.mark.parametrize("name", ["wall-1", "wall-30", "wall+3600", "wall-1-fixed"])
 def test_wall_clock_steps_change_no_timing(rows, name):
     r = _row(rows, name)
     assert r["host"]["wall_clock_steps"] == 1

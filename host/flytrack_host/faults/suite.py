@@ -52,6 +52,8 @@ SCENARIOS: list[Scenario] = [
              trigger="auto"),
     Scenario("wall+3600", "host wall clock steps +1 h", fi.WallStep, {"seconds": 3600.0}, "wall clock stepped",
              trigger="auto"),
+    Scenario("wall-1-fixed", "host wall clock steps -1 s, host on fixed-rate clock (--no-trigger)", fi.WallStep,
+             {"seconds": -1.0}, "wall clock stepped", fixed_clock=True),
     Scenario("misnumber", "edge sends frame numbers +48 (own address and port, 1 s)", fi.MisnumberingEdge,
              message="numbered ahead"),
     Scenario("second-edge", "second edge with camera index 1 (1 s)", fi.SecondEdge, message="second sender"),
