@@ -106,15 +106,16 @@ def test_a_flood_is_counted_and_logged_with_counts(rows):
 def test_a_stalled_host_catches_up_and_says_so(rows):
     r = _row(rows, "host-stop")
     assert r["host"]["stalls"] >= 1 and r["host"]["behind_skipped"] >= 1
-    # Bounded backlog: nothing tracked later than the backlog bound (1 s) plus a loaded host's jitter.
-    assert r["latency_after_p99_ms"] is not None and r["latency_after_p99_ms"] < 1300
+    # Bounded backlog: no frame tracked after waiting in the host longer than the bound (1 s) plus a
+    # loaded host's jitter.
+    assert r["host_delay_after_p99_ms"] is not None and r["host_delay_after_p99_ms"] < 1300
 
 
 @pytest.mark.slow
 def test_fixed_rate_clock_is_reanchored_after_a_pause(rows):
     r = _row(rows, "trigger-pause")
-    # Before: every frame after a 0.5 s pause reported ~508 ms.
-    assert r["latency_after_p99_ms"] is not None and r["latency_after_p99_ms"] < 250, r["latency_after_p99_ms"]
+    # Before: every frame after a 0.5 s pause reported ~508 ms (the median too).
+    assert r["latency_after_p50_ms"] is not None and r["latency_after_p50_ms"] < 150, r["latency_after_p50_ms"]
     assert r["frames_misnumbered"] == 0
 
 
