@@ -241,9 +241,10 @@ def main(argv: list[str] | None = None) -> int:
         print(RESULT_TAG + json.dumps(row, default=str), flush=True)
         return 0
     t0 = time.monotonic()
-    rows = run_suite(a.only, jobs=a.jobs)
+    root = Path(tempfile.mkdtemp(prefix="flytrack-faults-"))
+    rows = run_suite(a.only, jobs=a.jobs, root=root)
     print(format_table(rows))
-    print(f"\n{len(rows)} scenarios in {time.monotonic() - t0:.0f} s")
+    print(f"\n{len(rows)} scenarios in {time.monotonic() - t0:.0f} s; each run's rig, logs and recording in {root}")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1, default=str))
     return 1 if any("error" in r for r in rows) else 0
