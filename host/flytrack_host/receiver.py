@@ -272,9 +272,8 @@ class Receiver:
             self._switch(cam, ip, port, mono, silent)
             st = self.stats
             for d, a, t in cand[1][:-1]:  # the held ones, in order, then this one (counted once)
-                st.datagrams -= 1
+                st.datagrams -= 1  # counted when it came; handled (and counted) now
                 st.bytes -= len(d)
-                st.cameras[cam].packets -= 1
                 self.handle(d, a, t, out if out is not None else [])
             return True
         self.stats.cameras[cam].second_sender += 1
