@@ -293,6 +293,16 @@ class HostPipeline:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
+        if self.receiver is not None and self.sync is not None and self._error is None:
+            # What is still queued in the socket was received: take it in before the last bundles
+            # close (a backlog at stop, e.g. after a flood, is recorded, not dropped). Bounded in time.
+            end = time.monotonic() + 2.0
+            while time.monotonic() < end:
+                items = self.receiver.receive(0.0, max_batch=RECEIVE_BATCH)
+                if not items:
+                    break
+                for item in items:
+                    self._guarded(self._item, item)
         if self.sync is not None:
             self._handle(self.sync.flush())
         self._stopped_at = hostclock.now()

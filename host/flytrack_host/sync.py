@@ -503,7 +503,9 @@ class FrameSynchronizer:
         cam.seen_cf.clear()
         cam.lag_win.clear()
         cam.rel_window.clear()
-        cam.rel_base = None
+        # rel_base is kept: the camera arrives as it did against the others (same link, same edge), so
+        # the drift check can correct a restart placed a few frames off, instead of taking the wrong
+        # placement as the new normal.
         new_tf = self._frame_at(frame.recv_time - self._lag(cam.index))
         cam.offset = frame.camera_frame - new_tf
         cam.last_cf, cam.last_tf = None, None

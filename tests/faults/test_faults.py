@@ -84,10 +84,11 @@ def test_an_edge_restart_is_a_restart_and_its_gap_is_counted(rows):
     assert rx["restarts"] == 1 and rx["reordered"] == 0
     assert sy["restarts"] == 1
     down = r["fault_info"]["pulses_while_down"]
-    tol = max(3, 0.1 * down)  # the restart is placed by arrival: a loaded host may be a few frames off
-    assert abs(sy["missed"] - down) <= tol, (sy["missed"], down)
-    # The frames lost are those the edge never saw (it was down), nothing more.
-    assert abs(r["frames_lost"] - down) <= tol, (r["frames_lost"], down)
+    # Lost: the frames rendered while the edge was down, and those still in the killed edge's pipe
+    # (up to 13 frames of 320 x 240 in a 1 MB pipe), nothing more.
+    assert down <= r["frames_lost"] <= down + 16, (r["frames_lost"], down)
+    # The host counts them from the trigger: placed by arrival, a loaded host may be a few frames off.
+    assert abs(sy["missed"] - r["frames_lost"]) <= max(3, 0.1 * down), (sy["missed"], r["frames_lost"])
 
 
 @pytest.mark.slow
