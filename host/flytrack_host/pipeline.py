@@ -79,7 +79,8 @@ _UNTRACKED_WHY = {
     "late": "came after its trigger frame was tracked (late)",
 }
 RECORDING_INCOMPLETE_EXIT = 3  # `flytrack run` exit code when the recording lost data (a full disk)
-MAX_BACKLOG_S = 0.5  # a frame this far behind real time is recorded, not tracked: the host catches up
+RECEIVE_BATCH = 256  # datagrams taken from the socket per turn of the tracking thread
+MAX_BACKLOG_S = 1.0  # a frame this far behind real time is recorded, not tracked: the host catches up
 STALL_S = 0.2  # a turn of the tracking thread this late means the host was not scheduled
 
 
@@ -296,6 +297,16 @@ class HostPipeline:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
+        if self.receiver is not None and self.sync is not None and self._error is None:
+            # What is still queued in the socket was received: take it in before the last bundles
+            # close (a backlog at stop, e.g. after a flood, is recorded, not dropped). Bounded in time.
+            end = time.monotonic() + 2.0
+            while time.monotonic() < end:
+                items = self.receiver.receive(0.0, max_batch=RECEIVE_BATCH)
+                if not items:
+                    break
+                for item in items:
+                    self._guarded(self._item, item)
         if self.sync is not None:
             self._handle(self.sync.flush())
         self._stopped_at = hostclock.now()
@@ -443,9 +454,15 @@ class HostPipeline:
                       "stopped or swapping); catching up")
         self._last_turn = now
         timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
-        for item in self.receiver.receive(timeout):
+        items = self.receiver.receive(timeout, max_batch=RECEIVE_BATCH)
+        for item in items:
             self._guarded(self._item, item)
-        self._handle(self.sync.poll(hostclock.now()))
+        poll_at = hostclock.now()
+        if len(items) >= RECEIVE_BATCH:
+            # Still working through a backlog: judge deadlines and silent cameras at the newest arrival
+            # handled, not at the wall of datagrams still queued (they would all look dead).
+            poll_at = min(poll_at, max((getattr(i, "recv_time", 0.0) for i in items), default=poll_at))
+        self._handle(self.sync.poll(poll_at))
         if now - self._wall_checked > 0.25:
             self._wall_checked = now
             step = hostclock.CLOCK.check_wall()
@@ -535,10 +552,11 @@ class HostPipeline:
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
-        # Behind real time, judged against the trigger's clock (a fixed-rate clock's frame times are
-        # guesses from arrivals: after a pause they are late until re-anchored, not the host).
-        behind = hostclock.now() - bundle.timestamp
-        if behind > self.max_backlog_s and self.tracker is not None and not isinstance(self.clock, FixedRateClock):
+        # How far the host itself is behind: since the bundle's last frame reached this machine (the
+        # kernel's receive stamp), not since the trigger: cameras that deliver late are not the host's
+        # backlog and are still tracked.
+        behind = hostclock.now() - sb.last_arrival
+        if behind > self.max_backlog_s and self.tracker is not None:
             # Bounded backlog: after a stall or an overload, frames this old are recorded, not tracked,
             # until the host is back near real time (the tracker predicts across the gap).
             self.behind_skipped += 1

@@ -28,6 +28,7 @@ from __future__ import annotations
 import ipaddress
 import select
 import socket
+import struct
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
@@ -53,6 +54,7 @@ _HALF = 1 << 31
 SEQ_WINDOW = 512  # recent sequence numbers remembered per camera (duplicates, reordering)
 RESTART_GAP = 10_000  # a sequence number this far behind means the edge restarted
 FORWARD_RESTART_GAP = 1_000_000  # ... and this far ahead
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux
 SWITCH_CONFIRM = 3  # datagrams in a row from a new port, the old one silent: the edge restarted
 MAX_DATAGRAM_RATE = 20_000  # per camera and second: a larger gap in the time elapsed is no loss
 
@@ -129,6 +131,10 @@ class Receiver:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
         except OSError:
             pass
+        try:  # each datagram's arrival as the kernel saw it: a stalled host still knows when frames came
+            self.sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+        except OSError:
+            pass
         self.sock.bind((host, port))
         self.sock.setblocking(False)
         self.warn = RateLimitedLog(self.log)
@@ -150,16 +156,27 @@ class Receiver:
         out: list[CameraFrame | StatusReport] = []
         r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
         if r:
+            now = hostclock.now()
+            # Kernel receive stamps are on the real wall clock: mapped to host time by the offset
+            # measured now (a wall step between the two reads is caught by the bound below).
+            wall_to_host = now - time.time()
             for _ in range(max_batch):
                 try:
-                    data, addr = self.sock.recvfrom(2048)
+                    data, anc, _flags, addr = self.sock.recvmsg(2048, 64)
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError as exc:  # e.g. ICMP errors surfacing on Linux; keep going
                     self._warn_once(f"socket error: {exc}", key="socket_error")
                     break
+                t = now
+                for level, kind, cdata in anc:
+                    if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(cdata) >= 16:
+                        sec, nsec = struct.unpack_from("qq", cdata)
+                        k = sec + nsec * 1e-9 + wall_to_host
+                        if now - 60.0 < k <= now:
+                            t = k  # when it reached this host, however long it then waited for us
                 try:
-                    self.handle(data, addr, hostclock.now(), out)
+                    self.handle(data, addr, t, out)
                 except Exception as exc:  # a bug on one datagram must not lose the batch
                     self.stats.internal_errors += 1
                     self._warn_once(f"datagram from {addr[0]} could not be handled: {exc!r}",
@@ -262,9 +279,8 @@ class Receiver:
             self._switch(cam, ip, port, mono, silent)
             st = self.stats
             for d, a, t in cand[1][:-1]:  # the held ones, in order, then this one (counted once)
-                st.datagrams -= 1
+                st.datagrams -= 1  # counted when it came; handled (and counted) now
                 st.bytes -= len(d)
-                st.cameras[cam].packets -= 1
                 self.handle(d, a, t, out if out is not None else [])
             return True
         self.stats.cameras[cam].second_sender += 1

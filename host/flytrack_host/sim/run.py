@@ -542,6 +542,9 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     if numbering["misnumbered"]:
         notes.append(f"the host's synchroniser gave {numbering['misnumbered']} of {numbering['camera_frames']} "
                      "camera frames a wrong trigger frame number (scores use the host's numbers)")
+    if host_summary.get("behind_skipped"):  # the bounded backlog of an overloaded host (issue 16)
+        notes.append(f"the host fell more than 1 s behind real time: {host_summary['behind_skipped']} frames were "
+                     "recorded but not tracked, so that it caught up")
     # Latency from the hand-over of the frames a bundle was made of to its estimate: independent of
     # the numbering, so a misnumbered frame still gets its true processing time.
     lat = []
