@@ -18,7 +18,7 @@ from flytrack_host.fish.association import associate
 from flytrack_host.fish.shape import ShapeModel, midline_world
 from flytrack_host.fish.silhouette import Silhouettes
 from flytrack_host.fish.smoother import SmootherConfig, TrackFilter
-from flytrack_host.fish.views import View
+from flytrack_host.fish.views import GridProjection, View, refracts
 
 F64 = NDArray[np.float64]
 
@@ -162,7 +162,11 @@ class FishTracker:
                 for ci in {k[0] for k in keys}:
                     fm = fields[ci]
                     scale = mm_per_px(self.views[ci], Xp[f])
-                    oms.append(F.OutsideMap(fm.view, fm.field, scale, r0, fm.origin, fm.beyond))
+                    view = fm.view
+                    if refracts(view):  # tabulate the refracting projection around this fish, once a frame
+                        centre = Xp[f][:3] - 0.5 * self.models[f].length * Xp[f][3:6]
+                        view = GridProjection(view, centre)
+                    oms.append(F.OutsideMap(view, fm.field, scale, r0, fm.origin, fm.beyond))
                 zp = F.z_from_state(Xp[f], r0)[0]
                 cost = F.make_cost(self.models_mm[f], r0, sets, others, cfg.fit, z_prior=zp, outside=oms)
                 z0 = F.z_from_state(cur[f], r0)[0]
