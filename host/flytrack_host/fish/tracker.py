@@ -31,6 +31,8 @@ class TrackerConfig:
     n_mid: int = 15  # midline points for the association
     rounds: int = 2  # passes over the fish of an occlusion group
     min_cameras: int = 1  # fit only with lines in at least this many cameras
+    # a fish sharing a silhouette may be partly or wholly hidden in it: the prediction then weighs more
+    occluded_prior_weight: float = 0.2
 
 
 @dataclass
@@ -169,6 +171,8 @@ class FishTracker:
                     oms.append(F.OutsideMap(view, fm.field, scale, r0, fm.origin, fm.beyond))
                 zp = F.z_from_state(Xp[f], r0)[0]
                 cost = F.make_cost(self.models_mm[f], r0, sets, others, cfg.fit, z_prior=zp, outside=oms)
+                if any(o is not None for o in others):
+                    cost.prior_weight = max(cost.prior_weight, cfg.occluded_prior_weight)
                 z0 = F.z_from_state(cur[f], r0)[0]
                 levels = cfg.fit.max_levels if rnd == 0 else max(2, cfg.fit.max_levels // 3)
                 z, c, n = F.fit_fish(cost, z0, cfg.fit, self.rng, sa_levels=levels)
