@@ -196,6 +196,12 @@ def generate_model(top: View, side: View, sil_top: Silhouettes, sil_side: Silhou
     if res.fun < c:
         z, c = res.x, float(res.fun)
     p = z * scale
+    # one fish in clear view: its silhouette pixels lie, on average, within about half its widest half-width
+    # of the fitted midline (for a fish ~0.4 of the radius); two fish touching, or a fish with another
+    # across it, leave many pixels far from any one midline
+    if not c < 0.8 * rad + 1.0:
+        raise ModelError(f"the top silhouette is not one fish in clear view (mean distance to the midline "
+                         f"{c:.1f} px, head radius {rad:.1f} px)")
     X = make_state(r, h, p)[0]
     # eq. 3.8 by the iterated EKF: a from the top view, b and d from the side view, at each station
     st = np.concatenate([-nose_frac * np.array([0.7, 0.4]), base.s[base.s >= 0]])
