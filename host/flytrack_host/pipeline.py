@@ -223,6 +223,8 @@ class HostPipeline:
         self.tracker_errors = 0
         self.tracker_resets = 0
         self.n_objects = 0
+        self.n_estimates = 0  # estimates reported over the run
+        self.why_nothing: list[str] = []  # why no estimates although points arrived (set by stop)
         self.callback_errors = 0
         self.sinks: list[ResultSink] = list(sinks or [])  # live outputs and actuation, fed per frame
         self.sink_errors = 0
@@ -268,9 +270,9 @@ class HostPipeline:
             deadline_fraction=self.rig.host.sync_deadline_fraction,
             dead_timeout_s=self.dead_timeout_s, start_time=hostclock.now(),
         )
-        self._make_tracker()
         if self.record:
             self._start_recorder()
+        self._make_tracker(first=True)  # after the recorder: what it says goes into the text log too
         self._started_at = hostclock.now()
         self.log(f"pipeline started: {len(self.rig.cameras)} cameras, {self.fps:g} fps, "
                  f"listening on {self.receiver.address[0]}:{self.receiver.address[1]}")
@@ -297,6 +299,9 @@ class HostPipeline:
         if self.sync is not None:
             self._handle(self.sync.flush())
         self._stopped_at = hostclock.now()
+        self.why_nothing = self._why_nothing()
+        for w in self.why_nothing:
+            self.log(f"no estimates: {w}", level=logging.WARNING)
         self.warn.flush()
         if self.receiver is not None:
             self.receiver.warn.flush()
@@ -333,12 +338,12 @@ class HostPipeline:
             summary = self.stop()
         return summary
 
-    def log(self, message: str, source: str = "host") -> None:
+    def log(self, message: str, source: str = "host", level: int = logging.INFO) -> None:
         t = hostclock.now()
         # The wall clock only labels the line; the recording keeps host time (monotonic).
         label = time.strftime('%H:%M:%S', time.localtime(hostclock.wall()))
         self.events.append(f"{label} {source}: {message}")
-        log.info("%s: %s", source, message)
+        log.log(level, "%s: %s", source, message)
         if self.recorder is not None:
             self.recorder.log(message, source, t)
 
@@ -376,17 +381,18 @@ class HostPipeline:
             self.recorder.append("trigger_clock_info", r)
 
     # --- setup --------------------------------------------------------------------------------
-    def _make_tracker(self) -> None:
+    def _make_tracker(self, first: bool = False) -> None:
         self.tracker = None
         if self.tracker_factory is None:
             return
+        for problem in calibration_problems(self.rig, self.cameras) if first else []:
+            self.log(problem, level=logging.WARNING)
         if not self.cameras:
-            self.log("no calibration: recording 2D data only, no 3D tracking")
             return
-        missing = [c.index for c in self.rig.cameras if c.index not in self.cameras]
-        if missing:
-            self.log(f"cameras {missing} have no calibration: their points cannot be used for 3D")
         self.tracker = self.tracker_factory(self.cameras, self.params, self.period)
+        path = getattr(self.tracker, "kernel_path", None)
+        if path is not None:
+            self.log(f"tracker: {'C kernel' if path == 'c' else 'NumPy'} path")
 
     def _start_recorder(self) -> None:
         meta = {
@@ -529,8 +535,10 @@ class HostPipeline:
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
+        # Behind real time, judged against the trigger's clock (a fixed-rate clock's frame times are
+        # guesses from arrivals: after a pause they are late until re-anchored, not the host).
         behind = hostclock.now() - bundle.timestamp
-        if behind > self.max_backlog_s and self.tracker is not None:
+        if behind > self.max_backlog_s and self.tracker is not None and not isinstance(self.clock, FixedRateClock):
             # Bounded backlog: after a stall or an overload, frames this old are recorded, not tracked,
             # until the host is back near real time (the tracker predicts across the gap).
             self.behind_skipped += 1
@@ -558,6 +566,7 @@ class HostPipeline:
         if result is not None:
             self.frames_tracked += 1
             self.n_objects = len(result.estimates)
+            self.n_estimates += len(result.estimates)
             if self.live is not None:
                 self.live.send(result, bundle.timestamp)
             for sink in self.sinks:
@@ -632,9 +641,20 @@ class HostPipeline:
             out += f" LOST {lost} rows"
         return out
 
+    def _why_nothing(self) -> list[str]:
+        """Reasons, with numbers, that a run whose points arrived produced no estimate."""
+        stats = getattr(self.tracker, "stats", None)
+        if self.n_estimates or not isinstance(stats, dict) or not stats.get("points"):
+            return []
+        from flytrack_host.tracking.diagnosis import why_no_estimates
+
+        return why_no_estimates(stats, self.cameras, self.params)
+
     def summary(self, recording_h5: Path | None = None) -> dict[str, Any]:
         rs = self.receiver.stats if self.receiver else None
         out: dict[str, Any] = {
+            "why_nothing": list(self.why_nothing),
+            "estimates": self.n_estimates,
             "duration_s": (self._stopped_at or hostclock.now()) - self._started_at,
             "frames_tracked": self.frames_tracked,
             "bundles_complete": self.sync.bundles_complete if self.sync else 0,
@@ -674,6 +694,18 @@ class HostPipeline:
 # --- `flytrack run` -------------------------------------------------------------------------------
 
 
+def calibration_problems(rig: RigConfig, cameras: Mapping[int, Camera]) -> list[str]:
+    """What is missing for 3D tracking: no calibration at all, or rig cameras absent from it."""
+    if not cameras:
+        where = f" ({rig.calibration_path} has none of the rig's cameras)" if rig.calibration_path else ""
+        return [f"no calibration{where}: recording 2D data only, NO 3D tracking"]
+    missing = [f"{c.index} ({c.calib_name})" for c in rig.cameras if c.index not in cameras]
+    if missing:
+        return [f"camera(s) {', '.join(missing)} are not in the calibration {rig.calibration_path}: their points "
+                "cannot be used for 3D"]
+    return []
+
+
 def load_cameras(rig: RigConfig) -> dict[int, Camera]:
     """Calibration file of the rig -> camera_index -> Camera (empty without a calibration)."""
     path = rig.calibration_path
@@ -709,6 +741,12 @@ def run_command(
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
+    rules: Path | None = typer.Option(
+        None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
+        "[[actuators]]."),
+    skip_bad_rules: bool = typer.Option(
+        False, "--skip-bad-rules", help="Run with the rules that are valid; each bad one is reported, logged in "
+        "the recording and counted (default: a bad rules file stops the run before it starts)."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
     until Ctrl-C.
@@ -739,13 +777,11 @@ def run_command(
     except Exception as exc:
         console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
-    if rig.actuators:
-        # The rig file describes actuators already; this host does not drive them yet. Say so
-        # rather than let a lab believe its stimulus is running.
-        names = ", ".join(f"{a.name} ({a.kind})" for a in rig.actuators)
-        Console(stderr=True).print(f"[yellow]warning[/yellow] actuators are not driven by this version of "
-                                   f"flytrack run: {names}; live estimates go to host.live_subscribers",
-                                   highlight=False, soft_wrap=True)
+    for problem in calibration_problems(rig, cameras):
+        Console(stderr=True).print(f"[yellow]warning[/yellow] {problem}", highlight=False, soft_wrap=True)
+    from flytrack_host.actuation.cli import rules_for_run
+
+    run_rules = rules_for_run(rig, rules, skip_bad_rules)  # a bad rules file exits 2 here unless skipped
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
@@ -764,6 +800,7 @@ def run_command(
                         rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
                         clock=session.clock if session else None, fps=session.fps if session else None,
                         hold_until_synchronized=session is not None)
+    engine = run_rules.engine(pipe.fps, session) if run_rules is not None else None
     try:
         outputs.attach(pipe, echo=lambda s: None)  # printed after the first line below
         pipe.start()
@@ -775,6 +812,9 @@ def run_command(
         where = f"{bind or rig.host.listen} (features) or {http} (live outputs)"
         console.print(f"[red]error[/red] cannot listen on {where}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    if engine is not None:  # after start: its messages go into the recording's log too
+        engine.attach(pipe)
+        engine.start()
     if session is not None:
         session.attach(pipe)
         try:
@@ -814,6 +854,8 @@ def run_command(
         summary = pipe.stop()
     console.print(pipe.status_line(), highlight=False)
     console.print(summary["latency_text"], highlight=False)
+    for w in summary.get("why_nothing") or []:
+        Console(stderr=True).print(f"[yellow]warning[/yellow] no estimates: {w}", highlight=False, soft_wrap=True)
     if session is not None:
         t = session.summary()
         m = t["clock_model"]

@@ -51,6 +51,7 @@ _HALF = 1 << 31
 SEQ_WINDOW = 512  # recent sequence numbers remembered per camera (duplicates, reordering)
 RESTART_GAP = 10_000  # a sequence number this far behind means the edge restarted
 FORWARD_RESTART_GAP = 1_000_000  # ... and this far ahead
+SWITCH_CONFIRM = 3  # datagrams in a row from a new port, the old one silent: the edge restarted
 MAX_DATAGRAM_RATE = 20_000  # per camera and second: a larger gap in the time elapsed is no loss
 
 
@@ -129,6 +130,7 @@ class Receiver:
         self.sender_switch_s = sender_switch_s
         self._senders: dict[int, list] = {}  # camera -> [port, monotonic time last heard]
         self._restarted: set[int] = set()  # cameras whose next frame is the first after a restart
+        self._candidates: dict[int, list] = {}  # camera -> [port, held datagrams] of a would-be new sender
 
     @property
     def address(self) -> tuple[str, int]:
@@ -196,7 +198,7 @@ class Receiver:
                             key=f"wrong_address:{cam}")
             return
         cs = st.cameras[cam]
-        if not self._check_sender(cam, ip, addr[1], mono):
+        if not self._check_sender(cam, ip, addr[1], mono, data, now, out):
             return
         cs.packets += 1
         if not self._check_seq(cam, msg.seq if hasattr(msg, "seq") else None, now):
@@ -228,22 +230,44 @@ class Receiver:
         cams = [i for i, a in self.allowed.items() if a == ip]
         return cams[0] if len(cams) == 1 else None
 
-    def _check_sender(self, cam: int, ip: str, port: int, mono: float) -> bool:
-        """One sender per camera (see the module doc); False when the datagram is rejected."""
+    def _check_sender(self, cam: int, ip: str, port: int, mono: float, data: bytes = b"", now: float = 0.0,
+                      out: list | None = None) -> bool:
+        """One sender per camera (see the module doc); False when the datagram is rejected or held."""
         owner = self._senders.get(cam)
         if owner is None:
             self._senders[cam] = [port, mono]
             return True
         if owner[0] == port:
             owner[1] = mono
+            self._candidates.pop(cam, None)
             return True
         silent = mono - owner[1]
-        if silent < self.sender_switch_s:
-            self.stats.cameras[cam].second_sender += 1
-            self.warn(f"second_sender:{cam}",
-                      f"camera {cam}: datagrams from a second sender {ip}:{port} while {ip}:{owner[0]} is sending "
-                      f"(two edges with camera index {cam}, or a replay): rejected")
-            return False
+        if silent >= self.sender_switch_s:
+            # The owner went quiet. A new sender takes over once it sent SWITCH_CONFIRM datagrams in a
+            # row (a restarted edge does; one stray datagram of a flood does not); they are held until then.
+            cand = self._candidates.get(cam)
+            if cand is None or cand[0] != port:
+                cand = self._candidates[cam] = [port, []]
+            cand[1].append((data, (ip, port), now))
+            if len(cand[1]) < SWITCH_CONFIRM:
+                return False
+            del self._candidates[cam]
+            self._switch(cam, ip, port, mono, silent)
+            st = self.stats
+            for d, a, t in cand[1][:-1]:  # the held ones, in order, then this one (counted once)
+                st.datagrams -= 1
+                st.bytes -= len(d)
+                st.cameras[cam].packets -= 1
+                self.handle(d, a, t, out if out is not None else [])
+            return True
+        self.stats.cameras[cam].second_sender += 1
+        self.warn(f"second_sender:{cam}",
+                  f"camera {cam}: datagrams from a second sender {ip}:{port} while {ip}:{owner[0]} is sending "
+                  f"(two edges with camera index {cam}, or a replay): rejected")
+        return False
+
+    def _switch(self, cam: int, ip: str, port: int, mono: float, silent: float) -> None:
+        owner = self._senders[cam]
         cs = self.stats.cameras[cam]
         cs.restarts += 1
         self._seq[cam] = _SeqState()
@@ -251,7 +275,6 @@ class Receiver:
         self.log(f"camera {cam}: edge restarted (new sender {ip}:{port} after {silent:.2f} s without datagrams "
                  f"from port {owner[0]}); mapped again by arrival")
         self._senders[cam] = [port, mono]
-        return True
 
     def _check_seq(self, cam: int, seq: int | None, now: float) -> bool:
         """Update loss/duplicate/reorder counters; False for a duplicate (dropped). `now` is the

@@ -220,13 +220,31 @@ def _fix_for(err: dict) -> str:
     return "see examples/rig.toml for a valid value"
 
 
+def _raw_duplicates(data: dict) -> list[str]:
+    seen: dict[object, str] = {}
+    out = []
+    cams = data.get("cameras") if isinstance(data, dict) else None
+    for i, cam in enumerate(cams if isinstance(cams, list) else []):
+        if not isinstance(cam, dict) or "index" not in cam:
+            continue
+        name = str(cam.get("name", f"cameras[{i}]"))
+        idx = cam["index"]
+        if idx in seen:
+            out.append(f"cameras {seen[idx]!r} and {name!r} share index {idx}; give every camera its own index")
+        else:
+            seen[idx] = name
+    return out
+
+
 def parse_rig(data: dict, path: Path | str = "<rig>") -> RigConfig:
     """Validate an already parsed TOML table."""
     path = Path(path)
     try:
         rig = RigConfig.model_validate(data)
     except ValidationError as exc:
-        problems = []
+        # Duplicate camera indices are checked on the raw table too: the model's own check runs only
+        # when every field is valid, and two edges on one index is the error that costs most live.
+        problems = _raw_duplicates(data)
         for err in exc.errors():
             msg = err["msg"].removeprefix("Value error, ")
             problems.append(f"{_loc(err['loc'])}: {msg} ({_fix_for(err)})")
@@ -240,12 +258,16 @@ def load_rig(path: Path | str, check_files: bool = True) -> RigConfig:
     path = Path(path)
     if not path.exists():
         raise RigError(path, ["file not found; pass the path of a rig TOML file (see examples/rig.toml)"])
+    if path.is_dir():
+        raise RigError(path, ["is a folder; pass the path of a rig TOML file in it (see examples/rig.toml)"])
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise RigError(path, [f"not valid TOML: {exc}"]) from None
     except UnicodeDecodeError:
         raise RigError(path, ["not a text file; a rig file is UTF-8 TOML"]) from None
+    except OSError as exc:
+        raise RigError(path, [f"cannot be read: {exc.strerror or exc}"]) from None
     rig = parse_rig(data, path)
     if check_files and rig.calibration_path is not None and not rig.calibration_path.exists():
         raise RigError(

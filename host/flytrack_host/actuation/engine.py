@@ -24,6 +24,7 @@ import math
 import sys
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +39,8 @@ from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
 log = logging.getLogger("flytrack.actuation")
-SWITCH_INTERVAL_S = 0.0005
+SWITCH_INTERVAL_S = 0.0002
+MAX_KEPT_FIRES = 100_000
 
 
 def estimates_arrays(result: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -61,8 +63,10 @@ class ActuationEngine:
         self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) for r in rules.rules]
         self.rule_outputs = [[self.outputs[a.output] for a in r.actions] for r in rules.rules]
         self.firings = FiringLog(record=self._record)
-        self.shadow_fires: list[Fire] = []
-        self.fires: list[Fire] = []
+        # The latest firings (the recording keeps them all), and counts per rule.
+        self.shadow_fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
+        self.fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
+        self.fired: dict[str, int] = {r.name: 0 for r in rules.rules}
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
@@ -71,8 +75,10 @@ class ActuationEngine:
         self.warn = RateLimitedLog(self._log)
         self.workers = {n: OutputWorker(o, self._done, self.warn) for n, o in self.outputs.items()}
         self._dry = {r.name: r.dry_run for r in rules.rules}
+        self.rule_problems: list[str] = []  # rules left out at start (flytrack run --skip-bad-rules)
         self._started = False
         self._closed = False
+        self._last_frame = -1
         self._lock = threading.Lock()
 
     @classmethod
@@ -89,6 +95,8 @@ class ActuationEngine:
         pipe.status_sources.append(self.status)
         names = ", ".join(f"{r.name}{' (dry run)' if r.dry_run else ''}" for r in self.rules.rules)
         self._log(f"rules from {self.rules_path}: {names}")
+        for p in self.rule_problems:
+            self._log(f"rule left out: {p}")
 
     def start(self) -> None:
         if not self._started:
@@ -116,6 +124,11 @@ class ActuationEngine:
         t0 = time.perf_counter()
         now = time.time()
         frame = int(result.trigger_frame)
+        if frame < self._last_frame:  # the trigger was re-armed (frame 0 again, a new tracker)
+            self._log(f"trigger frames restarted ({self._last_frame} -> {frame}): rule histories cleared")
+            for ev in (*self.evals, *self.shadow):
+                ev.reset()
+        self._last_frame = frame
         ids, states = estimates_arrays(result)
         self.frames += 1
         for ev, sh, outs in zip(self.evals, self.shadow, self.rule_outputs, strict=True):
@@ -132,6 +145,7 @@ class ActuationEngine:
 
     def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float) -> None:
         self.fires.append(f)
+        self.fired[f.rule] += 1
         pos = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
         rule = ev.rule
         if rule.dry_run or not rule.actions:
@@ -158,13 +172,14 @@ class ActuationEngine:
     def status(self) -> str:
         parts = []
         for ev in self.evals:
-            n = sum(1 for f in self.fires if f.rule == ev.rule.name)
-            parts.append(f"{ev.rule.name} {n}{' dry' if ev.rule.dry_run else ''}")
+            parts.append(f"{ev.rule.name} {self.fired[ev.rule.name]}{' dry' if ev.rule.dry_run else ''}")
         for name, w in self.workers.items():
             s = w.stats
             bad = s.errors + s.dropped
             state = "" if w.output.connected else " DOWN"
             parts.append(f"{name} ok {s.ok}" + (f" ERR {bad}" if bad else "") + state)
+        if self.rule_problems:
+            parts.append(f"{len(self.rule_problems)} rule problems")
         return "rules: " + ", ".join(parts)
 
     def summary(self) -> dict[str, Any]:
@@ -173,7 +188,7 @@ class ActuationEngine:
         out_rules = {}
         for ev in self.evals:
             d = per_rule.get(ev.rule.name, {"fired": 0, "latency_ms": {"n": 0}, "outputs": {}})
-            d["fired"] = sum(1 for f in self.fires if f.rule == ev.rule.name)
+            d["fired"] = self.fired[ev.rule.name]
             d["suppressed"] = dict(ev.suppressed)
             d["dry_run"] = ev.rule.dry_run
             out_rules[ev.rule.name] = d
@@ -186,6 +201,7 @@ class ActuationEngine:
             "outputs": {n: {**w.stats.__dict__, "connected": w.output.connected,
                             "lead_ms": w.output.lead_s * 1e3} for n, w in self.workers.items()},
             "firing_rows": int(len(rows)),
+            "rule_problems": list(self.rule_problems),
         }
 
     def close(self) -> None:

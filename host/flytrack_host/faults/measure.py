@@ -69,7 +69,7 @@ def measure(recording: str | None, fault: Fault, preroll: int, n_frames: int, n_
     out["message"] = str(lines[0]["message"]) if lines else "(nothing logged)"
     lat = rec.table("latency")
     if len(lat) and math.isfinite(t_end):
-        after = lat[lat["last_arrival"] > t_end + 1.0]
+        after = lat[lat["last_arrival"] > t_end + 0.5]
         v = (after["estimate_time"] - after["trigger_time"]) * 1e3
         v = v[np.isfinite(v)]
         out["latency_after_p99_ms"] = float(np.percentile(v, 99)) if v.size else None

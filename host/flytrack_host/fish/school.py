@@ -34,16 +34,16 @@ class School:
 
 def _bend_c(x: F64) -> F64:
     """C shape (one bend, same sign along the body) scaled by x in [0, 1]."""
-    return np.stack([0.55 * x, 0.0 * x, -0.10 * x], axis=-1)
+    return np.stack([0.55 * x, 0.0 * x, -0.05 * x], axis=-1)  # f2'' > 0 along the whole body
 
 
 def _bend_s(x: F64) -> F64:
     """S shape (inflection near mid-body) scaled by x."""
-    return np.stack([0.50 * x, -0.95 * x, 0.30 * x], axis=-1)
+    return np.stack([0.70 * x, -0.52 * x, 0.0 * x], axis=-1)  # f2'' changes sign at s = 0.45
 
 
 def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: float = 0.05, seed: int = 0,
-                speed: float = 0.15) -> School:
+                speed: float = 0.15, cross_frame: int | None = None) -> School:
     """Fish in crossing groups of up to three (depths 3 cm apart); fish 0 does a C-start, fish 1 an S-start,
     fish 2 a coasting turn (a single fish does all three in turn)."""
     rng = np.random.default_rng(seed)
@@ -55,7 +55,8 @@ def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: fl
         sizes.append(k)
         left -= k
     centres = [(0.305, 0.15), (0.17, 0.11), (0.44, 0.19), (0.17, 0.20), (0.44, 0.10)]
-    t_cross = max(int(0.35 * n_frames), 60)  # fish start apart (a clear view for the model), cross later
+    # fish start apart (a clear view for the model) and cross later
+    t_cross = cross_frame if cross_frame is not None else max(int(0.35 * n_frames), 60)
     groups: list[list[int]] = []
     yaw0 = np.zeros(n_fish)
     start = np.zeros((n_fish, 3))
@@ -69,7 +70,8 @@ def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: fl
         tc = t_cross + 12 * g  # groups cross at different times
         for j in range(k):
             yaw = np.deg2rad(dirs[j] + rng.uniform(-8, 8)) + np.pi * rng.integers(0, 2)
-            z = 0.20 + (j - (k - 1) / 2) * 0.03 + rng.uniform(-0.004, 0.004)
+            # a depth of its own per fish, so the side view starts clear (the seed's model needs it)
+            z = 0.20 + (fi - (n_fish - 1) / 2) * min(0.03, 0.24 / max(n_fish, 1)) + rng.uniform(-0.003, 0.003)
             h = heading_from_angles(yaw, 0.0)
             start[fi] = np.array([cx, cy, z]) - h * speed * tc * dt
             yaw0[fi] = yaw

@@ -134,7 +134,7 @@ class ShapeModel:
         )
 
 
-def default_model(length: float = 0.05, n_body: int = 22, n_head: int = 4, n_u: int = 12) -> ShapeModel:
+def default_model(length: float = 0.05, n_body: int = 16, n_head: int = 3, n_u: int = 8) -> ShapeModel:
     """A danio-like shape (giant danio: about 6-7 cm long, 1.5 cm deep): widest at the head centre (so the
     largest circle inside the top silhouette is centred there, as the seed's model generation assumes),
     tapering to a narrow caudal peduncle. Used as the synthetic truth and as a starting model."""
@@ -144,8 +144,9 @@ def default_model(length: float = 0.05, n_body: int = 22, n_head: int = 4, n_u: 
     s = np.concatenate([sh, sb])
     L = length
     # head: an elliptic nose cap; body: smooth taper to 6% of the maximum at the tail
-    head = np.sqrt(np.clip(1.0 - (s / nose) ** 2, 0.0, 1.0))
-    body = 0.06 + 0.94 * (1.0 - s) ** 1.4 * (1.0 + 1.2 * s)
+    # the widest section is at the head centre, with a clear maximum on both sides of it
+    head = np.sqrt(np.clip(1.0 - (s / nose) ** 2, 0.0, 1.0)) * (1.0 - 0.3 * np.abs(s) / nose)
+    body = 0.06 + 0.94 * (1.0 - s) ** 1.3 * (1.0 + 0.5 * s)
     prof = np.where(s < 0, 0.15 + 0.85 * head, np.minimum(body, 1.0))
     prof[0] = 0.15
     a = 0.075 * L * prof  # half-width about 3.7 mm for 5 cm
@@ -154,9 +155,14 @@ def default_model(length: float = 0.05, n_body: int = 22, n_head: int = 4, n_u: 
     return ShapeModel(s=s, a=a, b=b, d=d, length=L, n_u=n_u)
 
 
-def arclength(p: F64, n: int = 64) -> F64:
+_GL: dict[int, tuple[F64, F64]] = {}
+
+
+def arclength(p: F64, n: int = 24) -> F64:
     """Length of the body midline (s in [0, 1]) for p (B,5), by Gauss-Legendre quadrature."""
-    xg, wg = np.polynomial.legendre.leggauss(n)
+    if n not in _GL:
+        _GL[n] = np.polynomial.legendre.leggauss(n)
+    xg, wg = _GL[n]
     s = 0.5 * (xg + 1.0)
     _, df, _ = midline_body(p, s)
     return 0.5 * (np.linalg.norm(df[:, :, :2], axis=2) @ wg)

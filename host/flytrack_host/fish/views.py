@@ -1,9 +1,10 @@
 """The camera seam of the fish tracker: what the shape fit needs from a camera is where a world point lands
 in the image (`project`) and which 3D line a pixel sees (`lines`, origin + unit direction).
 
-`AirView` wraps FlyTrack's camera model (pinhole + OpenCV distortion, `flytrack_host.camera.Camera`).
-A camera looking through a flat water surface or tank wall plugs in here by providing the same two
-methods, with `lines` returning the refracted (underwater) ray; the rest of the tracker does not change.
+`CameraView` wraps FlyTrack's camera model (pinhole + OpenCV distortion, `flytrack_host.camera.Camera`),
+including its refraction at a flat interface (`Camera.interface`, `flytrack_host.refraction`: Braid's
+`<water>` surface or a tank wall): `project` then goes through the interface and `lines` are the refracted,
+underwater continuations of the camera's rays, which is what the fit's Plucker lines must be.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ class View(Protocol):
     def lines(self, uv: ArrayLike) -> tuple[F64, F64]: ...
 
 
-class AirView:
-    """A camera in the same medium as the fish (or the tank's refraction ignored)."""
+class CameraView:
+    """A FlyTrack camera, in air or looking through a refractive interface."""
 
     def __init__(self, camera: Camera) -> None:
         self.camera = camera
@@ -46,17 +47,19 @@ class AirView:
 
     def lines(self, uv: ArrayLike) -> tuple[F64, F64]:
         """Distorted pixels (N,2) -> line origins (N,3) and unit directions (N,3) in the world."""
-        c, d = self.camera.rays(np.asarray(uv, dtype=float).reshape(-1, 2))
-        return np.broadcast_to(c, d.shape).copy(), d
+        return self.camera.refracted_rays(np.asarray(uv, dtype=float).reshape(-1, 2))
 
     @property
     def center(self) -> F64:
         return self.camera.center
 
 
+AirView = CameraView  # the name used where the cameras are known to be in air
+
+
 def as_view(cam: object) -> View:
     if isinstance(cam, Camera):
-        return AirView(cam)
+        return CameraView(cam)
     if isinstance(cam, View):
         return cam
     raise TypeError(f"not a camera: {cam!r}")
@@ -74,15 +77,28 @@ def views_from_calibration(cams: Mapping[str, object], names: list[str]) -> list
 
 
 def tank_rig(top_size: tuple[int, int] = (1280, 1024), side_size: tuple[int, int] = (512, 384),
-             distortion: float = -0.04) -> dict[str, Camera]:
+             distortion: float = -0.04, top_zoom: float = 1.0, water: float | None = None) -> dict[str, Camera]:
     """The synthetic rig of seed 004 §5.1 in air: a 0.61 x 0.30 x 0.40 m tank (x, y, z; floor at z = 0),
     a top camera above it, a side camera facing the long wall (tracking) and one facing the short wall
-    (validation only), each with a little barrel distortion."""
+    (validation only), each with a little barrel distortion. `top_zoom` > 1 narrows the top view on the
+    tank's centre (small test images at the full demo's pixels per mm). `water` (a refractive index, e.g.
+    1.333) fills the tank: the top camera looks through the surface at z = 0.40 m, the side cameras through
+    the walls at y = 0 and x = 0 (thin glass neglected), with the shared refraction model."""
     cx, cy = 0.305, 0.15
-    top = Camera.look_at("top", (cx, cy, 1.25), (cx, cy, 0.2), *top_size, focal_px=top_size[0] * 1.05 / 0.66,
+    top = Camera.look_at("top", (cx, cy, 1.25), (cx, cy, 0.2), *top_size, focal_px=top_zoom * top_size[0] * 1.05 / 0.66,
                          up=(0.0, 1.0, 0.0), dist=(distortion, 0, 0, 0, 0))
     side = Camera.look_at("side", (cx, -0.95, 0.2), (cx, cy, 0.2), *side_size, focal_px=side_size[0] * 1.1 / 0.68,
                           dist=(distortion, 0, 0, 0, 0))
     val = Camera.look_at("end", (-0.75, cy, 0.2), (cx, cy, 0.2), *side_size, focal_px=side_size[0] * 1.05 / 0.40,
                          dist=(distortion, 0, 0, 0, 0))
-    return {"top": top, "side": side, "end": val}
+    cams = {"top": top, "side": side, "end": val}
+    if water is not None:
+        import dataclasses
+
+        from flytrack_host.refraction import FlatInterface
+
+        walls = {"top": ((0.0, 0.0, 0.40), (0.0, 0.0, 1.0)), "side": ((0.0, 0.0, 0.0), (0.0, -1.0, 0.0)),
+                 "end": ((0.0, 0.0, 0.0), (-1.0, 0.0, 0.0))}
+        cams = {k: dataclasses.replace(c, interface=FlatInterface(walls[k][0], walls[k][1], float(water)))
+                for k, c in cams.items()}
+    return cams

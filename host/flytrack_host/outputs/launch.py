@@ -10,7 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from flytrack_host.outputs.pose import PoseStream, parse_lock
+from flytrack_host.outputs.pose import PoseStream, check_settings, parse_lock
 from flytrack_host.web.server import LiveServer, parse_bind
 
 DEFAULT_HTTP = "127.0.0.1:8397"
@@ -49,6 +49,7 @@ class LiveOutputs:
                 if p[1] == 0:
                     raise ValueError("the pose destination needs a port")
             lock = parse_lock(pose_lock)
+            check_settings(pose_rate, pose_lead_ms / 1e3, pose_drop_s)
         except ValueError as exc:
             raise OutputsError(str(exc)) from None
         return cls(http=h, http_required=http != DEFAULT_HTTP, token=token, pose=p, pose_rate_hz=pose_rate,

@@ -11,7 +11,7 @@ from rich.table import Table
 
 from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
-from flytrack_host.sim.run import ROOT, DemoConfig, DemoError, DemoReport, run_demo, write_json
+from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
 
 
 def _f(x: float, fmt: str = ".2f") -> str:
@@ -80,8 +80,8 @@ def demo_command(
     seconds: float = typer.Option(10.0, "--seconds", help="Length of the run."),
     noise: float = typer.Option(2.0, "--noise", help="Sensor noise, grey levels (std)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the flight model, the rig and the rendering."),
-    out: Path = typer.Option(ROOT / "build" / "demo", "--out", help="Output folder (rig, calibration, "
-                             "recording, figure)."),
+    out: Path = typer.Option(Path("build") / "demo", "--out", help="Output folder (rig, calibration, "
+                             "recording, figure); relative to the current folder."),
     json_path: Path | None = typer.Option(None, "--json", help="Write every figure of the summary here."),
     trigger: str = typer.Option("auto", "--trigger", help="auto | simavr | software"),
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),

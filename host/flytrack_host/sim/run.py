@@ -188,7 +188,7 @@ def _free_udp_port() -> int:
 def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list[str]:
     """The command line of one edge extractor reading raw 8-bit frames from stdin, with the camera's
     calibration for its undistorted coordinates (the same numbers as the calibration file)."""
-    K = cam.K
+    K = cam.Kd  # the distortion's K (flydra: intrinsic_linear): undistorted pixels are then P's
     return [
         str(edge_bin),
         "--source", "raw", "--input", "-",
@@ -355,14 +355,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
                 engine = lab.engine(rig, fps, session)
             except RulesError as exc:
                 raise DemoError(str(exc)) from None
-            engine.attach(host)
-            engine.start()
         for fn in cfg.attach:
             try:
                 fn(host)
             except OSError as exc:
                 raise DemoError(f"a live output could not start: {exc}") from None
         host.start()
+        if engine is not None:  # after start: its messages go into the recording's log too
+            engine.attach(host)
+            engine.start()
         session.attach(host)
         live = _LiveCounter(live_port, live_frames)
         trig.follow_software(session.software)

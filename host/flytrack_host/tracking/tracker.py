@@ -137,16 +137,6 @@ class Tracker:
                     "refractive interface (<water>), which only the NumPy path models")
             self.kernel_path, why = "numpy", "the calibration has a refractive interface (<water>), which the C " \
                 "kernel does not model"
-        elif self.cams.dist_frame:
-            # flydra calibrations whose distortion is about another K than P's (Camera.K_dist): the C
-            # kernel's model has one K per camera.
-            if params.kernel == "c":
-                raise ckernel.KernelUnavailable(
-                    "TrackingParams.kernel='c' asks for the C tracker kernel, but a camera's distortion is "
-                    "about another K than its projection's (flydra's intrinsic_linear), which only the NumPy "
-                    "path models")
-            self.kernel_path, why = "numpy", "a camera's distortion is about another K than P's (flydra's " \
-                "intrinsic_linear), which the C kernel does not model"
         else:
             self.kernel_path, why = select_kernel(params)
         msg = f"tracker: {'C kernel' if self.kernel_path == 'c' else 'NumPy'} path ({why})"

@@ -17,6 +17,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from flytrack_host.tracking.types import FrameResult
 
 TRAIL_SECONDS = 3.0
@@ -106,6 +108,7 @@ class LiveState:
             "deaths": self.deaths,
             "tracks": tracks,
             "rules": list(self.rule_firings) + [s for f in self.rule_sources for s in _safe(f)],
+            "rules_fired": [],
             "server": server_stats or {},
         }
         if self.pipe is not None:
@@ -119,13 +122,23 @@ class LiveState:
                                "sink_errors": getattr(p, "sink_errors", 0)}
         out["cameras"] = self._cameras(p)
         counts, edges = p.latency.histogram()
-        nz = [i for i, c in enumerate(counts.tolist()) if c]
-        last = (nz[-1] + 1) if nz else 0
+        c = counts.tolist()
+        total = sum(c)
+        # Show up to a little past the P99.5 bin (the last bin also holds everything beyond the
+        # histogram's range); what is cut off is one "beyond" count.
+        n_show = 10
+        if total:
+            cum = np.cumsum(c)
+            k = int(np.searchsorted(cum, 0.995 * total))
+            n_show = max(10, int(k * 1.25) + 2)
         out["latency"] = {"bin_ms": float(edges[1] - edges[0]) if len(edges) > 1 else 0.0,
-                          "counts": counts[: max(last, 1)].tolist(), **_lat_summary(p.latency)}
+                          "counts": c[:n_show], "beyond": int(sum(c[n_show:])), **_lat_summary(p.latency)}
         out["recording"] = self._recording(p)
         out["trigger"] = [s for f in p.status_sources for s in _safe(lambda f=f: [f()])]
         out["log"] = list(p.events)[-LOG_LINES:]
+        fired = _actuation_firings(p)
+        if fired:
+            out["rules_fired"] = fired
         return out
 
     def _cameras(self, p: Any) -> list[dict[str, Any]]:
@@ -198,6 +211,29 @@ class LiveState:
             self._disk = (mono, d)
         rec["disk"] = self._disk[1]
         return rec
+
+
+def _actuation_firings(p: Any) -> list[str]:
+    """The last firings of the actuation rules, read from any sink that keeps a `firings` log of rows
+    (flytrack_host.actuation's FiringLog: FIRINGS rows) - duck-typed, so the page needs no actuation."""
+    lines: list[str] = []
+    for sink in list(getattr(p, "sinks", [])):
+        log = getattr(sink, "firings", None)
+        rows = getattr(log, "rows", None)
+        if not isinstance(rows, list):
+            continue
+        lines.append(f"{getattr(log, 'count', len(rows))} actions fired, {getattr(log, 'failed', 0)} failed")
+        for r in rows[-RULE_LINES:]:
+            try:
+                r0 = r[0]
+                lat = (float(r0["time_ack"]) - float(r0["frame_time"])) * 1e3
+                err = r0["error"].decode(errors="replace")
+                lines.append(f"{r0['rule'].decode(errors='replace')} obj {int(r0['obj_id'])} -> "
+                             f"{r0['output'].decode(errors='replace')} frame {int(r0['scheduled_frame'])}"
+                             + (f" {lat:.1f} ms" if math.isfinite(lat) else "") + (f" ({err})" if err else ""))
+            except (IndexError, KeyError, TypeError, ValueError):
+                lines.append("(a firing row this page cannot read)")
+    return lines
 
 
 def _lat_summary(lat: Any) -> dict[str, float | None]:

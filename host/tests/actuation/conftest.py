@@ -59,6 +59,7 @@ def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0) -> bool:
 
 
 class _Helpers:
+    BOX_RULE = BOX_RULE
     result = staticmethod(result)
     engine = staticmethod(engine)
     drive_entries = staticmethod(drive_entries)

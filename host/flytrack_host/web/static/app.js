@@ -53,7 +53,7 @@ function drawHist(lat) {
   lat.counts.forEach((v, i) => { const h = (H - 30) * v / max; g.fillRect(30 + i * bw, H - 20 - h, Math.max(bw - 1, 1), h); });
   g.fillStyle = "#52606d";
   g.fillText("0", 30, H - 6); g.fillText(`${(n * lat.bin_ms).toFixed(1)} ms`, W - 50, H - 6);
-  g.fillText(`n ${lat.n}`, W - 70, 12);
+  g.fillText(`n ${lat.n}` + (lat.beyond ? `, ${lat.beyond} beyond` : ""), W - 130, 12);
 }
 
 function tile(cam) {
@@ -73,7 +73,7 @@ function tile(cam) {
   set(".name", cam.name); set(".state", cam.alive ? "alive" : "DEAD");
   set(".fps", cam.fps === null ? "-" : cam.fps.toFixed(1)); set(".rx", cam.rx);
   set(".lost", cam.lost); set(".late", cam.late);
-  set(".latency", cam.latency_ms === null ? "-" : `${cam.latency_ms.toFixed(2)} ms`); set(".npts", cam.n_points);
+  set(".latency", cam.latency_ms === null ? "-" : `${cam.latency_ms.toFixed(1)} ms`); set(".npts", cam.n_points);
   set(".thumb", cam.thumbnail ? "" : "no image from this edge");
   const c = el.querySelector("canvas"), g = c.getContext("2d");
   g.fillStyle = "#111"; g.fillRect(0, 0, c.width, c.height);
@@ -114,7 +114,8 @@ function render(s) {
   const sv = s.server || {};
   $("server").textContent = `clients ${sv.clients ?? 0} (${JSON.stringify(sv.clients_by_kind || {})}), ` +
     `dropped slow ${sv.clients_dropped_slow ?? 0}, frames published ${sv.frames_published ?? 0}`;
-  $("rules").textContent = (s.rules && s.rules.length) ? s.rules.join("\n") : "none yet";
+  const rules = [...(s.rules_fired || []), ...(s.rules || [])];
+  $("rules").textContent = rules.length ? rules.join("\n") : "none yet";
   $("log").textContent = (s.log || []).join("\n");
 }
 

@@ -1,0 +1,76 @@
+"""Model generation, tracking through an occlusion and the demo's scoring, on small rendered scenes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from flytrack_host.fish.demo import run_demo
+from flytrack_host.fish.fit import FitConfig
+from flytrack_host.fish.io import read_tracks
+from flytrack_host.fish.model_init import generate_model
+from flytrack_host.fish.pipeline import match_side_blobs
+from flytrack_host.fish.render import render_sequence
+from flytrack_host.fish.school import make_school
+from flytrack_host.fish.shape import default_model
+from flytrack_host.fish.silhouette import warm_up
+from flytrack_host.fish.tracker import TrackerConfig
+from flytrack_host.fish.views import AirView, tank_rig
+
+QUICK = TrackerConfig(fit=FitConfig(max_levels=3, qn_maxiter=10))
+
+
+def test_model_generation_recovers_pose_and_cross_sections() -> None:
+    school = make_school(1, 2)
+    rig = tank_rig((640, 512), (512, 384), top_zoom=2.0)
+    views = [AirView(rig["top"]), AirView(rig["side"])]
+    truth_model = default_model(school.length)
+    imgs = render_sequence(views, truth_model, school.truth[:1], np.random.default_rng(2), n_background=3)
+    sils = [warm_up(imgs[c][:3]).segment(imgs[c][3]) for c in range(2)]
+    pairs = match_side_blobs(views[0], views[1], sils[0], sils[1], (0.0, 0.4))
+    assert pairs == [(0, 0)]
+    res = generate_model(views[0], views[1], sils[0], sils[1], *pairs[0])
+    X = school.truth[0, 0]
+    assert np.linalg.norm(res.X[:3] - X[:3]) < 1.5e-3
+    assert np.degrees(np.arccos(res.X[3:6] @ X[3:6])) < 4.0
+    assert abs(res.model.length - school.length) < 2e-3
+    body = (truth_model.s > 0.1) & (truth_model.s < 0.9)
+    a = np.interp(truth_model.s[body], res.model.s, res.model.a)
+    b = np.interp(truth_model.s[body], res.model.s, res.model.b)
+    assert np.max(np.abs(a - truth_model.a[body])) < 0.4e-3  # half-width from the top view (~0.55 mm/px)
+    assert np.max(np.abs(b - truth_model.b[body])) < 0.8e-3  # half-height from the side view (~1.3 mm/px)
+    assert res.iekf_iterations >= 2
+
+
+def test_two_fish_crossing_keep_their_identities(tmp_path: Path) -> None:
+    s = run_demo(2, 40, 0, (640, 512), (512, 384), out=tmp_path, cross_frame=24, top_zoom=2.0, cfg=QUICK)
+    assert s["max_occlusion_group"] == 2 and s["occluded_fish_frames"] > 10  # they did overlap
+    assert s["association_errors"] == 0
+    assert s["midline_mean_px"] < 1.0
+    assert s["head_mm_mean"] < 2.0
+    assert s["heading_deg_mean"] < 3.0
+    assert s["validation_midline_mean_px"] < 1.5
+    assert s["fish_frames_per_cpu_s"] > 0
+    tracks = read_tracks(tmp_path / "tracks.h5")
+    assert len(tracks["fish"]) == 2
+    f0 = tracks["fish"][0]
+    assert f0["position"].shape == (40, 3) and f0["covariance"].shape == (40, 11, 11)
+    assert np.all(np.isfinite(f0["total_curvature"]))
+    assert np.allclose(np.linalg.norm(f0["heading"], axis=1), 1.0)
+    for name in ("fish_fig5_state.png", "fish_fig9_midlines.png", "fish_fig11_curvature.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_tracking_through_water_with_the_shared_refraction_model() -> None:
+    """Cameras behind the water surface and the tank walls (index 1.333): rendered and tracked through the
+    project's refraction model (Camera.interface); the fit's lines are the refracted rays."""
+    s = run_demo(1, 12, 0, (640, 512), (512, 384), out=None, top_zoom=2.0, water=1.333, cfg=QUICK, plots=False)
+    assert s["midline_mean_px"] < 1.0
+    assert s["head_mm_mean"] < 2.0
+    assert s["heading_deg_mean"] < 3.0
+    # the refraction is not negligible here: a fish 10 cm below the surface moves ~10 px in the top view
+    wet = tank_rig((640, 512), (512, 384), top_zoom=2.0, water=1.333)["top"]
+    dry = tank_rig((640, 512), (512, 384), top_zoom=2.0)["top"]
+    X = np.array([[0.2, 0.15, 0.2]])
+    assert np.linalg.norm(wet.project(X) - dry.project(X)) > 8.0
