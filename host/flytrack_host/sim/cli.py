@@ -29,7 +29,10 @@ def summary_table(r: DemoReport) -> Table:
     c = r.config
     t.add_row("rig", f"{c['cameras']} cams, {c['animals']} animals",
               f"{c['fps']:g} fps, {c['seconds']:g} s, seed {c['seed']}")
-    t.add_row("trigger", r.trigger, "")
+    # A fallback from the firmware to the software trigger is said where the figures are read.
+    fell_back = "fell back" in getattr(r, "trigger_note", "")
+    t.add_row("trigger", f"[yellow]{r.trigger} (FELL BACK)[/yellow]" if fell_back else r.trigger,
+              r.trigger_note if fell_back else "")
     t.add_row("tracks found", str(s.tracks_found), f"{s.gt_objects} animals, {s.tracks_total} ids")
     t.add_row("3D RMSE", f"{_f(s.rmse_mm)} mm", f"matched within {s.match_threshold_m * 1000:.0f} mm")
     t.add_row("MOTA", _f(s.mota, ".4f"), f"{s.misses} misses, {s.false_positives} false pos.")

@@ -169,3 +169,13 @@ def test_ordinary_updates_are_taken_and_shrink_the_covariance() -> None:
     for k in range(T):
         assert np.trace(Pp[k, :3, :3]) < 0.1 * np.trace(P[k, :3, :3])
         assert not np.allclose(xp[k], x[k])
+
+
+def test_transition_and_process_noise_are_cached_and_read_only() -> None:
+    """The matrices are shared between calls (one per dt and scale): a caller must not be able to
+    change them for everyone."""
+    F, Q = cv_transition(0.01), cv_process_noise(0.01, 0.1)
+    assert cv_transition(0.01) is F and cv_process_noise(0.01, 0.1) is Q
+    for M in (F, Q):
+        with pytest.raises(ValueError, match="read-only"):
+            M[0, 0] = 2.0

@@ -57,7 +57,8 @@ def test_nan_and_inf_points_are_skipped_and_counted(kernel: str) -> None:
     assert tr.stats["nonfinite_points"] == sc.n_corrupted
     assert tr.stats["points"] + tr.stats["nonfinite_points"] == sc.n_points
     print(f"\nwith {sc.n_corrupted} corrupted points: {s.line()}")
-    assert s.rmse_mm < 2.0 and s.mota > 0.95
+    # Measured RMSE 1.157 mm, MOTA 0.9916: bounds about 20 % above (RMSE, and the MOTA's error share).
+    assert s.rmse_mm < 1.39 and 1.0 - s.mota < 1.2 * (1.0 - 0.9916)
 
 
 @KERNELS
@@ -81,7 +82,7 @@ def test_one_camera_out_for_a_while_then_back(kernel: str) -> None:
     assert all(e.n_cameras <= 4 for r in results[100:300] for e in r.estimates)
     assert all(a.camera_index != 2 for r in results[100:300] for a in r.associations)
     assert all(e.n_cameras == 5 for r in results[302:] for e in r.estimates)
-    assert s.id_switches == 0 and s.rmse_mm < 2.0
+    assert s.id_switches == 0 and s.rmse_mm < 1.34  # measured 1.120 mm
 
 
 @KERNELS
@@ -129,7 +130,7 @@ def test_skipped_trigger_frames_use_the_right_dt(kernel: str) -> None:
                    [sc.truth_axis[b.trigger_frame] for b in kept])
     tr, _, s = _track(sub, kernel=kernel)
     assert tr.stats["skipped_frames"] == len(sc.bundles) - len(kept) - (0 if sc.bundles[-1] in kept else 1)
-    assert s.rmse_mm < 2.0 and s.id_switches == 0
+    assert s.rmse_mm < 1.64 and s.id_switches == 0  # measured 1.365 mm
 
 
 @KERNELS
@@ -173,7 +174,7 @@ def test_flydra_association_with_merge_prevention_does_not_merge(kernel: str) ->
     tr, _, s = _track(sc, TrackingParams(exclusive_points=False), kernel)
     print(f"\nflydra association: {s.line()}, merges prevented {tr.stats['merges_prevented']}")
     assert tr.stats["merges_prevented"] > 0
-    assert s.merges == 0 and s.duplicates == 0 and s.id_switches <= 1 and s.rmse_mm < 2.0
+    assert s.merges == 0 and s.duplicates == 0 and s.id_switches <= 1 and s.rmse_mm < 1.41  # measured 1.175
 
 
 @pytest.mark.c_kernel  # the C path only, for time; test_kernel.py holds the NumPy path to the same results
