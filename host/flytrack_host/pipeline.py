@@ -35,7 +35,7 @@ from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
 from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
 from flytrack_host.ratelog import RateLimitedLog
-from flytrack_host.receiver import Receiver, StatusReport
+from flytrack_host.receiver import DvsSlice, Receiver, StatusReport
 from flytrack_host.recording.schema import (
     ASSOCIATION,
     CAM_INFO,
@@ -218,6 +218,7 @@ class HostPipeline:
         self.results: list[FrameResult] = []
         self.latency = LatencyStats()
         self.untracked: dict[str, int] = {}
+        self.dvs_slices: dict[int, int] = {}  # DVS_CLUSTERS slices taken in, per event camera
         self.events: deque[str] = deque(maxlen=200)
         self.frames_tracked = 0
         self.tracker_errors = 0
@@ -266,7 +267,7 @@ class HostPipeline:
         self.receiver = Receiver(self.rig, bind=self.bind, log=lambda m: self.log(m, "receiver"))
         self.live = LiveSender(self.rig.host.live_subscribers)
         self.sync = FrameSynchronizer(
-            [c.index for c in self.rig.cameras], self.fps, clock=self.clock,
+            [c.index for c in self.rig.cameras if c.kind == "frame"], self.fps, clock=self.clock,
             deadline_fraction=self.rig.host.sync_deadline_fraction,
             dead_timeout_s=self.dead_timeout_s, start_time=hostclock.now(),
         )
@@ -470,6 +471,12 @@ class HostPipeline:
             self._handle(outputs)
         elif isinstance(item, StatusReport):
             self._status(item)
+        elif isinstance(item, DvsSlice):
+            self._dvs_slice(item)
+
+    def _dvs_slice(self, item: DvsSlice) -> None:
+        """An event camera's time slice (issue 13 turns its clusters into observations)."""
+        self.dvs_slices[item.camera_index] = self.dvs_slices.get(item.camera_index, 0) + 1
 
     def _guarded(self, fn: Callable[..., object], *args: Any) -> bool:
         """Run one step of the tracking thread; an exception is logged (the first few in full) and
@@ -604,6 +611,10 @@ class HostPipeline:
             rs = self.receiver.stats
             ss = self.sync.stats()
             for c in self.rig.cameras:
+                if c.kind == "dvs":
+                    r = rs.cameras[c.index]
+                    parts.append(f"{c.name}: slices {r.dvs_slices} events {r.status_frames_seen}")
+                    continue
                 r, s = rs.cameras[c.index], ss[c.index]
                 alive = "" if self.sync.cams[c.index].alive else " DEAD"
                 parts.append(f"{c.name}: rx {r.frames} lost {r.lost} late {s.late} bad {r.malformed} "
