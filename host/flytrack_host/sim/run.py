@@ -725,7 +725,9 @@ def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 
             return out
         d = f["data2d_distorted"][:]
         lat = f["latency"][:] if "latency" in f else None
-    d = d[d["camera_frame"] >= preroll]
+    from flytrack_host.recording.schema import FLAG_DVS
+
+    d = d[(d["camera_frame"] >= preroll) & ((d["flags"] & FLAG_DVS) == 0)]  # frame cameras' rows
     if len(d) == 0:
         return out
     d["camera_frame"] -= preroll
