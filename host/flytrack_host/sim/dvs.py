@@ -32,12 +32,12 @@ DVS_SIZES = {"dvs128": (128, 128), "davis346": (346, 260)}
 
 @dataclass(frozen=True)
 class DvsParams:
-    contrast_threshold: float = 0.2  # log-intensity step per event (DVS128 default biases: ~0.15-0.3)
+    contrast_threshold: float = 0.15  # log-intensity step per event (DVS128 default biases: ~0.15-0.3)
     refractory_us: int = 500  # a pixel's dead time after an event
     noise_hz_per_px: float = 0.05  # background activity, events per pixel per second
     substeps: int = 5  # intensity samples per trigger period (events get times inside them)
     contrast: float = 0.55  # the animal blocks this fraction of the light at its centre
-    psf_sigma_px: float = 0.9
+    psf_sigma_px: float = 1.5  # a low-resolution sensor's lens blur (the frame renderer's floor is 0.9)
     background: float = 170.0  # relative illumination (only its log changes matter)
 
     def __post_init__(self) -> None:
@@ -142,13 +142,27 @@ class DvsRenderer:
                 if not np.any(fire):
                     continue
                 yy, xx = np.nonzero(fire)
-                t_ev = self.to_us(t_start + (k - 1 + self.rng.random(yy.size)) * dt)
-                gy, gx = yy + y0, xx + x0
-                ready = t_ev - self.last_us[gy, gx] >= p.refractory_us
-                yy, xx, gy, gx, t_ev = yy[ready], xx[ready], gy[ready], gx[ready], t_ev[ready]
-                pol = (d[yy, xx] > 0).astype(np.int64)
-                ref[yy, xx] += np.where(pol == 1, p.contrast_threshold, -p.contrast_threshold).astype(np.float32)
-                self.last_us[gy, gx] = t_ev
+                # A step of several thresholds fires several events, one per refractory period at most.
+                n_th = np.floor(np.abs(d[yy, xx]) / p.contrast_threshold).astype(np.int64)
+                t_first = self.to_us(t_start + (k - 1 + self.rng.random(yy.size) / n_th) * dt)
+                t_first = np.maximum(t_first, self.last_us[yy + y0, xx + x0] + p.refractory_us)
+                step_us = max(p.refractory_us, 1)
+                t_stop = self.to_us(t_start + k * dt)
+                room = np.where(t_first <= t_stop, 1 + (t_stop - t_first) // step_us, 0)
+                m = np.minimum(n_th, room)
+                if not np.any(m):
+                    continue
+                rep_i = np.repeat(np.arange(yy.size), m)
+                j = np.arange(rep_i.size) - np.repeat(np.cumsum(m) - m, m)
+                t_ev = t_first[rep_i] + j * step_us
+                gy, gx = yy[rep_i] + y0, xx[rep_i] + x0
+                sign = np.sign(d[yy, xx])
+                pol = (sign[rep_i] > 0).astype(np.int64)
+                ref[yy, xx] += (sign * m * p.contrast_threshold).astype(np.float32)
+                last = np.full(yy.size, -(1 << 40), np.int64)
+                has = m > 0
+                last[has] = t_first[has] + (m[has] - 1) * step_us
+                self.last_us[yy[has] + y0, xx[has] + x0] = last[has]
                 ev_t.append(t_ev)
                 ev_x.append(gx)
                 ev_y.append(gy)
@@ -226,3 +240,17 @@ def make_dvs_cameras(n: int, arena, seed: int, sensor: str = "dvs128") -> list[C
     cams = make_cameras(n, arena, seed=seed + 50_000, width=w, height=h, distortion=False)
     # Focal lengths drawn for 640 px images: scale to the sensor so the arena fills it.
     return [Camera(f"dvs{i + 1}", c.width, c.height, c.K, c.R, c.t, c.dist) for i, c in enumerate(cams)]
+
+
+def render_stream(renderer: DvsRenderer, gt, warmup_frames: int = 0) -> list[tuple[bytes, int]]:
+    """Per trigger frame n: the EVT 2.0 words of the events up to pulse n and its sync event, and how
+    many events they hold. The flight is known in advance, so the whole run is rendered before the
+    trigger starts and a pulse costs only a write (as the frame cameras' frames are rendered ahead)."""
+    enc = Evt2Encoder()
+    none = np.zeros((0, 3))
+    out: list[tuple[bytes, int]] = []
+    for n in range(gt.n_frames):
+        pos = gt.pos[n] if n >= warmup_frames else none
+        ev = renderer.period(float(gt.t[n]), pos, gt.body_length_m, gt.body_width_m)
+        out.append((enc.encode(ev, sync_us=renderer.to_us(float(gt.t[n]))), len(ev)))
+    return out

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flytrack_host.camera import Camera
-from flytrack_host.sim.dvs import DvsRenderer, Evt2Encoder, evt2_header
+from flytrack_host.sim.dvs import evt2_header
 from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 
@@ -143,10 +143,10 @@ class FrameFeeder:
         seed: int,
         frame_format: str = "raw",
         warmup_frames: int = 0,
-        dvs: Sequence[tuple[DvsRenderer, int]] = (),
+        dvs: Sequence[tuple[tuple[int, int, list[tuple[bytes, int]]], int]] = (),
     ):
-        """dvs: simulated event cameras and their edges' stdin: at every pulse each gets the events
-        since the last pulse and a sync event at the pulse, as an EVT 2.0 stream (sim/dvs.py)."""
+        """dvs: simulated event cameras ((width, height, sim.dvs.render_stream's chunks), their edge's
+        stdin): at pulse n each gets the events since the last pulse and a sync event at the pulse."""
         if len(cameras) != len(edge_fds):
             raise ValueError("one edge pipe per camera is needed")
         self.n_frames = gt.n_frames
@@ -455,9 +455,8 @@ def _feed(
                     counters[1] += 1
                     if dvs_links:
                         t0 = time.perf_counter()
-                        pos, axis = (gt.pos[n], gt.axis[n]) if n >= warmup else (no_pos, no_pos)
                         for i, dl in enumerate(dvs_links):
-                            dl.pulse(gt.t[n], pos, gt.body_length_m, gt.body_width_m)
+                            dl.pulse(n)
                             if dvs_sent is not None:
                                 dvs_sent[2 * i], dvs_sent[2 * i + 1] = dl.events, dl.syncs
                         render_s += time.perf_counter() - t0
@@ -507,15 +506,16 @@ def _feed(
 
 
 class _DvsLink:
-    """One simulated DVS camera's stream into its edge's stdin (EVT 2.0 words, written whole)."""
+    """One simulated DVS camera's stream into its edge's stdin: at pulse n, the EVT 2.0 words rendered
+    ahead for it (sim.dvs.render_stream), written whole."""
 
-    def __init__(self, renderer: DvsRenderer, fd: int) -> None:
-        self.r, self.fd = renderer, fd
-        self.enc = Evt2Encoder()
+    def __init__(self, stream: tuple[int, int, list[tuple[bytes, int]]], fd: int) -> None:
+        width, height, self.chunks = stream
+        self.fd = fd
         self.events = self.syncs = 0
         self.closed = False
         grow_pipe(fd)
-        self._write(evt2_header(renderer.camera.width, renderer.camera.height))
+        self._write(evt2_header(width, height))
 
     def _write(self, data: bytes) -> None:
         if self.closed:
@@ -525,11 +525,13 @@ class _DvsLink:
         except OSError:  # the edge went away: stop feeding it (the demo reports its exit)
             self.close()
 
-    def pulse(self, t: float, pos: np.ndarray, length: float, width: float) -> None:
-        ev = self.r.period(t, pos, length, width)
-        self._write(self.enc.encode(ev, sync_us=self.r.to_us(t)))
+    def pulse(self, n: int) -> None:
+        if not 0 <= n < len(self.chunks):
+            return
+        data, n_ev = self.chunks[n]
+        self._write(data)
         if not self.closed:
-            self.events += len(ev)
+            self.events += n_ev
             self.syncs += 1
 
     def close(self) -> None:

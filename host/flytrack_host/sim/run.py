@@ -209,7 +209,13 @@ def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list
     ]
 
 
-def dvs_edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int, slice_us: int = 1000) -> list[str]:
+# DVS slice length in the demo: 2 slices per 100 fps frame keeps the host's datagram load low (1 ms
+# slices are 1000 datagrams/s per DVS camera for the Python receiver).
+DVS_SLICE_US = 5000
+
+
+def dvs_edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int,
+                     slice_us: int = DVS_SLICE_US) -> list[str]:
     """The command line of one edge reading a DVS camera's event stream (EVT 2.0) from stdin."""
     return [
         str(edge_bin), "--source", "events", "--input", "-",
@@ -321,14 +327,16 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         # 2. Edge extractors, then the frame feeder (it forks: no thread may exist yet), which then
         #    follows the trigger's edge FIFO.
         edges = EdgeFleet(edge_bin, cams, port, out)
-        dvs_links: list[tuple[Any, int]] = []
+        dvs_links: list[tuple[Any, int]] = []  # (width, height, chunks), edge stdin
         if dvs_cams:
-            from flytrack_host.sim.dvs import DvsRenderer
+            from flytrack_host.sim.dvs import DvsRenderer, render_stream
 
             dvs_edges = EdgeFleet(edge_bin, dvs_cams, port, out, first_index=len(cams), command=dvs_edge_command)
             # Each sensor's clock has its own epoch (as a real DVS's): only the sync events tie it to frames.
-            dvs_links = [(DvsRenderer(c, seed=cfg.seed * 1000 + 500 + i, t0_us=1_000_000 * (i + 1) + 12_345), fd)
-                         for i, (c, fd) in enumerate(zip(dvs_cams, dvs_edges.stdin_fds, strict=True))]
+            # Rendered ahead, the whole run (the flight is known): a pulse then costs a write.
+            dvs_links = [((c.width, c.height, render_stream(
+                DvsRenderer(c, seed=cfg.seed * 1000 + 500 + i, t0_us=1_000_000 * (i + 1) + 12_345), gt, warmup)), fd)
+                for i, (c, fd) in enumerate(zip(dvs_cams, dvs_edges.stdin_fds, strict=True))]
         feeder = FrameFeeder(gt, cams, edges.stdin_fds, render_params, cfg.seed, warmup_frames=warmup, dvs=dvs_links)
         edges.close_stdins()
         edges.check_started()
@@ -484,6 +492,8 @@ def _dvs_counts(dvs_cams: list[Camera], first: int, fs: Any, host_summary: dict[
     out = []
     for i, c in enumerate(dvs_cams):
         r = recv.get(first + i, recv.get(str(first + i), {}))
+        obs = host_summary.get("dvs", {})
+        o = obs.get(first + i, obs.get(str(first + i), {}))
         sent = int(fs.dvs_events_sent[i]) if i < len(fs.dvs_events_sent) else 0
         got = int(r.get("status_frames_seen", 0))
         out.append({
@@ -493,6 +503,9 @@ def _dvs_counts(dvs_cams: list[Camera], first: int, fs: Any, host_summary: dict[
             "edge_events_dropped": int(r.get("status_frames_dropped", 0)),
             "slices_received": int(r.get("dvs_slices", 0)), "clusters_received": int(r.get("dvs_clusters", 0)),
             "datagrams_lost": int(r.get("lost", 0)),
+            # What the 3D tracker got from this camera: trigger frames with its clusters, and points
+            "frames_observed": int(o.get("frames_given", 0)), "points_observed": int(o.get("points_given", 0)),
+            "sensor_t0_us_estimated": o.get("t0_us"),
         })
     return out
 
