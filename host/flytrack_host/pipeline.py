@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import json
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -31,17 +32,19 @@ import typer
 
 from flytrack_host import hostclock
 from flytrack_host.camera import Camera
+from flytrack_host.eventcam.observations import DvsObservations
 from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
 from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
 from flytrack_host.ratelog import RateLimitedLog
-from flytrack_host.receiver import Receiver, StatusReport
+from flytrack_host.receiver import DvsSlice, Receiver, StatusReport
 from flytrack_host.recording.schema import (
     ASSOCIATION,
     CAM_INFO,
     CAMERA_STATUS,
     COV_NAMES,
     DATA2D,
+    FLAG_DVS,
     FLAG_INCOMPLETE,
     FLAG_LATE,
     FLAG_REJECTED,
@@ -144,7 +147,8 @@ def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int,
         flags = (flags & ~FLAG_TRACKED) | FLAG_REJECTED
         if range_errors is not None:
             range_errors.extend(bad)
-    rows["flags"] = flags | (FLAG_TRUNCATED if fr.truncated else 0) | (FLAG_INCOMPLETE if fr.incomplete else 0)
+    rows["flags"] = (flags | (FLAG_TRUNCATED if fr.truncated else 0) | (FLAG_INCOMPLETE if fr.incomplete else 0)
+                     | (FLAG_DVS if fr.dvs else 0))
     if n:
         rows["frame_pt_idx"] = np.arange(n)
         names = pts.dtype.names or ()
@@ -219,6 +223,10 @@ class HostPipeline:
         self.results: list[FrameResult] = []
         self.latency = LatencyStats()
         self.untracked: dict[str, int] = {}
+        self.dvs_slices: dict[int, int] = {}  # DVS_CLUSTERS slices taken in, per event camera
+        dvs_idx = [c.index for c in rig.cameras if c.kind == "dvs"]
+        self.dvs_obs = (DvsObservations({i: self.cameras.get(i) for i in dvs_idx}, self.fps)
+                        if dvs_idx and self.fps else None)
         self.events: deque[str] = deque(maxlen=200)
         self.frames_tracked = 0
         self.tracker_errors = 0
@@ -267,7 +275,7 @@ class HostPipeline:
         self.receiver = Receiver(self.rig, bind=self.bind, log=lambda m: self.log(m, "receiver"))
         self.live = LiveSender(self.rig.host.live_subscribers)
         self.sync = FrameSynchronizer(
-            [c.index for c in self.rig.cameras], self.fps, clock=self.clock,
+            [c.index for c in self.rig.cameras if c.kind == "frame"], self.fps, clock=self.clock,
             deadline_fraction=self.rig.host.sync_deadline_fraction,
             dead_timeout_s=self.dead_timeout_s, start_time=hostclock.now(),
         )
@@ -487,6 +495,36 @@ class HostPipeline:
             self._handle(outputs)
         elif isinstance(item, StatusReport):
             self._status(item)
+        elif isinstance(item, DvsSlice):
+            self._dvs_slice(item)
+
+    def _dvs_slice(self, item: DvsSlice) -> None:
+        """An event camera's time slice: kept, to give its clusters to the tracker at the trigger
+        frames it covers (flytrack_host.eventcam)."""
+        self.dvs_slices[item.camera_index] = self.dvs_slices.get(item.camera_index, 0) + 1
+        if self.dvs_obs is not None:
+            self.dvs_obs.add(item, self._frame_of_host_time)
+
+    def _frame_of_host_time(self, t: float) -> float:
+        """The trigger clock model inverted: host time -> trigger frame (NaN before it is known)."""
+        clock = self.sync.clock if self.sync is not None else None
+        if clock is None:
+            return math.nan
+        t0, t1 = float(clock.frame_to_host_time(0)), float(clock.frame_to_host_time(1000))
+        if not (math.isfinite(t0) and math.isfinite(t1)) or t1 <= t0:
+            return math.nan
+        return (t - t0) / ((t1 - t0) / 1000.0)
+
+    def _add_dvs(self, sb: SyncedBundle) -> None:
+        """Event cameras' observations join the bundle of frame cameras (a rig may mix them)."""
+        if self.dvs_obs is None:
+            return
+        tf = sb.bundle.trigger_frame
+        for ci in self.dvs_obs.indices:
+            fr = self.dvs_obs.frame(ci, tf)
+            if fr is not None:
+                sb.frames[ci] = fr
+                sb.bundle.detections[ci] = fr.points
 
     def _guarded(self, fn: Callable[..., object], *args: Any) -> bool:
         """Run one step of the tracking thread; an exception is logged (the first few in full) and
@@ -566,6 +604,7 @@ class HostPipeline:
                 self.recorder.append_many([("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp,
                                                                            FLAG_LATE)) for fr in sb.frames.values()])
             return
+        self._add_dvs(sb)
         if self.tracker is not None:
             try:
                 result = self.tracker.process(bundle)
@@ -622,6 +661,10 @@ class HostPipeline:
             rs = self.receiver.stats
             ss = self.sync.stats()
             for c in self.rig.cameras:
+                if c.kind == "dvs":
+                    r = rs.cameras[c.index]
+                    parts.append(f"{c.name}: slices {r.dvs_slices} events {r.status_frames_seen}")
+                    continue
                 r, s = rs.cameras[c.index], ss[c.index]
                 alive = "" if self.sync.cams[c.index].alive else " DEAD"
                 parts.append(f"{c.name}: rx {r.frames} lost {r.lost} late {s.late} bad {r.malformed} "
@@ -702,6 +745,8 @@ class HostPipeline:
             }
         if self.sync is not None:
             out["sync"] = {i: asdict(s) for i, s in self.sync.stats().items()}
+        if self.dvs_obs is not None:
+            out["dvs"] = self.dvs_obs.stats()
         if self.live is not None:
             out["live"] = asdict(self.live.stats)
         if self.recorder is not None:

@@ -38,6 +38,7 @@ import numpy as np
 
 from flytrack_host import hostclock
 from flytrack_host.protocol import (
+    DvsClusters,
     EdgeStatus,
     FeatureFrame,
     ImageChunk,
@@ -74,6 +75,11 @@ class CameraRecvStats:
     second_sender: int = 0  # datagrams from another port while the camera's edge was sending
     seq_jumps: int = 0  # sequence jumps too large to be loss in the time elapsed
     other: int = 0
+    dvs_slices: int = 0  # DVS_CLUSTERS datagrams (event cameras)
+    dvs_clusters: int = 0
+    # The edge's own counts from its last STATUS (for an event camera: events read, events lost)
+    status_frames_seen: int = 0
+    status_frames_dropped: int = 0
 
 
 @dataclass
@@ -92,6 +98,15 @@ class ReceiverStats:
 class StatusReport:
     camera_index: int
     status: EdgeStatus
+    recv_time: float
+
+
+@dataclass(slots=True)
+class DvsSlice:
+    """One DVS_CLUSTERS datagram of an event camera, as received."""
+
+    camera_index: int
+    msg: DvsClusters
     recv_time: float
 
 
@@ -151,9 +166,9 @@ class Receiver:
         self.sock.close()
 
     # --- receiving ----------------------------------------------------------------------------
-    def receive(self, timeout: float, max_batch: int = 256) -> list[CameraFrame | StatusReport]:
+    def receive(self, timeout: float, max_batch: int = 256) -> list[CameraFrame | StatusReport | DvsSlice]:
         """Wait up to `timeout` s for datagrams; return what they carried (possibly nothing)."""
-        out: list[CameraFrame | StatusReport] = []
+        out: list[CameraFrame | StatusReport | DvsSlice] = []
         r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
         if r:
             now = hostclock.now()
@@ -237,7 +252,12 @@ class Receiver:
                 self._restarted.discard(cam)
         elif isinstance(msg, EdgeStatus):
             cs.status += 1
+            cs.status_frames_seen, cs.status_frames_dropped = int(msg.frames_seen), int(msg.frames_dropped)
             out.append(StatusReport(cam, msg, now))
+        elif isinstance(msg, DvsClusters):
+            cs.dvs_slices += 1
+            cs.dvs_clusters += len(msg.clusters)
+            out.append(DvsSlice(cam, msg, now))
         else:
             cs.other += 1
             if self.on_image is not None and isinstance(msg, ImageChunk):

@@ -51,6 +51,11 @@ class CameraConfig(_Strict):
     calibration_id: str | None = Field(
         None, description="Name of the camera in the calibration file, when it differs from `name`."
     )
+    kind: Literal["frame", "dvs"] = Field(
+        "frame",
+        description="frame: a camera whose edge sends FEATURES per trigger frame; dvs: an event camera "
+        "whose edge sends DVS_CLUSTERS per time slice (its clusters become 2D observations).",
+    )
 
     @field_validator("edge")
     @classmethod

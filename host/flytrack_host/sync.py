@@ -105,6 +105,7 @@ class CameraFrame:
     truncated: bool = False
     incomplete: bool = False  # a split frame with parts missing
     restarted: bool = False  # the first frame from a restarted edge (the receiver saw a new sender)
+    dvs: bool = False  # made from an event camera's clusters (flytrack_host.eventcam)
 
 
 @dataclass(slots=True)

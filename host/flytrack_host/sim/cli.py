@@ -66,6 +66,11 @@ def summary_table(r: DemoReport) -> Table:
             f"{k.replace('simulated ', 'sim ')} {v:.1f}" for k, v in r.cpu_seconds.items()))
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
+    for d in r.dvs:
+        t.add_row(f"DVS {d['name']} events", f"{d['events_received']}/{d['events_sent']}",
+                  f"received/sent, {d['slices_received']} slices, {d['clusters_received']} clusters")
+        t.add_row(f"DVS {d['name']} observations", str(d["points_observed"]),
+                  f"2D points to the tracker in {d['frames_observed']} frames")
     if r.actuation:
         from flytrack_host.sim.closed_loop import closed_loop_line
 
@@ -97,12 +102,18 @@ def demo_command(
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
+    dvs: int = typer.Option(0, "--dvs", help="Add N simulated DVS (event) cameras beside the frame cameras: "
+                            "events rendered from the flight model, streamed into their own flytrack-edge "
+                            "(--source events), DVS_CLUSTERS to the host; the JSON `dvs` counts events "
+                            "sent and received per DVS camera."),
+    dvs_sensor: str = typer.Option("davis346", "--dvs-sensor", help="dvs128 (128x128) or davis346 (346x260)."),
 ) -> None:
     """Simulated rig end to end: flight model, firmware trigger in simavr, rendered cameras, real edge
     extractors, UDP on loopback, the real host; scores against ground truth."""
     console = Console()
     cfg = DemoConfig(cameras=cameras, animals=animals, fps=fps, seconds=seconds, noise=noise, seed=seed,
-                     out=out, trigger=trigger, progress=not no_progress, rules=rules)
+                     out=out, trigger=trigger, progress=not no_progress, rules=rules,
+                     dvs=dvs, dvs_sensor=dvs_sensor)
     try:
         outputs = LiveOutputs.from_options(http=http if serve else None, pose=pose, pose_rate=pose_rate,
                                            pose_lead_ms=pose_lead_ms, pose_lock=pose_lock)
