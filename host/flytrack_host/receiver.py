@@ -174,7 +174,7 @@ class Receiver:
             now = hostclock.now()
             # Kernel receive stamps are on the real wall clock: mapped to host time by the offset
             # measured now (a wall step between the two reads is caught by the bound below).
-            wall_to_host = now - time.time()
+            wall_to_host = now - time.time()  # noqa: TID251 - the kernel stamps on the real wall clock
             for _ in range(max_batch):
                 try:
                     data, anc, _flags, addr = self.sock.recvmsg(2048, 64)
