@@ -28,6 +28,22 @@ def events(n: int, seed: int = 0, span_us: int = 200_000) -> np.ndarray:
     return ev
 
 
+def blob_events(seconds: float = 0.2, seed: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 3 px blob crossing a 128x128 sensor from (20, 30) at (+300, +200) px/s, 200 k events/s, plus
+    uniform noise at 20 k events/s. Returns events, start and velocity."""
+    rng = np.random.default_rng(seed)
+    start, vel = np.array([20.0, 30.0]), np.array([300.0, 200.0])
+    n, nn = int(seconds * 200e3), int(seconds * 20e3)
+    t = np.sort(rng.uniform(0, seconds * 1e6, n))
+    pos = start + vel * (t[:, None] * 1e-6) + rng.normal(0, 1.5, (n, 2))
+    ev = np.empty(n + nn, EVENT_DTYPE)
+    ev["t"] = np.r_[t, rng.uniform(0, seconds * 1e6, nn)].astype(np.int64) + 5000
+    ev["x"] = np.r_[np.clip(np.round(pos[:, 0]), 0, 127), rng.integers(0, 128, nn)]
+    ev["y"] = np.r_[np.clip(np.round(pos[:, 1]), 0, 127), rng.integers(0, 128, nn)]
+    ev["p"] = rng.integers(0, 2, n + nn)
+    return ev[np.argsort(ev["t"], kind="stable")], start, vel
+
+
 def slices(t: np.ndarray, slice_us: int) -> list[tuple[int, int]]:
     """(first, last) event time of each slice: a slice ends before the first event >= its start +
     slice_us (the daemon's rule)."""
@@ -68,7 +84,11 @@ def test_event_file_goes_out_in_slices(edge_any: Path, receiver, tmp_path: Path,
     assert rc == 0, err
     got = [m for m in receiver.messages if isinstance(m, DvsClusters)]
     assert [(m.t_start_us, m.t_end_us) for m in got] == slices(ev["t"], 1000)
-    assert all(m.camera_index == 3 and m.n_clusters == 0 for m in got)  # no tracker yet (issue 13)
+    assert all(m.camera_index == 3 for m in got)
+    # Uniform events at 300 k/s (dense enough to pass the noise filter): at most the tracker's 10
+    # clusters a slice, all on the sensor (a real blob is tracked in test_the_daemon_tracks_a_blob...).
+    assert all(m.n_clusters <= 10 for m in got)
+    assert all(np.all((m.clusters["x"] >= 0) & (m.clusters["x"] < 128)) for m in got)
     seqs = [m.seq for m in got]
     assert seqs == sorted(seqs)
     last = [m for m in receiver.messages if isinstance(m, EdgeStatus)][-1]
@@ -166,3 +186,26 @@ def test_stdin_stream_is_taken_as_it_arrives(edge_any: Path, receiver, tmp_path:
     assert last.frames_seen == len(ev) and last.state == 3
     got = [m for m in receiver.messages if isinstance(m, DvsClusters)]
     assert got[0].t_start_us == int(ev["t"][0]) and got[-1].t_end_us == int(ev["t"][-1])
+
+
+def test_the_daemon_tracks_a_blob_in_its_clusters(edge_any: Path, receiver, tmp_path: Path,
+                                                  no_sanitizer_report) -> None:
+    """The edge's event algorithms end to end: noise filter, cluster tracker and Kalman filter in
+    flytrack-edge, out as DVS_CLUSTERS over UDP, on a blob of known path."""
+    ev, start, vel = blob_events()
+    path = tmp_path / "blob.aedat4"
+    write_events(path, ev, 128, 128)
+    rc, err = run(edge_any, receiver, path, "--realtime", "0", "--slice-us", "5000")
+    no_sanitizer_report(err)
+    assert rc == 0, err
+    got = [m for m in receiver.messages if isinstance(m, DvsClusters)]
+    late = [m for m in got if m.t_end_us > 45_000]
+    assert len(late) > 20 and all(m.n_clusters == 1 for m in late), [m.n_clusters for m in late]
+    err_px = []
+    for m in late:
+        c = m.clusters[0]
+        truth = start + vel * ((m.t_end_us - 5000) * 1e-6)
+        err_px.append(np.hypot(c["x"] - truth[0], c["y"] - truth[1]))
+        assert abs(c["vx"] - vel[0]) < 60 and abs(c["vy"] - vel[1]) < 60, (c["vx"], c["vy"])
+    assert np.median(err_px) < 1.5, np.median(err_px)
+    assert len({int(m.clusters[0]["id"]) for m in late}) == 1  # one track for the one animal
