@@ -30,8 +30,9 @@ model and the arrival lag of the other cameras. Afterwards the mapping is checke
   mapping, so the wrong ones never confirm a jump). Camera frames
   that jump back to numbers already seen are suspect the same way;
 - an edge restart (the receiver saw a new sender after silence, `CameraFrame.restarted`) maps the
-  camera again by arrival at once, never by the frame-0 tie; the trigger frames it missed while
-  down are counted (`missed`);
+  camera again by arrival, never by the frame-0 tie: its first frames are held until one comes
+  paced (a starting process delivers them bunched), which places it; the trigger frames it missed
+  while down are counted (`missed`);
 - with the fixed-rate clock (no trigger), a frame arriving before its expected time moves the anchor
   earlier (the first frame came late); a pause of every camera (all frames paced but late by more
   than 2 periods for `reanchor_s`) re-anchors the clock, so later latencies are not the pause's.
@@ -170,6 +171,7 @@ class _Cam:
     lag_win: deque = field(default_factory=deque)  # (arrival, lag to the trigger clock) over ~1 s
     ahead_check_at: float = 0.0
     restarted_at: float | None = None
+    placing: list | None = None  # a restarted edge's first frames, held until it can be placed
     suspects: list[tuple[CameraFrame, int]] = field(default_factory=list)
     stats: CameraSyncStats = field(default_factory=CameraSyncStats)
 
@@ -280,7 +282,12 @@ class FrameSynchronizer:
             out.append(SyncEvent("alive", cam.index, f"camera {cam.index} is sending again"))
         self._edge_numbered[cam.index] = frame.trigger_frame >= 0
         if frame.restarted and cam.offset is not None and frame.trigger_frame < 0:
-            out.extend(self._restart(cam, frame))
+            cam.placing = [frame]  # a restarted edge: placed once its frames come paced (see _place)
+            cam.stats.frames -= 1  # counted again when placed
+            return out
+        if cam.placing is not None:
+            cam.stats.frames -= 1
+            return self._place(cam, frame)
         if cam.last_cf is not None and frame.camera_frame == cam.last_cf:
             cam.stats.duplicate += 1
             tf = frame.trigger_frame if frame.trigger_frame >= 0 else (cam.last_tf if cam.last_tf is not None else -1)
@@ -496,8 +503,27 @@ class FrameSynchronizer:
         return [SyncEvent("ahead", cam.index, f"camera {cam.index}: frames numbered {k} ahead of their arrival "
                                               f"against the other cameras{note}: re-mapped")]
 
-    def _restart(self, cam: _Cam, frame: CameraFrame) -> list[SyncOutput]:
-        """An edge restarted (new sender): map its counter again by arrival; count what it missed."""
+    def _place(self, cam: _Cam, frame: CameraFrame) -> list[SyncOutput]:
+        """A restarted edge's first frames come bunched (its process starting while frames queue for
+        it); placed by the first one that comes paced (half a period or more after the one before),
+        or after 0.3 s / 30 frames. The held frames then go through as usual, with their numbers."""
+        held = cam.placing
+        assert held is not None
+        held.append(frame)
+        paced = frame.recv_time - held[-2].recv_time >= 0.5 * self.period
+        if not paced and frame.recv_time - held[0].recv_time < 0.3 and len(held) < 30:
+            return []
+        cam.placing = None
+        out = self._restart(cam, frame, held[0])
+        for f in held:
+            f.restarted = False
+            out.extend(self.add(f, f.recv_time))
+        return out
+
+    def _restart(self, cam: _Cam, frame: CameraFrame, first: CameraFrame | None = None) -> list[SyncOutput]:
+        """An edge restarted (new sender): map its counter again by the arrival of `frame`; count what
+        it missed before `first`, its first frame."""
+        first = first or frame
         old_tf = cam.last_tf
         cam.stats.restarts += 1
         cam.suspects.clear()
@@ -507,14 +533,14 @@ class FrameSynchronizer:
         # rel_base is kept: the camera arrives as it did against the others (same link, same edge), so
         # the drift check can correct a restart placed a few frames off, instead of taking the wrong
         # placement as the new normal.
-        new_tf = self._frame_at(frame.recv_time - self._lag(cam.index))
-        cam.offset = frame.camera_frame - new_tf
+        cam.offset = frame.camera_frame - self._frame_at(frame.recv_time - self._lag(cam.index))
+        new_tf = first.camera_frame - cam.offset
         cam.last_cf, cam.last_tf = None, None
         cam.restarted_at = frame.recv_time
         missed = max(0, new_tf - (old_tf if old_tf is not None else new_tf) - 1)
         cam.stats.missed += missed
         return [SyncEvent("restart", cam.index,
-                          f"camera {cam.index}: edge restarted; its camera frame {frame.camera_frame} is trigger "
+                          f"camera {cam.index}: edge restarted; its camera frame {first.camera_frame} is trigger "
                           f"frame {new_tf} (by arrival); {missed} trigger frames missed while it was down")]
 
     def _check_reanchor(self, f: int, first_arrival: float, n_frames: int = 2) -> list[SyncOutput]:

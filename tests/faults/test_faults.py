@@ -56,8 +56,9 @@ def test_wall_clock_steps_change_no_timing(rows, name):
     r = _row(rows, name)
     assert r["host"]["wall_clock_steps"] == 1
     assert r["frames_misnumbered"] == 0, r
-    # Before: a +1 h step reported 3,600,026 ms. Trigger -> estimate stays in milliseconds.
-    assert r["latency_p99_ms"] < 500, r["latency_p99_ms"]
+    # Before: a +1 h step reported 3,600,026 ms; with --no-trigger tracking froze. Trigger -> estimate
+    # stays in milliseconds (P99 below 1 s even when a loaded machine delays the simulated cameras).
+    assert r["latency_p50_ms"] < 200 and r["latency_p99_ms"] < 1000, (r["latency_p50_ms"], r["latency_p99_ms"])
 
 
 @pytest.mark.slow

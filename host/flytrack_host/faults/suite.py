@@ -96,6 +96,7 @@ def run_one(name: str, out: Path) -> dict[str, Any]:
     row.update({
         "trigger": rep.trigger, "mota": rep.scores.mota, "frames_in_time": rep.frames_in_time,
         "frames_rendered": rep.frames_rendered, "latency_p99_ms": (hs.get("latency") or {}).get("total_p99_ms"),
+        "latency_p50_ms": (hs.get("latency") or {}).get("total_p50_ms"),
         "fault_error": fault.error, "fault_info": fault.info, "fault_s": fault.t_end - fault.t_start,
         "lost_ok": sc.lost_ok, "wall_s": rep.wall_s,
         "receiver": {k: v for k, v in (hs.get("receiver") or {}).items() if k != "cameras"},
