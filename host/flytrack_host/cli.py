@@ -46,6 +46,7 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.io.cli", "compare_command", "compare"),
     ("flytrack_host.sim.cli", "demo_command", "demo"),
     ("flytrack_host.wingbeat.cli", "wingbeat_command", "wingbeat"),
+    ("flytrack_host.edge_oak.cli", "edge_oak_command", "edge-oak"),
 ]
 
 

@@ -51,6 +51,11 @@ class CameraConfig(_Strict):
     calibration_id: str | None = Field(
         None, description="Name of the camera in the calibration file, when it differs from `name`."
     )
+    kind: Literal["frame", "dvs"] = Field(
+        "frame",
+        description="frame: a camera whose edge sends FEATURES per trigger frame; dvs: an event camera "
+        "whose edge sends DVS_CLUSTERS per time slice (its clusters become 2D observations).",
+    )
 
     @field_validator("edge")
     @classmethod
@@ -253,21 +258,29 @@ def parse_rig(data: dict, path: Path | str = "<rig>") -> RigConfig:
     return rig
 
 
+def read_toml_file(path: Path, kind: str, example: str) -> tuple[dict | None, str | None]:
+    """(data, None), or (None, the problem in one line) for a missing file, a folder, bad TOML, a
+    binary file or a read error. `kind` names the file ("rig", "rules"), `example` shows one."""
+    if not path.exists():
+        return None, f"file not found; pass the path of a {kind} TOML file (see {example})"
+    if path.is_dir():
+        return None, f"is a folder; pass the path of a {kind} TOML file in it (see {example})"
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8")), None
+    except tomllib.TOMLDecodeError as exc:
+        return None, f"not valid TOML: {exc}"
+    except UnicodeDecodeError:
+        return None, f"not a text file; a {kind} file is UTF-8 TOML"
+    except OSError as exc:
+        return None, f"cannot be read: {exc.strerror or exc}"
+
+
 def load_rig(path: Path | str, check_files: bool = True) -> RigConfig:
     """Read and validate a rig file. Raises RigError with a readable message on any problem."""
     path = Path(path)
-    if not path.exists():
-        raise RigError(path, ["file not found; pass the path of a rig TOML file (see examples/rig.toml)"])
-    if path.is_dir():
-        raise RigError(path, ["is a folder; pass the path of a rig TOML file in it (see examples/rig.toml)"])
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise RigError(path, [f"not valid TOML: {exc}"]) from None
-    except UnicodeDecodeError:
-        raise RigError(path, ["not a text file; a rig file is UTF-8 TOML"]) from None
-    except OSError as exc:
-        raise RigError(path, [f"cannot be read: {exc.strerror or exc}"]) from None
+    data, problem = read_toml_file(path, "rig", "examples/rig.toml")
+    if data is None:
+        raise RigError(path, [problem or "unreadable"])
     rig = parse_rig(data, path)
     if check_files and rig.calibration_path is not None and not rig.calibration_path.exists():
         raise RigError(

@@ -105,6 +105,7 @@ class CameraFrame:
     truncated: bool = False
     incomplete: bool = False  # a split frame with parts missing
     restarted: bool = False  # the first frame from a restarted edge (the receiver saw a new sender)
+    dvs: bool = False  # made from an event camera's clusters (flytrack_host.eventcam)
 
 
 @dataclass(slots=True)
@@ -429,10 +430,9 @@ class FrameSynchronizer:
             w.popleft()
         if math.isfinite(t) and len(w) >= 3 and not continuous:
             floor = min(x[1] for x in w)
-            lag = frame.recv_time - t
-            # Before its own pulse (absolute) and earlier than its camera's frames came of late
-            # (relative: a clock-model step moves both, a long stall of this camera only the floor).
-            if lag < -self.early_s and lag < floor - self.early_s:
+            # Earlier than its camera's frames came in the last second. (A camera late for longer than
+            # that, back on time after a gap, is rejected for up to early_confirm_s, then confirmed.)
+            if frame.recv_time - t < floor - self.early_s:
                 return "early"  # claims a pulse that had not happened when such frames arrive
         if not math.isfinite(t) and self.max_accepted >= 0 and tf > self.max_accepted + self.future_frames:
             return "future"
@@ -504,7 +504,9 @@ class FrameSynchronizer:
         cam.seen_cf.clear()
         cam.lag_win.clear()
         cam.rel_window.clear()
-        cam.rel_base = None
+        # rel_base is kept: the camera arrives as it did against the others (same link, same edge), so
+        # the drift check can correct a restart placed a few frames off, instead of taking the wrong
+        # placement as the new normal.
         new_tf = self._frame_at(frame.recv_time - self._lag(cam.index))
         cam.offset = frame.camera_frame - new_tf
         cam.last_cf, cam.last_tf = None, None

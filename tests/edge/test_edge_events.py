@@ -126,3 +126,43 @@ def test_bad_event_sources_are_clear_errors(edge_bin: Path, receiver, tmp_path: 
                         str(receiver.port)], capture_output=True, text=True, timeout=30)
     # no DVS128 on this machine (or no USB at all)
     assert p.returncode == 3 and ("no DVS128 (USB 152a:8400) found" in p.stderr or "libusb" in p.stderr)
+
+
+def test_stdin_stream_is_taken_as_it_arrives(edge_any: Path, receiver, tmp_path: Path, no_sanitizer_report) -> None:
+    # a producer writing EVT 3.0 to the daemon's stdin: the events that came are sent while it waits
+    # for more (STATUS goes on meanwhile), and the end of the stream ends the daemon
+    ev = events(40_000, seed=3)
+    path = tmp_path / "live.raw"
+    write_events(path, ev, 128, 128)
+    data = path.read_bytes()
+    header = data.index(b"% end\n") + 6
+    half = header + ((len(data) - header) // 2 // 2) * 2 + 1  # an odd cut: inside a word
+    part = tmp_path / "part.raw"
+    part.write_bytes(data[: half - 1])
+    first = len(read_events(part))
+    args = [str(edge_any), "--source", "events", "--input", "-", "--realtime", "0", "--host", "127.0.0.1",
+            "--port", str(receiver.port), "--control-port", str(free_udp_port()), "--status-interval-ms", "100"]
+    p = subprocess.Popen(args, stdin=subprocess.PIPE, stderr=subprocess.PIPE, text=False)
+    try:
+        p.stdin.write(data[:half])
+        p.stdin.flush()
+        seen = receiver.wait_for(lambda m: isinstance(m, EdgeStatus) and m.frames_seen == first, timeout=30)
+        assert seen, "the events of the first half were not taken while the stream stayed open"
+        n_status = sum(isinstance(m, EdgeStatus) for m in receiver.messages)
+        time.sleep(0.3)
+        receiver.poll(0.1)
+        assert sum(isinstance(m, EdgeStatus) for m in receiver.messages) > n_status  # heartbeat goes on
+        p.stdin.write(data[half:])
+        p.stdin.close()
+        rc = p.wait(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    err = p.stderr.read().decode()
+    no_sanitizer_report(err)
+    assert rc == 0, err
+    receiver.poll(0.3)
+    last = [m for m in receiver.messages if isinstance(m, EdgeStatus)][-1]
+    assert last.frames_seen == len(ev) and last.state == 3
+    got = [m for m in receiver.messages if isinstance(m, DvsClusters)]
+    assert got[0].t_start_us == int(ev["t"][0]) and got[-1].t_end_us == int(ev["t"][-1])

@@ -51,7 +51,7 @@ def test_fault_loses_nothing_and_numbering_is_right_within_a_second(rows, name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["wall-1", "wall-30", "wall+3600"])
+@pytest.mark.parametrize("name", ["wall-1", "wall-30", "wall+3600", "wall-1-fixed"])
 def test_wall_clock_steps_change_no_timing(rows, name):
     r = _row(rows, name)
     assert r["host"]["wall_clock_steps"] == 1
@@ -84,10 +84,11 @@ def test_an_edge_restart_is_a_restart_and_its_gap_is_counted(rows):
     assert rx["restarts"] == 1 and rx["reordered"] == 0
     assert sy["restarts"] == 1
     down = r["fault_info"]["pulses_while_down"]
-    tol = max(3, 0.1 * down)  # the restart is placed by arrival: a loaded host may be a few frames off
-    assert abs(sy["missed"] - down) <= tol, (sy["missed"], down)
-    # The frames lost are those the edge never saw (it was down), nothing more.
-    assert abs(r["frames_lost"] - down) <= tol, (r["frames_lost"], down)
+    # Lost: the frames rendered while the edge was down, and those still in the killed edge's pipe
+    # (up to 13 frames of 320 x 240 in a 1 MB pipe), nothing more.
+    assert down <= r["frames_lost"] <= down + 16, (r["frames_lost"], down)
+    # The host counts them from the trigger: placed by arrival, a loaded host may be a few frames off.
+    assert abs(sy["missed"] - r["frames_lost"]) <= max(3, 0.1 * down), (sy["missed"], r["frames_lost"])
 
 
 @pytest.mark.slow
@@ -106,15 +107,16 @@ def test_a_flood_is_counted_and_logged_with_counts(rows):
 def test_a_stalled_host_catches_up_and_says_so(rows):
     r = _row(rows, "host-stop")
     assert r["host"]["stalls"] >= 1 and r["host"]["behind_skipped"] >= 1
-    # Bounded backlog: nothing tracked later than the backlog bound (0.5 s) plus a loaded host's jitter.
-    assert r["latency_after_p99_ms"] is not None and r["latency_after_p99_ms"] < 800
+    # Bounded backlog: no frame tracked after waiting in the host longer than the bound (1 s) plus a
+    # loaded host's jitter.
+    assert r["host_delay_after_p99_ms"] is not None and r["host_delay_after_p99_ms"] < 1300
 
 
 @pytest.mark.slow
 def test_fixed_rate_clock_is_reanchored_after_a_pause(rows):
     r = _row(rows, "trigger-pause")
-    # Before: every frame after a 0.5 s pause reported ~508 ms.
-    assert r["latency_after_p99_ms"] is not None and r["latency_after_p99_ms"] < 250, r["latency_after_p99_ms"]
+    # Before: every frame after a 0.5 s pause reported ~508 ms (the median too).
+    assert r["latency_after_p50_ms"] is not None and r["latency_after_p50_ms"] < 150, r["latency_after_p50_ms"]
     assert r["frames_misnumbered"] == 0
 
 

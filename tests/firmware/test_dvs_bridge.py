@@ -316,7 +316,7 @@ def test_handshake_timings(bridge, req_delay: int, next_delay: int) -> None:
     print(f"\nDVS bridge handshake /REQ release {req_delay} cycles, next /REQ {next_delay}: {cyc:.1f} cycles/event")
 
 
-@pytest.mark.parametrize("seed", [11, 12, 13])
+@pytest.mark.parametrize("seed", [11, 12])
 def test_random_bursts_resets_slow_host(bridge, seed: int) -> None:
     """Bursty events (gaps from 0 to ~1 ms), 1.6 kHz sync, three timestamp resets at random moments and a
     host 7x slower than full speed (the FIFO fills in bursts): every delivered word is a played event at
@@ -330,7 +330,7 @@ def test_random_bursts_resets_slow_host(bridge, seed: int) -> None:
     end = int(cyc[-1])
     resets = sorted(int(c) for c in rng.integers(40_000, end, 3))
     controls = _start() + [sim.control_request(c, sim.VENDOR_OUT, sim.VR_RESET_TS) for c in resets]
-    controls.append(_status(end + 100_000))
+    controls.append(_status(end + 1_500_000))  # after the last event, however late backpressure makes it
     pulses = (end - 25_000) // 10_000
     run = sim.run_bridge(played, controls, sync=(10_000, 25_000, 500, pulses), usb_packet_cycles=6_000,
                          built=bridge)  # fmt: skip
@@ -380,3 +380,36 @@ def test_target_build_usb_descriptors(bridge) -> None:
     assert len(conf) == struct.unpack_from("<H", conf, 2)[0] == 25
     ep = conf[18:25]
     assert ep[1] == 5 and ep[2] == 0x86 and ep[3] == 2 and struct.unpack_from("<H", ep, 4)[0] == 64
+
+
+@pytest.mark.parametrize("seed", [109, 110, 113, 134])
+def test_random_scenarios(bridge, seed: int) -> None:
+    """Random mixes (burst share, gap lengths, 0-3 resets, 0.8-5 kHz sync, host at full speed down to one
+    packet per 1.25 ms, sensor handshake 1-10 / 1-20 cycles); these seeds once found ordering bugs."""
+    rng = np.random.default_rng(seed)
+    n = 6_000
+    p_burst = rng.uniform(0.3, 0.95)
+    gaps = np.where(rng.random(n) < p_burst, rng.integers(0, 60, n),
+                    rng.exponential(rng.uniform(200, 5000), n).astype(np.int64))  # fmt: skip
+    cyc = 20_000 + np.cumsum(gaps)
+    played = _random_events(n, rng, cyc)
+    end = int(cyc[-1])
+    n_res = int(rng.integers(0, 4))
+    resets = sorted(int(c) for c in rng.integers(40_000, end, n_res)) if n_res else []
+    controls = _start() + [sim.control_request(c, sim.VENDOR_OUT, sim.VR_RESET_TS) for c in resets]
+    controls.append(_status(end + 1_500_000))
+    period = int(rng.integers(3000, 20000))
+    pulses = max(1, (end - 25_000) // period)
+    usb = int(rng.choice([842, 1500, 4000, 20000]))
+    run = sim.run_bridge(played, controls, sync=(period, 25_000, 300, pulses), usb_packet_cycles=usb, built=bridge,
+                         req_delay=int(rng.integers(1, 10)), next_delay=int(rng.integers(1, 20)))  # fmt: skip
+    assert not run.violations
+    ev, sync_t = _decode(run)
+    idx, err = _match(played, run, ev)
+    st = run.status()
+    assert np.max(np.abs(err)) <= 1.0
+    assert n - len(ev) == st.overflow
+    assert len(sync_t) == st.sync_events and st.sync_events + st.sync_missed == pulses
+    truth = run.truth_us(run.sync_cycles)
+    nearest = np.min(np.abs(sync_t.astype(np.float64)[:, None] - truth[None, :]), axis=1)
+    assert np.sum(nearest > 1.0) <= st.clamped

@@ -13,11 +13,9 @@ import threading
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).parent))
-import browser as browser_mod  # noqa: E402
-
-from flytrack_host.outputs.launch import LiveOutputs  # noqa: E402
-from flytrack_host.sim.run import DemoConfig, run_demo  # noqa: E402
+from flytrack_host.outputs.launch import LiveOutputs
+from flytrack_host.sim.run import DemoConfig, run_demo
+from flytrack_host.web import browser as browser_mod
 
 
 def main() -> int:

@@ -5,6 +5,7 @@
 #include <fcntl.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <poll.h>
 #include <stdlib.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
@@ -382,6 +383,8 @@ long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap) {
             }
             if (r->failed)
                 break;
+            if (n > 0 && r->fd >= 0 && !r->map)
+                break; /* read from a pipe: return what came before waiting for more */
             int rc = fmt == FT_EV_AEDAT3 ? ev_next_packet_aedat3(r) : ev_next_packet_aedat4(r);
             if (rc <= 0)
                 break;
@@ -407,6 +410,8 @@ long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap) {
         if (r->failed || n + 16 > cap)
             break;
         size_t ws = word_size(fmt);
+        if (r->end - r->start < ws && n > 0 && r->fd >= 0 && !r->map)
+            break; /* read from a pipe: return what came before waiting for more */
         if (r->end - r->start < ws && !ev_need(r, ws)) {
             if (r->end > r->start && !r->failed)
                 ev_fail(r, ev_pos(r), "truncated file: %s word cut short (%zu of %zu bytes)",
@@ -420,6 +425,17 @@ long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap) {
     if (n > 0)
         return (long long)n;
     return r->failed ? -1 : 0;
+}
+
+int ft_ev_poll(ft_ev_reader *r, int timeout_ms) {
+    if (r->fd < 0 || r->map || r->eof || r->failed || r->pend_i < r->pend_n)
+        return 1;
+    /* a whole word buffered: work to do; a part of one: wait for the rest like for new input */
+    int fmt = r->info.format;
+    if (fmt != FT_EV_AEDAT3 && fmt != FT_EV_AEDAT4 && r->end - r->start >= word_size(fmt))
+        return 1;
+    struct pollfd pfd = {r->fd, POLLIN, 0};
+    return poll(&pfd, 1, timeout_ms) > 0; /* readable, or the writer hung up (then the end) */
 }
 
 void ft_ev_get_info(const ft_ev_reader *r, ft_ev_info *info) {

@@ -1,6 +1,6 @@
 /* Event-file writers: AEDAT 4.0 (one event stream, id 0, packets of at most 32768 events,
- * uncompressed, LZ4 frame or Zstd) and Prophesee EVT 3.0 (TIME_HIGH / TIME_LOW / ADDR_Y / ADDR_X
- * words, no vector words).
+ * uncompressed, LZ4 frame or Zstd) and Prophesee EVT 3.0 (TIME_HIGH / TIME_LOW / ADDR_Y, ADDR_X
+ * for single events, VECT_BASE_X + VECT_12 for runs along a row at one time and polarity).
  *
  * AEDAT 4.0 is written without a data table (dataTablePosition = -1): a reader then scans the
  * packets, and a recording cut off at any packet boundary (a killed process) stays readable. */
@@ -224,7 +224,23 @@ static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
             w->y = ev[i].y;
             st16(b + 2 * k++, (uint16_t)(w->y & 0x7FF));
         }
-        st16(b + 2 * k++, (uint16_t)(0x2000u | (ev[i].p ? 0x800u : 0) | (ev[i].x & 0x7FFu)));
+        /* A run of events with this time, row and polarity at rising x within 12 columns goes out
+         * as VECT_BASE_X + VECT_12 (a reader emits a vector's events in rising x: same order). */
+        size_t run = 1;
+        while (i + run < n && run < 12 && ev[i + run].t == t && ev[i + run].y == ev[i].y &&
+               !ev[i + run].p == !ev[i].p && ev[i + run].x > ev[i + run - 1].x &&
+               ev[i + run].x - ev[i].x < 12)
+            run++;
+        if (run >= 2 && ev[i].x + 12u <= 2048u) {
+            uint32_t mask = 0;
+            for (size_t j = 0; j < run; j++)
+                mask |= 1u << (ev[i + j].x - ev[i].x);
+            st16(b + 2 * k++, (uint16_t)(0x3000u | (ev[i].p ? 0x800u : 0) | (ev[i].x & 0x7FFu)));
+            st16(b + 2 * k++, (uint16_t)(0x4000u | mask));
+            i += run - 1;
+        } else {
+            st16(b + 2 * k++, (uint16_t)(0x2000u | (ev[i].p ? 0x800u : 0) | (ev[i].x & 0x7FFu)));
+        }
         w->last_t = t;
         if (k + 8 > cap_words) {
             if (put(w, b, 2 * k) < 0)

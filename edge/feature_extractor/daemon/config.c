@@ -69,9 +69,14 @@ static const opt_doc docs[] = {
     {"verbose", "0|1", "log every control message and source event"},
     {"event-format", "FMT", "events: aedat2, aedat3, aedat4, evt2, evt3, dat or auto (default)"},
     {"slice-us", "US", "event sources: event time per DVS_CLUSTERS slice (default 1000)"},
-    {"realtime", "0|1", "events: play the file at its recorded pace (1, default) or at once (0)"},
+    {"realtime", "0|1",
+     "events: play the file at its recorded pace (1, default) or at once (0); with --input - "
+     "(stdin, e.g. a live producer) events are taken as they arrive"},
     {"reopen-ms", "MS", "dvs128: while unplugged, try to reopen it this often (default 500)"},
     {"dvs-biases", "HEX", "dvs128: 72 hex digits, the 12 x 3 bias bytes to send (default: keep)"},
+    {"dvs-invert-polarity", "0|1",
+     "dvs128: 1 for an original DVS128, whose raw polarity bit 1 means OFF (jAER, libcaer); 0 "
+     "(default) for the FlyTrack bridge, whose words follow the SPEC (1 = ON)"},
 };
 
 static void usage(const char *prog) {
@@ -296,6 +301,7 @@ static int apply(edge_config *c, const char *key, const char *v) {
     }
     INT("slice-us", 1, 10000000, slice_us)
     BOOL("realtime", realtime)
+    BOOL("dvs-invert-polarity", dvs_invert_polarity)
     INT("reopen-ms", 10, 3600000, reopen_ms)
     STR("input", input)
     INT("width", 0, 16384, width)

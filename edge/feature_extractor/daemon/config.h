@@ -44,6 +44,7 @@ typedef struct {
     int reopen_ms;         /* dvs128: retry period while unplugged */
     uint8_t dvs_biases[36];
     int have_dvs_biases;
+    int dvs_invert_polarity; /* dvs128: raw bit 0 = 1 means OFF (an original DVS128, as jAER) */
 } edge_config;
 
 /* 0 = ok, 1 = --help printed, -1 = error (message printed to stderr). */

@@ -26,6 +26,10 @@ static int word(ft_dvs_stream *s, const uint8_t *p, ft_event *e) {
         s->wraps++;
     else if (w.kind == FT_DVS_RESET)
         s->resets++;
+#ifdef FT_DVS_SYNC /* the bridge's sync input (frame pulses), in protocol versions that have it */
+    else if (w.kind == FT_DVS_SYNC)
+        s->syncs++;
+#endif
     if (!ft_dvs_apply(&s->dec, &w, &ev))
         return 0;
     e->t = (int64_t)ev.t_us;

@@ -2,9 +2,9 @@
  * transfers deliver: a word split across two transfers is completed from the next one.
  *
  * Each complete word goes through the protocol codec (flytrack/dvs.h): WRAP adds 0x4000 us to the
- * time base, RESET zeroes it, an address event becomes an ft_event (t us, x, y, p = 1 ON). A word
- * the codec rejects (reserved bit set, RESET and WRAP both set) is garbage: counted, skipped, and
- * the stream goes on with the next word. */
+ * time base, RESET zeroes it, an address event becomes an ft_event (t us, x, y, p = 1 ON), a SYNC
+ * word (where the codec knows it) is counted. A word the codec rejects (RESET and WRAP both set,
+ * ...) is garbage: counted, skipped, and the stream goes on with the next word. */
 #ifndef FLYTRACK_EDGE_DVS_STREAM_H
 #define FLYTRACK_EDGE_DVS_STREAM_H
 
@@ -18,7 +18,7 @@ typedef struct {
     ft_dvs_decoder dec;
     uint8_t carry[4]; /* the first bytes of a word cut by the end of a transfer */
     size_t n_carry;
-    uint64_t words, events, wraps, resets, bad_words;
+    uint64_t words, events, wraps, resets, syncs, bad_words;
 } ft_dvs_stream;
 
 void ft_dvs_stream_init(ft_dvs_stream *s);

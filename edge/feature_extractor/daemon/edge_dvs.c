@@ -34,22 +34,6 @@ static void on_signal(int sig) {
     g_stop = 1;
 }
 
-/* The default processor: no event algorithms yet (issue 13), so no clusters. */
-static size_t no_clusters(void *ctx, const ft_event *ev, size_t n, int64_t t0, int64_t t1,
-                          ft_dvs_cluster *out, size_t cap) {
-    (void)ctx, (void)ev, (void)n, (void)t0, (void)t1, (void)out, (void)cap;
-    return 0;
-}
-
-__attribute__((weak)) int ft_event_processor_create(ft_event_processor *p, uint32_t width,
-                                                    uint32_t height) {
-    (void)width, (void)height;
-    p->ctx = NULL;
-    p->slice = no_clusters;
-    p->destroy = NULL;
-    return 0;
-}
-
 typedef struct {
     const edge_config *cfg;
     ft_ev_source src;
@@ -289,6 +273,7 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     else
         rc = ft_ev_source_open_dvs128(&e.src, usb, cfg->have_dvs_biases ? cfg->dvs_biases : NULL,
                                       cfg->reopen_ms);
+    e.src.invert_polarity = cfg->dvs_invert_polarity;
     if (rc) {
         logmsg("source %s %s: %s", cfg->source, cfg->input, e.src.error);
         close(e.sock);

@@ -2,9 +2,9 @@
  *
  * The events of each slice (--slice-us of event time) go to an ft_event_processor, whose clusters
  * go out in one DVS_CLUSTERS datagram (protocol/SPEC.md 1.6) with the slice's first and last event
- * times. The event algorithms (noise filter, cluster tracker: issue 13) implement this interface;
- * until they exist the default processor finds no clusters, so each slice is sent with
- * n_clusters = 0: the host still sees the event time advance, and STATUS counts the events. */
+ * times. event_processor.c implements it with the event algorithms (edge/events/algos: noise
+ * filters, then the cluster tracker with a Kalman filter per cluster); a slice without clusters
+ * is still sent (n_clusters = 0), so the host sees the event time advance. */
 #ifndef FLYTRACK_EDGE_EVENT_PIPELINE_H
 #define FLYTRACK_EDGE_EVENT_PIPELINE_H
 

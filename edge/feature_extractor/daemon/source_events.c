@@ -43,6 +43,8 @@ static long file_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms
             return FT_SRC_ERROR;
         if (p->ended)
             return FT_SRC_END;
+        if (!ft_ev_poll(p->r, timeout_ms)) /* a pipe with nothing new: back to the loop */
+            return 0;
         long long n = ft_ev_read(p->r, p->buf, FILE_BUF);
         ft_ev_info info;
         ft_ev_get_info(p->r, &info);
@@ -109,7 +111,8 @@ int ft_ev_source_open_file(ft_ev_source *s, const char *path, const char *format
         snprintf(s->error, sizeof s->error, "out of memory");
         return -1;
     }
-    p->r = ft_ev_open(path, fmt, s->error, sizeof s->error);
+    /* "-": standard input, e.g. a program that produces events as they happen */
+    p->r = ft_ev_open(strcmp(path, "-") ? path : "/dev/stdin", fmt, s->error, sizeof s->error);
     if (!p->r) {
         free(p);
         return -1;
@@ -222,7 +225,11 @@ static long dvs_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms)
     size_t used;
     size_t n = ft_dvs_stream_feed(&p->st, p->buf + p->off, p->len - p->off, out, cap, &used);
     p->off += used;
+    if (s->invert_polarity)
+        for (size_t i = 0; i < n; i++)
+            out[i].p ^= 1u;
     s->lost = p->st.bad_words;
+    s->triggers = p->st.syncs;
     return (long)n;
 }
 

@@ -53,6 +53,7 @@ struct ft_ev_source {
     uint64_t reconnects; /* DVS128 plugged back in */
     int connected;       /* DVS128: 0 while unplugged */
     int state_changed;   /* set by the source when connected changes (the caller clears it) */
+    int invert_polarity; /* DVS128: set to 1 for an original DVS128 (raw bit 0 = 1 is OFF) */
     char error[240];
     void *priv;
 };

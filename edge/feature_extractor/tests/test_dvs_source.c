@@ -37,7 +37,7 @@ typedef struct {
     uint8_t b[4 * MAXW];
     size_t n;
     ft_event expect[MAXW];
-    size_t n_expect, n_garbage;
+    size_t n_expect, n_garbage, n_sync;
 } stream;
 
 static void put_word(stream *s, uint8_t b0, uint8_t b1, uint16_t t) {
@@ -54,11 +54,18 @@ static void make_stream(stream *s, size_t words) {
     uint32_t ts = 0;
     for (size_t i = 0; i < words; i++) {
         uint32_t kind = rnd(100);
-        if (kind == 0) { /* garbage: RESET and WRAP both set (byte 1's bit 7 is the sync bit now) */
-            put_word(s, (uint8_t)rnd(256), (uint8_t)rnd(256), (uint16_t)(0xC000u | rnd(0x4000)));
+        if (kind == 0) { /* garbage: RESET and WRAP both set (BAD_FIELD in the SPEC) */
+            put_word(s, (uint8_t)rnd(256), (uint8_t)rnd(128), (uint16_t)(0xC000u | rnd(0x4000)));
             s->n_garbage++;
             continue;
         }
+#ifdef FT_DVS_SYNC
+        if (kind == 2) { /* a sync pulse (protocol versions with the SYNC word) */
+            put_word(s, 0, 0x80, (uint16_t)ts);
+            s->n_sync++;
+            continue;
+        }
+#endif
         if (kind == 1 && i > words / 2 && offset) { /* the device zeroed its counter */
             put_word(s, 0, 0, 0x4000);
             offset = 0;
@@ -111,7 +118,7 @@ static void test_stream_pieces(void) {
         for (size_t k = 0; k < n && k < s.n_expect; k++)
             bad += !same_event(&out[k], &s.expect[k]);
         CHECK(bad == 0);
-        CHECK(st.resets >= 1 && st.wraps >= 1);
+        CHECK(st.resets >= 1 && st.wraps >= 1 && st.syncs == s.n_sync);
     }
 }
 
@@ -253,6 +260,29 @@ static void test_unplug_replug(void) {
     src.close(&src);
     CHECK(dev.requests[dev.n_requests - 1] == FT_DVS128_REQ_STOP);
     CHECK(dev.closes == 2);
+
+    /* an original DVS128 (raw bit 0 = 1 is OFF): polarities inverted on request */
+    memset(&dev, 0, sizeof dev);
+    dev.s = &s2;
+    dev.present = 1;
+    dev.unplug_at = (size_t)-1;
+    dev.unplugged_once = 1;
+    CHECK(ft_ev_source_open_dvs128(&src, &fake_ops, NULL, 10) == 0);
+    src.invert_polarity = 1;
+    n = 0;
+    for (calls = 0; calls < 10000; calls++) {
+        long k = src.next(&src, got + n, 64, 5);
+        if (k > 0)
+            n += (size_t)k;
+        else if (dev.pos == s2.n)
+            break; /* all delivered and drained */
+    }
+    CHECK(n == s2.n_expect);
+    size_t flipped = 0;
+    for (size_t k = 0; k < n && k < s2.n_expect; k++)
+        flipped += got[k].p == (s2.expect[k].p ^ 1u) && got[k].x == s2.expect[k].x;
+    CHECK(flipped == s2.n_expect);
+    src.close(&src);
 
     /* no device at the start: a clear error, nothing leaked */
     memset(&dev, 0, sizeof dev);

@@ -15,11 +15,13 @@
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include <avr/wdt.h>
 #include <stdint.h>
 #include <string.h>
 
 #include "board.h"
 #include "dvs_bridge.h"
+#include "flytrack/dvs.h" /* the word's bits, as the SPEC and the host's codecs have them */
 #include "usb_seam.h"
 
 #define FIFO_BYTES 1024u
@@ -59,6 +61,24 @@ volatile uint8_t sync_seq;              /* pulses seen by the handler */
 volatile uint16_t sync_ring[SYNC_RING]; /* their TCNT3 values, pulse i at [i % SYNC_RING] */
 
 static uint8_t bias[DVS_BIAS_BYTES];
+
+/* Timer3's 16-bit registers share one TEMP byte (the high byte, latched when the low byte is read),
+ * and the INT6 handler reads TCNT3: a 16-bit read it interrupts would get the handler's high byte.
+ * So the slow path reads them with interrupts off (the loop always runs with them on). The event
+ * path reads ICR3 without: the handler ends by reading ICR3L, which latches ICR3's high byte again,
+ * so an ICR3 read it interrupted still gets the right one. */
+static inline uint16_t icr3(void) {
+    cli();
+    uint16_t v = ICR3;
+    sei();
+    return v;
+}
+static inline uint16_t tcnt3(void) {
+    cli();
+    uint16_t v = TCNT3;
+    sei();
+    return v;
+}
 
 static inline uint8_t *fifo_next(uint8_t *p) {
     return (uint8_t *)(((uint16_t)(p + 4) & (FIFO_BYTES - 1)) | (uint16_t)fifo);
@@ -106,23 +126,23 @@ static uint8_t put_word(uint8_t b0, uint8_t b1, uint16_t t) {
 }
 
 static void put_wrap(void) {
-    if (C.pend_wraps || C.pend_reset || !put_word(0, 0, 0x8000u))
+    if (C.pend_wraps || C.pend_reset || !put_word(0, 0, FT_DVS_WRAP_BIT))
         C.pend_wraps++;
     fifo_limits();
 }
 
 static void put_reset(void) {
     C.pend_wraps = 0; /* a reset makes the wraps before it meaningless */
-    if (C.pend_reset || !put_word(0, 0, 0x4000u))
+    if (C.pend_reset || !put_word(0, 0, FT_DVS_RESET_BIT))
         C.pend_reset = 1;
     fifo_limits();
 }
 
 /* Pending special words go out once there is room, after what the FIFO holds. */
 static void flush_pending(void) {
-    if (C.pend_reset && put_word(0, 0, 0x4000u))
+    if (C.pend_reset && put_word(0, 0, FT_DVS_RESET_BIT))
         C.pend_reset = 0;
-    while (!C.pend_reset && C.pend_wraps && put_word(0, 0, 0x8000u))
+    while (!C.pend_reset && C.pend_wraps && put_word(0, 0, FT_DVS_WRAP_BIT))
         C.pend_wraps--;
     fifo_limits();
 }
@@ -167,6 +187,7 @@ static void sync_word(uint8_t pre_wrap);
 static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16_t icr);
 static uint8_t sync_take(uint8_t upto, uint16_t *raw);
 static uint8_t slow_step(void);
+static uint8_t control(void);
 
 /* An event with no bank open. With the FIFO empty, wait a little for the host to free a bank (the
  * sensor waits on its handshake meanwhile: AER backpressure) rather than store the word and copy it
@@ -178,24 +199,21 @@ static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t 
     for (;;) {
         if (C.left) { /* a bank is open (a slow-path task may have opened one) */
             put_word(a0, a1, t);
-            return;
+            goto stored;
         }
         if (C.tail != C.head || C.pend_wraps || C.pend_reset)
             break; /* the FIFO is in use: the event goes behind what it holds */
         if (usb_bulk_in_ready()) {
             C.left = WORDS_PER_BANK;
             if (sync_seq != S.sync_seen)
-                sync_word(0); /* a pulse that came while we waited */
+                sync_word(1); /* a pulse that came while we waited (pre-wrap: the event is held) */
             put_word(a0, a1, t);
-            return;
+            goto stored;
         }
-        if (!--k)
-            break;
-        /* While the event is held here only a sync pulse is taken, and only one that needs no
-         * WRAP word first (pre_wrap mode): a reset or a WRAP now would go out before an event
-         * stamped earlier. The SYNC word goes to the FIFO, and the event after it. */
-        if (!(k & 15) && sync_seq != S.sync_seen)
-            sync_word(1);
+        if (!--k || (steps && usb_control_pending()))
+            break; /* a request: the event goes to the FIFO so that the request can be served */
+        /* Nothing else runs while the event is held: a pulse waits for the bank (above), a
+         * request makes the event go to the FIFO (below). */
     }
     if (C.head == C.stop)
         S.overflow++;
@@ -204,16 +222,24 @@ static void __attribute__((noinline)) slow_put(uint8_t a0, uint8_t a1, uint16_t 
     if (usb_bulk_in_ready())
         drain();
     /* With the sensor never idle the loop would not get to the slow path: one task every 8th
-     * event here (the event is stored, nothing is held). */
-    if (steps && !(++C.fifo_steps & 7) && slow_step())
+     * event through the FIFO, and a waiting request at once (the event is stored, nothing held). */
+    if (steps && sync_seq != S.sync_seen)
+        sync_word(0);
+    if (steps && usb_control_pending()) {
+        if (control())
+            C.stop_req = 1;
+    } else if (steps && !(++C.fifo_steps & 7) && slow_step()) {
         C.stop_req = 1;
+    }
+stored:
+    return;
 }
 
 /* The event whose edge Timer3 has captured, served here in the slow path (before a timestamp reset,
  * so that it keeps the epoch it was stamped in). */
 static void serve_one(void) {
-    uint8_t a0 = ADDR0_PIN, a1 = ADDR1_PIN & 0x7F;
-    uint16_t t = ICR3 >> 1;
+    uint8_t a0 = ADDR0_PIN, a1 = ADDR1_PIN & (uint8_t)~FT_DVS_SYNC_BIT;
+    uint16_t t = (icr3() >> 1) & FT_DVS_TS_MASK;
     TIFR3 = _BV(ICF3);
     ACK_PORT &= (uint8_t)~_BV(ACK_BIT);
     while (!(REQ_PIN & _BV(REQ_BIT)))
@@ -245,7 +271,7 @@ static void timer_zero(uint8_t from_pulse, uint16_t pulse_ticks) {
     GTCCR = _BV(PSRSYNC);
     TCNT3 = start_ticks;
     sei();
-    if ((TIFR3 & _BV(ICF3)) && ICR3 > TCNT3)
+    if ((TIFR3 & _BV(ICF3)) && icr3() > tcnt3())
         serve_one();
     /* pulses of the old epoch not yet taken go before the RESET word */
     uint8_t armed = S.slave_armed;
@@ -282,9 +308,12 @@ static void sync_word(uint8_t pre_wrap) {
     uint16_t raw;
     if (!S.running)
         return;
+    /* only pulses stamped before the look at ICF3: one stamped later may follow an edge that
+     * comes after that look */
+    uint8_t upto = sync_seq;
     uint8_t pending = (TIFR3 & _BV(ICF3)) != 0;
-    uint16_t icr = ICR3;
-    while (sync_take(sync_seq, &raw) && sync_emit(raw, pre_wrap, pending, icr))
+    uint16_t icr = icr3();
+    while (sync_take(upto, &raw) && sync_emit(raw, pre_wrap, pending, icr))
         ;
 }
 
@@ -294,7 +323,7 @@ static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16
     if (pending && (uint16_t)((ticks - icr) & TS_TOP) < 0x4000u)
         return 0; /* the pulse came after the waiting event's edge */
     uint16_t ts = ticks >> 1;
-    uint16_t d = (uint16_t)((ts - C.last) & 0x3FFFu);
+    uint16_t d = (uint16_t)((ts - C.last) & FT_DVS_TS_MASK);
     uint8_t after_wrap = d < 0x2000u && ts < C.last;
     if (pre_wrap && (S.slave_armed || after_wrap))
         return 0; /* it goes out after the WRAP word, from the slow path */
@@ -312,7 +341,7 @@ static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16
         ts = 0;
         S.clamped++;
     }
-    if (put_word(0, DVS_WORD_SYNC, ts))
+    if (put_word(0, FT_DVS_SYNC_BIT, ts))
         S.sync_events++;
     else
         S.sync_missed++;
@@ -321,7 +350,7 @@ static uint8_t sync_emit(uint16_t raw, uint8_t pre_wrap, uint8_t pending, uint16
 
 /* The counter may wrap with no event to show it: read it (then check no edge came first). */
 static void idle_wrap(void) {
-    uint16_t now = TCNT3 >> 1;
+    uint16_t now = (tcnt3() >> 1) & FT_DVS_TS_MASK;
     if (TIFR3 & _BV(ICF3))
         return;
     if (now < C.last)
@@ -337,7 +366,7 @@ static void flush_old_bank(void) {
     if (!l || l == WORDS_PER_BANK) {
         C.t0_valid = 0;
     } else {
-        uint16_t now = TCNT3;
+        uint16_t now = tcnt3();
         if (!C.t0_valid || l > C.seen_left) {
             C.t0 = now;
             C.t0_valid = 1;
@@ -482,7 +511,7 @@ static void capture(void) {
             uint16_t t = ICR3;
             TIFR3 = _BV(ICF3);
             ACK_PORT &= (uint8_t)~_BV(ACK_BIT);
-            a1 &= 0x7F; /* /REQ (PD7) is low here; bit 7 is the SYNC flag */
+            a1 &= (uint8_t)~FT_DVS_SYNC_BIT; /* /REQ (PD7) is low here; bit 7 is the SYNC flag */
             t >>= 1;
             while (!(REQ_PIN & _BV(REQ_BIT)))
                 ;
@@ -574,6 +603,11 @@ static void stopped(void) {
 }
 
 int main(void) {
+    /* a bootloader may leave the watchdog on, and a fresh chip runs at f/8 (CKDIV8 fuse) */
+    MCUSR &= (uint8_t)~_BV(WDRF);
+    wdt_disable();
+    CLKPR = _BV(CLKPCE);
+    CLKPR = 0;
     DDRB = 0;
     PORTB = 0;
     DDRD = 0;
@@ -606,31 +640,33 @@ int main(void) {
  * kept in sync_ring[sync_seq % SYNC_RING]; the main loop turns the pulses into SYNC words, oldest
  * first, and counts any that were overwritten before it took them. */
 ISR(INT6_vect, ISR_NAKED) {
-    __asm__ volatile("push r24\n\t"
-                     "lds r24, %[tl]\n\t"
-                     "push r25\n\t"
-                     "lds r25, %[th]\n\t"
-                     "push r30\n\t"
-                     "in r30, __SREG__\n\t"
-                     "push r30\n\t"
-                     "push r31\n\t"
-                     "lds r30, sync_seq\n\t"
-                     "andi r30, %[mask]\n\t"
-                     "lsl r30\n\t"
-                     "ldi r31, 0\n\t"
-                     "subi r30, lo8(-(sync_ring))\n\t"
-                     "sbci r31, hi8(-(sync_ring))\n\t"
-                     "st Z+, r24\n\t"
-                     "st Z, r25\n\t"
-                     "lds r30, sync_seq\n\t"
-                     "subi r30, 0xFF\n\t"
-                     "sts sync_seq, r30\n\t"
-                     "pop r31\n\t"
-                     "pop r30\n\t"
-                     "out __SREG__, r30\n\t"
-                     "pop r30\n\t"
-                     "pop r25\n\t"
-                     "pop r24\n\t"
-                     "reti\n\t" ::[tl] "i"(_SFR_MEM_ADDR(TCNT3L)),
-                     [th] "i"(_SFR_MEM_ADDR(TCNT3H)), [mask] "i"(SYNC_RING - 1));
+    __asm__ volatile(
+        "push r24\n\t"
+        "lds r24, %[tl]\n\t"
+        "push r25\n\t"
+        "lds r25, %[th]\n\t"
+        "push r30\n\t"
+        "in r30, __SREG__\n\t"
+        "push r30\n\t"
+        "push r31\n\t"
+        "lds r30, sync_seq\n\t"
+        "andi r30, %[mask]\n\t"
+        "lsl r30\n\t"
+        "ldi r31, 0\n\t"
+        "subi r30, lo8(-(sync_ring))\n\t"
+        "sbci r31, hi8(-(sync_ring))\n\t"
+        "st Z+, r24\n\t"
+        "st Z, r25\n\t"
+        "lds r30, sync_seq\n\t"
+        "subi r30, 0xFF\n\t"
+        "sts sync_seq, r30\n\t"
+        "lds r30, %[il]\n\t" /* re-latch TEMP with ICR3's high byte (see icr3) */
+        "pop r31\n\t"
+        "pop r30\n\t"
+        "out __SREG__, r30\n\t"
+        "pop r30\n\t"
+        "pop r25\n\t"
+        "pop r24\n\t"
+        "reti\n\t" ::[tl] "i"(_SFR_MEM_ADDR(TCNT3L)),
+        [th] "i"(_SFR_MEM_ADDR(TCNT3H)), [mask] "i"(SYNC_RING - 1), [il] "i"(_SFR_MEM_ADDR(ICR3L)));
 }

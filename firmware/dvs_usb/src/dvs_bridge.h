@@ -13,7 +13,6 @@
 
 #define DVS_BIAS_BYTES 36
 #define DVS_EP_IN 0x86
-#define DVS_WORD_SYNC 0x80 /* byte 1 bit 7: external sync (special) event */
 
 /* Status reply, little-endian:
  *   u32 overflow    events dropped because the FIFO was full (each dropped whole: no partial word)

@@ -26,7 +26,8 @@ void usb_seam_init(void);
 /* Inline (event path), below:
  *   usb_bulk_in_ready()  1 if an IN bank is free to be filled (then up to 64 bytes may be put)
  *   usb_bulk_in_put(b)   one byte into the bank being filled
- *   usb_bulk_in_send()   hands the bank to the host (a short packet if fewer than 64 bytes) */
+ *   usb_bulk_in_send()   hands the bank to the host (a short packet if fewer than 64 bytes)
+ *   usb_control_pending() a request waits (usb_control_poll would take it) */
 /* 1 if a vendor request is waiting; fills *s and up to cap bytes of its OUT data stage. */
 uint8_t usb_control_poll(usb_setup_t *s, uint8_t *data, uint8_t cap);
 /* Ends the pending request: IN data (len bytes, none for an OUT request) and status stage. */
@@ -54,6 +55,9 @@ static inline uint8_t usb_bulk_in_ready(void) {
 static inline void usb_bulk_in_send(void) {
     *(volatile uint8_t *)SIM_USB_CMD = SIM_CMD_SEND;
 }
+static inline uint8_t usb_control_pending(void) {
+    return *(volatile uint8_t *)SIM_USB_STATUS & 2u;
+}
 #else
 #include <avr/io.h>
 /* Endpoint 6 is selected (UENUM = 6) whenever the bridge's main loop runs; usb_hw.c selects
@@ -66,6 +70,12 @@ static inline uint8_t usb_bulk_in_ready(void) {
 }
 static inline void usb_bulk_in_send(void) {
     UEINTX = (uint8_t) ~(_BV(FIFOCON) | _BV(TXINI)); /* bank to the host, next bank selected */
+}
+static inline uint8_t usb_control_pending(void) {
+    UENUM = 0;
+    uint8_t r = UEINTX & _BV(RXSTPI);
+    UENUM = 6;
+    return r;
 }
 #endif
 

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.firings import percentiles_ms
 from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
@@ -51,9 +52,9 @@ def through_engine(actuator: ActuatorConfig, action: dict, n: int, context: dict
     f = frame0
     for _ in range(n):
         for inside in [False] * frames_out + [True]:
-            ft = frame_time(f) if frame_time else time.time()
-            time.sleep(max(0.0, ft + 0.001 - time.time()) if frame_time else 0.005)
-            t_est = time.time()
+            ft = frame_time(f) if frame_time else hostclock.now()
+            time.sleep(max(0.0, ft + 0.001 - hostclock.now()) if frame_time else 0.005)
+            t_est = hostclock.now()
             s = time.perf_counter()
             eng.on_frame(_frame(f, 1, inside), ft, t_est)
             if inside:
@@ -75,9 +76,9 @@ def direct(call: Any, n: int, gap_s: float = 0.01) -> dict[str, Any]:
     lat = []
     for _ in range(n):
         time.sleep(gap_s)
-        t0 = time.time()
+        t0 = hostclock.now()
         call()
-        lat.append(time.time() - t0)
+        lat.append(hostclock.now() - t0)
     a = np.asarray(lat)
     return {"est_to_ack_ms": percentiles_ms(a), "tracking_thread_us_p50": float(np.median(a) * 1e6),
             "tracking_thread_us_p99": float(np.percentile(a, 99) * 1e6), "failed": 0}
@@ -154,7 +155,7 @@ def bench_pulse(n: int) -> dict[str, Any] | None:
 
             def one() -> None:  # the frame after next, from the clock model; too late: at once (as the engine)
                 try:
-                    dev.pulse_timed(0, int(model.host_time_to_frame(time.time())) + 2, 0.0005)
+                    dev.pulse_timed(0, int(model.host_time_to_frame(hostclock.now())) + 2, 0.0005)
                 except TriggerError:
                     dev.pulse_timed(0, None, 0.0005)
 

@@ -8,6 +8,7 @@ from typing import Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from flytrack_host.actuation.rules import RulesError, RuleSet, bind_rules, load_rules, load_rules_skipping
@@ -19,7 +20,7 @@ err = Console(stderr=True)
 
 def _fail(exc: Exception) -> typer.Exit:
     for line in str(exc).splitlines():
-        err.print(f"[red]error[/red] {line}", highlight=False, soft_wrap=True)
+        err.print(f"[red]error[/red] {escape(line)}", highlight=False, soft_wrap=True)
     return typer.Exit(code=2)
 
 
@@ -134,7 +135,7 @@ def rules_for_run(rig: RigConfig, rules: Path | None, skip_bad: bool = False) ->
     if skip_bad:
         rs, problems = load_rules_skipping(path, rig.actuators)
         for p in problems:
-            err.print(f"[yellow]rule left out[/yellow] {p}", highlight=False, soft_wrap=True)
+            err.print(f"[yellow]rule left out[/yellow] {escape(p)}", highlight=False, soft_wrap=True)
         if rs is None:
             err.print(f"[yellow]note[/yellow] no usable rule in {path}: tracking and recording without rules",
                       highlight=False, soft_wrap=True)

@@ -17,6 +17,8 @@ import time
 import tty
 from dataclasses import dataclass
 
+from flytrack_host import hostclock
+
 log = logging.getLogger("flytrack.actuation.peers")
 
 
@@ -61,7 +63,7 @@ class ModbusPeer:
     async def _action(self, func_code: int, start: int, address: int, count: int, registers: list,
                       values: list | None) -> None:
         if values is not None:
-            self.writes.append(Write(time.time(), func_code, address, list(values)))
+            self.writes.append(Write(hostclock.now(), func_code, address, list(values)))
         if self.delay_s:
             await asyncio.sleep(self.delay_s)
 
@@ -201,7 +203,7 @@ def _serve_logged(host: str, port: int, log_path: str) -> None:
     async def action(func_code: int, start: int, address: int, count: int, registers: list,
                      values: list | None) -> None:
         if values is not None:
-            f.write(f"{time.time():.6f} {func_code} {address} {' '.join(str(int(v)) for v in values)}\n")
+            f.write(f"{hostclock.now():.6f} {func_code} {address} {' '.join(str(int(v)) for v in values)}\n")
 
     peer._action = action  # type: ignore[method-assign]
     stop = threading.Event()
@@ -264,7 +266,7 @@ class CanListener:
         while not self._stop.is_set():
             msg = self.bus.recv(0.1)
             if msg is not None:
-                self.frames.append((time.time(), int(msg.arbitration_id), bytes(msg.data)))
+                self.frames.append((hostclock.now(), int(msg.arbitration_id), bytes(msg.data)))
 
     def close(self) -> None:
         self._stop.set()

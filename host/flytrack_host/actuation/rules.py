@@ -21,9 +21,9 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from flytrack_host.rig import ActuatorConfig
 
@@ -188,7 +188,7 @@ class Rule(_Strict):
     name: str = Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.\-]+$")
     when: Condition
     actions: list[Action] = Field(default_factory=list)
-    objects: Literal["any", "first"] | int = Field("any", description="any object, the oldest track, or a track id")
+    objects: str | int = Field("any", description="any object, the oldest track (first), or a track id")
     cooldown_s: float = Field(0.0, ge=0, description="no firing within this long of the last one")
     max_per_minute: float | None = Field(None, gt=0, description="at most this many firings in any 60 s")
     armed_after_s: float = Field(0.0, ge=0, description="arming window: seconds after the run started ...")
@@ -198,6 +198,13 @@ class Rule(_Strict):
     max_predict_ms: float = Field(
         50.0, ge=0, le=1000, description="predict at most this far ahead; when the action can only land later "
         "(a stalled host), the rule is judged at this horizon rather than on a long extrapolation")
+
+    @field_validator("objects", mode="before")
+    @classmethod
+    def _objects(cls, v: object) -> object:
+        if v in ("any", "first") or (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+            return v
+        raise ValueError(f"objects is \"any\", \"first\" or a track id (an integer >= 0), not {v!r}")
 
     @model_validator(mode="after")
     def _window(self) -> Rule:
@@ -254,15 +261,12 @@ def parse_rules(data: dict, path: Path | str = "<rules>") -> RuleSet:
 
 
 def load_rules(path: Path | str) -> RuleSet:
+    from flytrack_host.rig import read_toml_file
+
     path = Path(path)
-    if not path.exists():
-        raise RulesError(path, ["file not found; pass the path of a rules TOML file (see examples/closed_loop.toml)"])
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise RulesError(path, [f"not valid TOML: {exc}"]) from None
-    except UnicodeDecodeError:
-        raise RulesError(path, ["not a text file; a rules file is UTF-8 TOML"]) from None
+    data, problem = read_toml_file(path, "rules", "examples/closed_loop.toml")
+    if data is None:
+        raise RulesError(path, [problem or "unreadable"])
     return parse_rules(data, path)
 
 

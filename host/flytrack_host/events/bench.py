@@ -10,8 +10,8 @@ its C decoder through Wizard.read, with the faster of two buffer sizes found in 
 dv-processing (AEDAT 4.0, MonoCameraRecording batches to NumPy), plus aedat (AEDAT 4.0, Rust) for
 reference. The ratio is ours over the faster peer.
 
-Section 2 (issue 13, event algorithms): the noise filter and cluster tracker throughput go in
-SECTIONS below, as another function taking the same args and returning its figures.
+Section 2 (issue 13, event algorithms, bench_algos.py): noise filter and cluster tracker throughput
+on one core, beside dv-processing's background-activity filter on the same events.
 BENCH_JSON=PATH (or --json PATH) writes the figures.
 """
 
@@ -183,7 +183,13 @@ def decode_section(args: argparse.Namespace) -> dict:
 
 
 # Benchmark sections, run in order; each takes the parsed args and returns its figures.
-SECTIONS: dict[str, Callable[[argparse.Namespace], dict]] = {"decode": decode_section}
+def _algos(args: argparse.Namespace) -> dict:
+    from flytrack_host.events.bench_algos import algos_section
+
+    return algos_section(args)
+
+
+SECTIONS: dict[str, Callable[[argparse.Namespace], dict]] = {"decode": decode_section, "algorithms": _algos}
 
 
 def main(argv: list[str] | None = None) -> int:

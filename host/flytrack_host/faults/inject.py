@@ -109,7 +109,7 @@ class HostStop(Fault):
     """SIGSTOP the host process itself for `hold_s` (an overloaded or swapping host), from a child
     shell, then SIGCONT: the host must catch up and say what it skipped."""
 
-    hold_s = 1.0
+    hold_s = 1.5
 
     def inject(self, ctx: Any) -> None:
         pid = os.getpid()

@@ -81,7 +81,7 @@ def detect_fast_starts(P: F64, fps: float, length: float, fish: int = 0, thresho
             prof = ks[peak, 2:-2]  # the very ends carry little bend
             pos = np.nansum(np.clip(prof, 0, None))
             neg = np.nansum(np.clip(-prof, 0, None))
-            kind = "S-start" if min(pos, neg) > 0.35 * max(pos, neg) else "C-start"
+            kind = "S-start" if min(pos, neg) > 0.2 * max(pos, neg) else "C-start"
             out.append(FastStart(fish, kind, onset, peak, float(kt[peak] / length), rise_ms))
         k = e + 1
     return out

@@ -20,7 +20,7 @@ from flytrack_host.fish.fit import FitConfig, anneal
 from flytrack_host.fish.iekf import iekf_update
 from flytrack_host.fish.shape import ShapeModel, default_model, make_state, midline_world
 from flytrack_host.fish.silhouette import Blob, Silhouettes
-from flytrack_host.fish.views import View
+from flytrack_host.fish.views import GridProjection, View, refracts
 
 F64 = NDArray[np.float64]
 
@@ -174,6 +174,10 @@ def generate_model(top: View, side: View, sil_top: Silhouettes, sil_side: Silhou
     tail3 = o[1] + lam[1] * dvec[1]
     L0 = float(np.linalg.norm(tail3 - r)) if length_hint is None else length_hint
     nose_frac = float(np.linalg.norm(nose3 - r)) / max(L0, 1e-6)
+    if refracts(top):  # many projections near this fish through a refracting camera: tabulate them
+        top = GridProjection(top, r - 0.5 * L0 * h, half=0.6 * L0 + 0.01)
+    if refracts(side):
+        side = GridProjection(side, r - 0.5 * L0 * h, half=0.6 * L0 + 0.01)
     base = default_model(L0)
     # eq. 3.3: midline p by SA then quasi-Newton, head and heading fixed
     X_base = make_state(r, h, [L0, 0, 0, 0, 0])[0]
@@ -192,6 +196,12 @@ def generate_model(top: View, side: View, sil_top: Silhouettes, sil_side: Silhou
     if res.fun < c:
         z, c = res.x, float(res.fun)
     p = z * scale
+    # one fish in clear view: its silhouette pixels lie, on average, within about half its widest half-width
+    # of the fitted midline (for a fish ~0.4 of the radius); two fish touching, or a fish with another
+    # across it, leave many pixels far from any one midline
+    if not c < 0.8 * rad + 1.0:
+        raise ModelError(f"the top silhouette is not one fish in clear view (mean distance to the midline "
+                         f"{c:.1f} px, head radius {rad:.1f} px)")
     X = make_state(r, h, p)[0]
     # eq. 3.8 by the iterated EKF: a from the top view, b and d from the side view, at each station
     st = np.concatenate([-nose_frac * np.array([0.7, 0.4]), base.s[base.s >= 0]])

@@ -51,21 +51,25 @@ class TrackResult:
 
 
 def match_side_blobs(top: View, side: View, sil_top: Silhouettes, sil_side: Silhouettes,
-                     zrange: tuple[float, float]) -> list[tuple[int, int]]:
+                     zrange: tuple[float, float], margin: float = 0.25) -> list[tuple[int, int]]:
     """Pair each top-view blob with the side-view blob that sees the same fish: lift the top blob's head
-    and tail onto each side blob's line and keep the side blob whose extent along u the lifted fish covers
-    best. Top blobs without a consistent side blob (hidden, touching another fish) are left out."""
-    pairs = []
-    used: set[int] = set()
+    and tail onto each side blob's line and score how well the lifted fish's extent along u covers the side
+    blob (IoU); the pairs are the assignment with the best total score (Hungarian). A top blob whose best
+    side blob does not beat its second best by `margin` is ambiguous (two fish at different depths can
+    line up so that either pairing fits) and is left out, as are top blobs without a consistent side blob
+    (hidden, touching another fish)."""
+    from scipy.optimize import linear_sum_assignment
+
+    nt, ns = len(sil_top.blobs), len(sil_side.blobs)
+    if nt == 0 or ns == 0:
+        return []
+    score = np.zeros((nt, ns))
     for jt, bt in enumerate(sil_top.blobs):
         try:
             head, _, _, tail = landmarks(bt, sil_top.mask.shape)
         except ModelError:
             continue
-        best, best_j = 0.0, -1
         for js, bs in enumerate(sil_side.blobs):
-            if js in used:
-                continue
             line = side_line(bs)
             try:
                 a = lift(top, side, head, line, zrange)
@@ -76,12 +80,14 @@ def match_side_blobs(top: View, side: View, sil_top: Silhouettes, sil_side: Silh
             lo, hi = min(ua, ub), max(ua, ub)
             x0, x1 = bs.bbox[0], bs.bbox[0] + bs.bbox[2]
             inter = max(0.0, min(hi, x1) - max(lo, x0))
-            iou = inter / max(max(hi, x1) - min(lo, x0), 1e-6)
-            if iou > best:
-                best, best_j = iou, js
-        if best_j >= 0 and best > 0.5:
-            pairs.append((jt, best_j))
-            used.add(best_j)
+            score[jt, js] = inter / max(max(hi, x1) - min(lo, x0), 1e-6)
+    rows, cols = linear_sum_assignment(-score)
+    pairs = []
+    for jt, js in zip(rows, cols, strict=True):
+        others = np.delete(score[jt], js)
+        second = float(others.max()) if others.size else 0.0
+        if score[jt, js] > 0.5 and score[jt, js] - second >= margin:
+            pairs.append((int(jt), int(js)))
     return pairs
 
 

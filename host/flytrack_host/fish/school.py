@@ -65,11 +65,13 @@ def make_school(n_fish: int, n_frames: int = 200, fps: float = 250.0, length: fl
         cx, cy = centres[g % len(centres)]
         # headings kept >= 50 degrees away from the side camera's axis (y) so each fish shows its length
         # in the side view at the start, as the seed's model generation needs
-        dirs = [0.0, 40.0, 140.0] if k == 3 else [30.0, 150.0]
+        # and at least 80 degrees apart, so they start apart and meet only at the crossing
+        dirs = [0.0, 220.0, 140.0] if k == 3 else [30.0, 150.0]
+        flip = 180.0 * rng.integers(0, 2)
         members = []
         tc = t_cross + 12 * g  # groups cross at different times
         for j in range(k):
-            yaw = np.deg2rad(dirs[j] + rng.uniform(-8, 8)) + np.pi * rng.integers(0, 2)
+            yaw = np.deg2rad(dirs[j] + flip + rng.uniform(-8, 8))
             # a depth of its own per fish, so the side view starts clear (the seed's model needs it)
             z = 0.20 + (fi - (n_fish - 1) / 2) * min(0.03, 0.24 / max(n_fish, 1)) + rng.uniform(-0.003, 0.003)
             h = heading_from_angles(yaw, 0.0)

@@ -40,8 +40,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flytrack_host import __version__
+from flytrack_host import __version__, hostclock
 from flytrack_host.io.data2d import Data2D, empty_rows
+from flytrack_host.io.reprojection import associated_reprojection
 from flytrack_host.recording.reader import Recording
 from flytrack_host.recording.schema import FLAG_REJECTED
 
@@ -183,7 +184,7 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
                           "tcnt": np.clip(np.round(c["fraction"] * 255), 0, 255).astype(np.int64),
                           "stop_timestamp": c["stop_timestamp"]}, columns=CLOCK_COLUMNS)
 
-    t0 = float(rec.meta.get("start_time", time.time()))
+    t0 = float(rec.meta.get("start_time", hostclock.wall()))  # a label: the export time if unknown
     log_rows = [(t0, "", t0, f"MainBrain running at {fps:g} fps" if fps else "MainBrain running at unknown fps"),
                 (t0, "", t0, json.dumps({"tracking_params": braid_tracking_params(rec.meta.get("tracking_params"))}))]
     for r in rec.textlog:
@@ -261,18 +262,11 @@ def _hlogs(rec: Recording, kal: pd.DataFrame, assoc: pd.DataFrame, data2d: pd.Da
             p.write_bytes(cal_xml)
             by_name = load_flydra_xml(p, [])
         names = _cam_names(rec)
-        m = assoc.merge(kal[["obj_id", "frame", "x", "y", "z"]], on=["obj_id", "frame"])
-        m = m.merge(data2d[["camn", "frame", "frame_pt_idx", "x", "y"]].rename(
-            columns={"camn": "cam_num", "frame_pt_idx": "pt_idx", "x": "u", "y": "v"}),
-            on=["cam_num", "frame", "pt_idx"])
+        cams = {int(i): by_name[n] for i, n in names.items() if n in by_name}
+        d = associated_reprojection(kal[["obj_id", "frame", "x", "y", "z"]],
+                                    assoc.rename(columns={"cam_num": "camn"}), rec.table("data2d_distorted"), cams)
         h = Histogram(1, 1_000_000, 3)
-        for camn, g in m.groupby("cam_num"):
-            cam = by_name.get(names.get(int(camn), ""))
-            if cam is None:
-                continue
-            uv = cam.project(g[["x", "y", "z"]].to_numpy(dtype=np.float64))
-            d = np.hypot(uv[:, 0] - g["u"].to_numpy(float), uv[:, 1] - g["v"].to_numpy(float))
-            h.record(100.0 * d)
+        h.record(100.0 * d)
         if h.total:
             out["reprojection_distance_100x_pixels.hlog"] = hlog_text(
                 h, t0, duration, "distance of each associated 2D point to its estimate's projection, 1/100 px")

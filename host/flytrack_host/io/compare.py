@@ -25,6 +25,7 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 from flytrack_host.camera import Camera
+from flytrack_host.io.reprojection import associated_reprojection
 
 
 class CompareError(Exception):
@@ -38,6 +39,14 @@ class TrackSet:
     assoc: pd.DataFrame | None  # obj_id, frame, camn, pt_idx
     rows: np.ndarray | None  # DATA2D rows (camera_index, trigger_frame, frame_pt_idx, x_dist, y_dist)
     cameras: dict[int, Camera] = field(default_factory=dict)
+
+
+def _columns(df: pd.DataFrame, cols: list[str], path: Path, table: str) -> pd.DataFrame:
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise CompareError(f"{path}: its {table} table has no column {', '.join(missing)} "
+                           f"(it has {', '.join(map(str, df.columns)) or 'none'})")
+    return df[cols].copy()
 
 
 def load_tracks(path: Path | str, calibration: Path | None = None) -> TrackSet:
@@ -61,9 +70,10 @@ def load_tracks(path: Path | str, calibration: Path | None = None) -> TrackSet:
             a = _read_table(z, "data_association")
         if k is None:
             raise CompareError(f"{path}: no kalman_estimates table")
-        est = k[["obj_id", "frame", "x", "y", "z"]].copy()
+        est = _columns(k, ["obj_id", "frame", "x", "y", "z"], path, "kalman_estimates")
         if a is not None and len(a.columns):
-            assoc = a.rename(columns={"cam_num": "camn"})[["obj_id", "frame", "camn", "pt_idx"]]
+            assoc = _columns(a.rename(columns={"cam_num": "camn"}), ["obj_id", "frame", "camn", "pt_idx"], path,
+                             "data_association")
     else:
         from flytrack_host.recording.finalize import RecordingError
         from flytrack_host.recording.reader import load_recording
@@ -76,7 +86,7 @@ def load_tracks(path: Path | str, calibration: Path | None = None) -> TrackSet:
             k = read_flydra_kalman(path)
             if k is None or not len(k):
                 raise CompareError(f"{path}: no kalman_estimates table") from None
-            est = k[["obj_id", "frame", "x", "y", "z"]].copy()
+            est = _columns(k, ["obj_id", "frame", "x", "y", "z"], path, "kalman_estimates")
             assoc = read_flydra_association(path)
         else:
             k = rec.table("kalman_estimates")
@@ -119,31 +129,13 @@ class Comparison:
                     and float(np.median(self.distances_m)) * 1e3 <= max_median_mm)
 
 
-def _points_index(rows: np.ndarray) -> dict[tuple[int, int, int], tuple[float, float]]:
-    ok = np.isfinite(rows["x_dist"]) & np.isfinite(rows["y_dist"])
-    r = rows[ok]
-    return {(int(c), int(f), int(p)): (float(x), float(y)) for c, f, p, x, y in
-            zip(r["camera_index"], r["trigger_frame"], r["frame_pt_idx"], r["x_dist"], r["y_dist"], strict=True)}
-
-
 def reprojection(ts: TrackSet, nearest_px: float = 10.0) -> tuple[np.ndarray, str]:
     """Per (estimate, camera) pair: distance (px) from the estimate's projection to the 2D point it used."""
     if ts.rows is None or not ts.cameras or not len(ts.est):
         return np.empty(0), "no 2D points or calibration"
-    out: list[float] = []
     if ts.assoc is not None and len(ts.assoc):
-        pts = _points_index(ts.rows)
-        m = ts.assoc.merge(ts.est, on=["obj_id", "frame"], how="inner")
-        for camn, g in m.groupby("camn"):
-            cam = ts.cameras.get(int(camn))
-            if cam is None:
-                continue
-            uv = cam.project(g[["x", "y", "z"]].to_numpy(dtype=np.float64))
-            for (f, p), q in zip(zip(g["frame"], g["pt_idx"], strict=True), uv, strict=True):
-                obs = pts.get((int(camn), int(f), int(p)))
-                if obs is not None:
-                    out.append(float(np.hypot(q[0] - obs[0], q[1] - obs[1])))
-        return np.asarray(out), "the points of its data association"
+        return associated_reprojection(ts.est, ts.assoc, ts.rows, ts.cameras), "the points of its data association"
+    out: list[float] = []
     r = ts.rows[np.isfinite(ts.rows["x_dist"])]
     for camn, cam in ts.cameras.items():
         rc = r[r["camera_index"] == camn]

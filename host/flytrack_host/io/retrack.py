@@ -228,7 +228,16 @@ def retrack(
         })
         rec.start()
         # The calibration used travels with the result (so it can be retracked again).
-        rec.attach("calibration.xml", calibration_xml(data, cameras))
+        from flytrack_host.calibration.formats import CalibrationFormatError
+
+        try:
+            rec.attach("calibration.xml", calibration_xml(data, cameras))
+        except CalibrationFormatError as exc:  # e.g. tank-wall interfaces flydra XML cannot hold
+            if data.calibration is not None:
+                rec.attach(data.calibration[0], data.calibration[1])
+            notes.append(f"the calibration used could not be written as flydra XML ({exc}); "
+                         + ("the source's calibration file is attached instead" if data.calibration is not None
+                            else "the result carries no calibration"))
         ci = np.zeros(len(data.cam_names), dtype=CAM_INFO)
         for i, (idx, name) in enumerate(sorted(data.cam_names.items())):
             ci[i] = (idx, name.encode()[:64], b"", name.encode()[:64])

@@ -22,11 +22,11 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import IO, Any
 
+from flytrack_host import hostclock
 from flytrack_host.tracking.types import FrameResult
 
 BRAID_VERSION = 3
@@ -58,7 +58,7 @@ def envelope(msg: dict[str, Any], synced_frame: int, trigger_timestamp: float | 
              now: float | None = None) -> dict[str, Any]:
     """The ToListener wrapper around one message."""
     tt = trigger_timestamp if trigger_timestamp is not None and math.isfinite(trigger_timestamp) else None
-    latency = None if tt is None else _num((time.time() if now is None else now) - tt)
+    latency = None if tt is None else _num((hostclock.now() if now is None else now) - tt)
     return {"v": BRAID_VERSION, "msg": msg, "latency": latency, "synced_frame": int(synced_frame),
             "trigger_timestamp": tt}
 
@@ -102,7 +102,7 @@ def frame_events(result: FrameResult, trigger_timestamp: float, now: float | Non
     """The frame's events, one byte string each: the same bytes as `sse_event(envelope(m, ...))` for
     each of `frame_messages(result)`, built faster with string formatting (the publisher encodes
     every frame; see test_braid_messages)."""
-    now = time.time() if now is None else now
+    now = hostclock.now() if now is None else now
     frame = int(result.trigger_frame)
     tt_ok = trigger_timestamp is not None and math.isfinite(trigger_timestamp)
     lat = _js(now - trigger_timestamp) if tt_ok else "null"

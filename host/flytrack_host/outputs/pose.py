@@ -39,6 +39,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
+from flytrack_host import hostclock
 from flytrack_host.tracking.types import FrameResult
 
 MAGIC = b"FTPS"
@@ -215,7 +216,7 @@ class PoseStream:
 
     def tick(self, now: float | None = None) -> list[bytes]:
         """One tick's datagrams (also used by the tests without the thread)."""
-        now = time.time() if now is None else now
+        now = hostclock.now() if now is None else now  # the estimates' times are host times
         self._take_latest(now)
         ids = self._select(now)
         out = []
@@ -295,7 +296,7 @@ class PoseClient:
                 if len(self.stats.errors) < 20:
                     self.stats.errors.append(str(exc))
                 continue
-            m.recv_time = time.time()
+            m.recv_time = time.time()  # noqa: TID251 - the stimulus program's own clock, a label
             return m
 
     def messages(self, timeout: float | None = 1.0) -> Iterator[PoseMessage]:

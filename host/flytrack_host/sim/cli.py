@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
+from flytrack_host.outputs.launch import POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
 from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
 
@@ -66,10 +66,15 @@ def summary_table(r: DemoReport) -> Table:
             f"{k.replace('simulated ', 'sim ')} {v:.1f}" for k, v in r.cpu_seconds.items()))
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
+    for d in r.dvs:
+        t.add_row(f"DVS {d['name']} events", f"{d['events_received']}/{d['events_sent']}",
+                  f"received/sent, {d['slices_received']} slices, {d['clusters_received']} clusters")
+        t.add_row(f"DVS {d['name']} observations", str(d["points_observed"]),
+                  f"2D points to the tracker in {d['frames_observed']} frames")
     if r.actuation:
         from flytrack_host.sim.closed_loop import closed_loop_line
 
-        t.add_row("closed loop", *closed_loop_line(r.actuation))
+        t.add_row("closed loop fired", *closed_loop_line(r.actuation))
     return t
 
 
@@ -91,17 +96,24 @@ def demo_command(
         "flight's ground truth (JSON `actuation`)."),
     serve: bool = typer.Option(False, "--serve", help="Serve Braid's event stream and the live page while it "
                                "runs (on --http, default 127.0.0.1:8397)."),
-    http: str = typer.Option("127.0.0.1:8397", "--http", help="With --serve: " + HTTP_HELP),
+    http: str = typer.Option("127.0.0.1:8397", "--http", help="With --serve: HOST:PORT to serve on. Any "
+                             "address other than loopback needs the token printed at start."),
     pose: str | None = typer.Option(None, "--pose", help=POSE_HELP),
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
+    dvs: int = typer.Option(0, "--dvs", help="Add N simulated DVS (event) cameras beside the frame cameras: "
+                            "events rendered from the flight model, streamed into their own flytrack-edge "
+                            "(--source events), DVS_CLUSTERS to the host; the JSON `dvs` counts events "
+                            "sent and received per DVS camera."),
+    dvs_sensor: str = typer.Option("davis346", "--dvs-sensor", help="dvs128 (128x128) or davis346 (346x260)."),
 ) -> None:
     """Simulated rig end to end: flight model, firmware trigger in simavr, rendered cameras, real edge
     extractors, UDP on loopback, the real host; scores against ground truth."""
     console = Console()
     cfg = DemoConfig(cameras=cameras, animals=animals, fps=fps, seconds=seconds, noise=noise, seed=seed,
-                     out=out, trigger=trigger, progress=not no_progress, rules=rules)
+                     out=out, trigger=trigger, progress=not no_progress, rules=rules,
+                     dvs=dvs, dvs_sensor=dvs_sensor)
     try:
         outputs = LiveOutputs.from_options(http=http if serve else None, pose=pose, pose_rate=pose_rate,
                                            pose_lead_ms=pose_lead_ms, pose_lock=pose_lock)

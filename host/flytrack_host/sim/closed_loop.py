@@ -174,14 +174,22 @@ class ClosedLoopLab:
 
 
 def closed_loop_line(act: dict[str, Any]) -> tuple[str, str]:
-    """The summary's one closed-loop line: value and note."""
+    """The summary's one closed-loop line: value and note (kept short: the table is 80 columns)."""
     parts_v, parts_n = [], []
-    for name, d in act.get("rules", {}).items():
-        parts_v.append(f"{d['fired']}/{d['expected']} fired")
-        parts_n.append(f"{name}: {d['missed']} missed, {d['false_fires']} false, frame err "
-                       f"{_fmt(d['frame_error_max'], 'd')} ({_fmt(d['frame_error_max_no_prediction'], 'd')} w/o "
-                       f"prediction), ack P50/P99 {_fmt(d['latency_ms_p50'])}/{_fmt(d['latency_ms_p99'])} ms")
+    for d in act.get("rules", {}).values():
+        parts_v.append(f"{d['fired']}/{d['expected']}, {d['missed']} miss, {d['false_fires']} false")
+        err, err_np = _span(d.get("frame_errors")), _span(d.get("frame_errors_no_prediction"))
+        p50, p99 = _fmt(d["latency_ms_p50"], ".1f"), _fmt(d["latency_ms_p99"], ".1f")
+        parts_n.append(f"frame err {err} ({err_np} unpredicted); ack P50/P99 {p50}/{p99} ms")
     return "; ".join(parts_v), "; ".join(parts_n)
+
+
+def _span(errs: list[int] | None) -> str:
+    """Signed frame errors as a range (+0, -3..+1), n/a when there is none."""
+    if not errs:
+        return "n/a"
+    lo, hi = min(errs), max(errs)
+    return f"{lo:+d}" if lo == hi else f"{lo:+d}..{hi:+d}"
 
 
 def _fmt(x: float, kind: str = ".2f") -> str:

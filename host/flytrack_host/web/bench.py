@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.outputs import braid
 from flytrack_host.outputs.pose import PoseClient, PoseStream
 from flytrack_host.pipeline import HostPipeline
@@ -44,6 +45,7 @@ from flytrack_host.rig import parse_rig
 from flytrack_host.sync import FixedRateClock
 from flytrack_host.tracking.synthetic import make_scenario
 from flytrack_host.tracking.types import FrameResult
+from flytrack_host.web import browser as browser_mod
 from flytrack_host.web.server import LiveServer, calibration_xml_of
 
 _EOF = re.compile(rb'"EndOfFrame":(\d+)')
@@ -87,10 +89,10 @@ class SyncBraidSink:
 
 def send_all(plan: list, dest: tuple[str, int], t_start: float, fps: float) -> None:
     socks: dict[int, socket.socket] = {}
-    while time.time() < t_start:
+    while hostclock.now() < t_start:
         time.sleep(0.001)
     for frame, cam, dg in plan:
-        wait = t_start + frame / fps - time.time()
+        wait = t_start + frame / fps - hostclock.now()
         if wait > 0:
             time.sleep(wait)
         sock = socks.get(cam) or socks.setdefault(cam, socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
@@ -109,7 +111,7 @@ def _client(sock: socket.socket, out: list, page: bool = False) -> None:
             break
         if not chunk:
             break
-        now = time.time()
+        now = hostclock.now()
         buf += chunk
         cut = buf.rfind(b"\n\n")  # events end with a blank line; TCP may split anywhere
         if cut >= 0:
@@ -168,7 +170,7 @@ def clients_process(addr: tuple[str, int] | None, n: int, conn: Any, page: bool,
 
 
 def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str, Any]:
-    t_start = time.time() + 1.5
+    t_start = hostclock.now() + 1.5
     rig = parse_rig({
         "name": "bench", "trigger": {"kind": "software", "fps": a.fps},
         "host": {"listen": "127.0.0.1:7000", "live_subscribers": []},
@@ -180,11 +182,13 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
     proc = None
     timed = None
     pose = None
+    br = None
+    page_js = None
     with tempfile.TemporaryDirectory() as d:
         pipe = HostPipeline(rig, sc.cameras, clock=FixedRateClock(a.fps, start_time=t_start),
                             recording_path=Path(d) / "bench.flytrack", bind="127.0.0.1:0")
         if mode == "ours":
-            server = LiveServer("127.0.0.1", 0, calibration_xml=calibration_xml_of(pipe))
+            server = LiveServer("127.0.0.1", 0, calibration_xml=calibration_xml_of(pipe), poll_s=a.poll_ms / 1e3)
             server.start()
             server.state.pipe = pipe
             proc = cctx.Process(target=clients_process,
@@ -196,6 +200,10 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
             end = time.monotonic() + 10
             while server.clients.count() < a.clients + (0 if a.no_page else 1) and time.monotonic() < end:
                 time.sleep(0.01)
+            if a.browser and browser_mod.missing() is None:
+                # The page itself in chromium (its own processes): what it measures is what a user sees.
+                br = browser_mod.Browser()
+                br.driver.get(server.url)
         elif mode == "sync":
             lp = _free_port()
             proc = cctx.Process(target=clients_process, args=(None, a.clients, child, False, lp))
@@ -212,6 +220,9 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
         sender.start()
         sender.join()
         time.sleep(0.2)
+        if br is not None:
+            page_js = br.js("return [window.flytrack.updateTimes, window.flytrack.delays]")
+            br.close()
         threads_cpu = _thread_cpu()
         if a.verbose:
             print(f"  {mode}: CPU s per thread: {threads_cpu}")
@@ -260,6 +271,10 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
         span = page_rows[-1][1] - page_rows[0][1]
         out.update(page_updates_per_s=(len(page_rows) - 1) / span if span > 0 else float("nan"),
                    page_delay_p50_ms=float(np.median(d)), page_delay_p99_ms=float(np.percentile(d, 99)))
+    if page_js and len(page_js[0]) > 2 and page_js[1]:
+        times, delays = np.asarray(page_js[0]), np.asarray(page_js[1]) * 1e3
+        out.update(browser_updates_per_s=(times.size - 1) / (times[-1] - times[0]),
+                   browser_delay_p50_ms=float(np.median(delays)), browser_delay_p99_ms=float(np.percentile(delays, 99)))
     if mode == "ours":
         st = server.stats()
         out.update(dropped_slow=st["clients_dropped_slow"], pose_datagrams_received=pose_n,
@@ -298,6 +313,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-page", action="store_true", help="No page client (to see its share).")
     ap.add_argument("--rounds", type=int, default=2, help="Rounds of the modes, interleaved.")
     ap.add_argument("--modes", default="ours,sync,none", help="Which runs, comma separated.")
+    ap.add_argument("--poll-ms", type=float, default=5.0, help="The publisher's poll period (LiveServer poll_s).")
+    ap.add_argument("--browser", action="store_true", help="Also load the page in chromium during 'ours'.")
     ap.add_argument("--verbose", action="store_true", help="Print the worst frames of the first client.")
     a = ap.parse_args(argv)
     sc = make_scenario(n_cameras=a.cameras, n_targets=a.targets, duration_s=a.seconds, fps=a.fps, seed=5)
@@ -344,6 +361,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"page stream at {a.cameras} cameras x {a.targets} targets: {mean_of('ours', 'page_updates_per_s'):.1f} "
               f"new states/s, estimate -> state received P50 {mean_of('ours', 'page_delay_p50_ms'):.1f} ms, "
               f"P99 {mean_of('ours', 'page_delay_p99_ms'):.1f} ms (goals >= 10/s, < 100 ms)")
+        if any("browser_updates_per_s" in r for r in runs):
+            print(f"the page in chromium at {a.cameras} x {a.targets}: {mean_of('ours', 'browser_updates_per_s'):.1f} "
+                  f"updates/s (incl. the run's end), estimate -> drawn P50 "
+                  f"{mean_of('ours', 'browser_delay_p50_ms'):.1f} ms, "
+                  f"P99 {mean_of('ours', 'browser_delay_p99_ms'):.1f} ms")
         print(f"ours: {ours.get('dropped_slow', 0)} clients dropped; pose {ours.get('pose_ticks', 0)} ticks "
               f"({ours.get('pose_late_ticks', 0)} late), {ours.get('pose_datagrams_received', 0)} object datagrams "
               f"received, estimate age P50 {ours.get('pose_age_p50_ms', float('nan')):.1f} ms; "

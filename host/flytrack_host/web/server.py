@@ -9,10 +9,11 @@ events (message version 3, see `flytrack_host.outputs.braid`); `/ui/events` the 
 server-sent events (`event: state`, ~20 Hz); `/api/state` one state snapshot; `/api/stats` the
 server's own counts.
 
-Threads: the tracking thread only appends to a bounded deque in `on_frame`. One publisher thread
-turns frames into Braid events and page snapshots and offers them to each client's bounded backlog
-(`web.clients`); each connection has its own thread (stdlib `ThreadingHTTPServer`) that writes. A
-client that stops reading is dropped when its backlog is full, and counted.
+Threads: the tracking thread only appends to a bounded deque in `on_frame`. Connection threads
+(stdlib `ThreadingHTTPServer`) answer requests; a streaming request's socket is handed, after the
+headers, to the one publisher thread, which turns frames into Braid events and page states and writes
+every stream with non-blocking sockets, each client with a bounded backlog (`web.clients`). A client
+that stops reading is dropped when its backlog is full, and counted.
 
 Bound to a loopback address no token is asked. Bound to any other address, every request needs the
 token (printed at start, as Braid does) as `?token=` or the `flytrack_token` cookie that a page
@@ -45,6 +46,7 @@ from flytrack_host.outputs import braid
 from flytrack_host.tracking.types import FrameResult
 from flytrack_host.web.clients import ClientSet
 from flytrack_host.web.state import LiveState
+from flytrack_host.web.thumbs import Requester, ThumbnailAssembler
 
 log = logging.getLogger("flytrack.web")
 
@@ -135,6 +137,10 @@ class _HttpServer(ThreadingHTTPServer):
         super().shutdown_request(request)
 
 
+class _HttpServer6(_HttpServer):
+    address_family = socket.AF_INET6
+
+
 class _Handler(BaseHTTPRequestHandler):
     server: _HttpServer
     timeout = 10.0  # seconds: reading a request, and each write (a stuck client is let go)
@@ -221,6 +227,15 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(200, "application/json", to_json(live.stats()))
         elif path in ("/", "/index.html"):
             self._static("index.html")
+        elif path.startswith("/thumb/") and path.endswith(".png"):
+            try:
+                t = live.thumbs.latest.get(int(path[len("/thumb/"):-len(".png")]))
+            except ValueError:
+                t = None
+            if t is None:
+                self.send_error(HTTPStatus.NOT_FOUND, "no image from this camera yet")
+            else:
+                self._send(200, "image/png", t.png)
         elif path == "/favicon.ico":
             self._headers(204, "image/x-icon", 0)
         elif path.startswith("/static/"):
@@ -289,20 +304,29 @@ class LiveServer:
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str | None = None,
                  calibration_xml: str | None = None, ui_hz: float = 20.0, max_clients: int = 64,
-                 client_backlog_bytes: int = 2 << 20, frame_backlog: int = 2000):
+                 client_backlog_bytes: int = 2 << 20, frame_backlog: int = 2000, thumbnails_every_s: float = 0.0,
+                 poll_s: float = POLL_S):
         self.host = host
         self.port = port
         # Any address other than loopback needs the token (generated unless given).
         self.token = None if is_loopback(host) and token is None else (token or secrets.token_urlsafe(16))
         self.calibration_xml = calibration_xml
         self.ui_period = 1.0 / ui_hz
+        self.poll_s = poll_s
         self.clients = ClientSet(max_clients=max_clients, limit_bytes=client_backlog_bytes)
         self.state = LiveState()
+        # Camera thumbnails from the edges' IMAGE messages; with thumbnails_every_s > 0 the server
+        # asks each edge for a frame that often (CONTROL SEND_FULL_IMAGE on the rig's control port).
+        self.thumbs = ThumbnailAssembler()
+        self.state.thumbs = self.thumbs
+        self.thumbnails_every_s = thumbnails_every_s
+        self._requester: Requester | None = None
         self.counts: dict[str, int] = {"frames_in": 0, "frames_dropped": 0, "frames_published": 0,
                                        "unauthorised": 0, "bad_requests": 0, "refused_connections": 0,
                                        "publish_errors": 0, "ui_snapshots": 0, "connection_errors": 0,
-                                       "handler_errors": 0}
+                                       "handler_errors": 0, "deaths_added": 0}
         self._frames: deque[tuple[FrameResult, float, float]] = deque()
+        self._live_ids: set[int] = set()
         self._frame_backlog = frame_backlog
         # The publisher polls for frames every POLL_S while clients are connected: on_frame is then only
         # an append. Waking it per frame (Event.set: a futex call and a thread switch on the tracking
@@ -324,6 +348,9 @@ class LiveServer:
     def attach(self, pipe: Any) -> LiveServer:
         """Feed on `pipe`'s frames (joins its sinks), read its state for the page, and start serving."""
         self.state.pipe = pipe
+        if self.thumbnails_every_s > 0 and self._requester is None:
+            port = pipe.rig.host.control_port
+            self._requester = Requester({c.index: (c.edge, port) for c in pipe.rig.cameras}, self.thumbnails_every_s)
         if self.calibration_xml is None:
             self.calibration_xml = calibration_xml_of(pipe)
         if self._httpd is None:
@@ -332,7 +359,8 @@ class LiveServer:
         return self
 
     def start(self) -> None:
-        httpd = _HttpServer((self.host, self.port), _Handler)
+        cls = _HttpServer6 if ":" in self.host else _HttpServer
+        httpd = cls((self.host, self.port), _Handler)
         httpd.live = self
         self._httpd = httpd
         self.port = httpd.server_address[1]
@@ -365,6 +393,8 @@ class LiveServer:
         if self._httpd is not None:
             self._httpd.shutdown()
             self._httpd.server_close()
+        if self._requester is not None:
+            self._requester.close()
 
     # --- ResultSink (tracking thread: append and return) ------------------------------------------
     def on_frame(self, result: FrameResult, frame_time: float, estimate_time: float) -> None:
@@ -391,7 +421,7 @@ class LiveServer:
                 # Every POLL_S with clients (frames, slow clients' backlogs, clients that left), else at
                 # the next page tick; a new client or close() wakes it at once.
                 wait = max(0.0, next_ui - time.monotonic())
-                self._wake.wait(min(wait, POLL_S) if self.clients.clients else min(wait, 0.05))
+                self._wake.wait(min(wait, self.poll_s) if self.clients.clients else min(wait, 0.05))
                 self._wake.clear()  # before draining: a frame appended from now on wakes us again
                 stopping = self._stop.is_set()
                 now = time.monotonic()
@@ -403,6 +433,7 @@ class LiveServer:
                         self.clients.on_ready(key.data, mask)
                 self.clients.admit()
                 self._drain()
+                self._images()
                 now = time.monotonic()
                 if now >= next_ui or stopping:
                     self._ui_tick(final=stopping)
@@ -427,14 +458,35 @@ class LiveServer:
                 self.clients.on_ready(key.data, mask)
         self.clients.close_all()
 
+    def _images(self) -> None:
+        pipe = self.state.pipe
+        rx = getattr(pipe, "receiver", None) if pipe is not None else None
+        if rx is not None and getattr(rx, "on_image", False) is None:
+            rx.on_image = self.thumbs.add  # the receiver exists once the pipeline started
+        if self.thumbs.chunks:
+            self.thumbs.assemble()
+        if self._requester is not None:
+            self._requester.tick(time.monotonic())
+
     def _drain(self) -> None:
         q = self._frames
         while q:
             result, frame_time, estimate_time = q.popleft()
             if result.trigger_frame < 0:
                 continue
+            # An object gone without a Death (the tracker restarted after an error or a clock jump,
+            # or frames lost here) gets one, so a Braid client never keeps a stale object.
+            ids = {int(e.obj_id) for e in result.estimates}
+            vanished = self._live_ids - ids - {int(i) for i in result.died}
+            self._live_ids = ids
+            self.counts["deaths_added"] += len(vanished)
             if self.clients.count("braid"):
-                self.clients.broadcast("braid", braid.frame_events(result, frame_time))
+                events = braid.frame_events(result, frame_time)
+                if vanished:
+                    f = int(result.trigger_frame)
+                    events[-1:-1] = [braid.sse_event(braid.envelope({"Death": i}, f, frame_time))
+                                     for i in sorted(vanished)]
+                self.clients.broadcast("braid", events)
             self.state.add_frame(result, frame_time, estimate_time)
             self.counts["frames_published"] += 1
             # Let the GIL go between frames: a tracking thread waiting for it gets it now, not after
@@ -459,7 +511,10 @@ class LiveServer:
 
     def stats(self) -> dict[str, Any]:
         s = self.clients.stats
-        return {**self.counts, "clients": s.connected, "clients_by_kind": dict(s.by_kind),
+        th = self.thumbs
+        return {**self.counts, "thumbnails": th.images, "thumbnails_incomplete": th.dropped_incomplete,
+                "thumbnail_requests": self._requester.sent if self._requester else 0,
+                "clients": s.connected, "clients_by_kind": dict(s.by_kind),
                 "clients_total": s.total, "clients_dropped_slow": s.dropped_slow,
                 "clients_disconnected": s.disconnected, "clients_refused_busy": s.refused_busy,
                 "bytes_sent": s.bytes_sent, "backlog_frames": len(self._frames)}

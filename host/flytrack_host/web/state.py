@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.tracking.types import FrameResult
 
 TRAIL_SECONDS = 3.0
@@ -35,6 +36,7 @@ def _r(v: float, nd: int = 4) -> float | None:
 class LiveState:
     def __init__(self, pipeline: Any = None, rule_sources: list[Callable[[], list[str]]] | None = None):
         self.pipe = pipeline
+        self.thumbs: Any = None  # web.thumbs.ThumbnailAssembler, set by the server
         self.trails: dict[int, deque[tuple[float, float, float]]] = {}
         self.last_point_time: dict[int, float] = {}
         self.last_seen: dict[int, float] = {}
@@ -91,12 +93,15 @@ class LiveState:
 
     # --- snapshot (publisher thread, ~20 Hz) ------------------------------------------------------
     def snapshot(self, server_stats: dict[str, Any] | None = None, final: bool = False) -> dict[str, Any]:
-        now = time.time()
-        tracks = [{"id": i, "live": i in self.live_ids, "trail": [[_r(a), _r(b), _r(c)] for a, b, c in tr],
+        now = hostclock.now()
+        live = set(self.live_ids)
+        tracks = [{"id": i, "live": i in live, "trail": [[_r(a), _r(b), _r(c)] for a, b, c in tr],
                    "vel": [_r(v, 3) for v in self.velocity.get(i, (math.nan,) * 3)]}
                   for i, tr in sorted(self.trails.items())]
         snap: dict[str, Any] = {
             "time": now,
+            # host time -> the browser's wall clock, for the page's estimate-to-page delay
+            "wall_offset": hostclock.wall() - now,
             "final": final,
             "frame": self.last_frame,
             "frames_published": self.frames,
@@ -189,9 +194,15 @@ class LiveState:
                 "latency_ms": lat_ms,
                 "points": pts,
                 "n_points": len(fr.points) if fr is not None else 0,
-                "thumbnail": None,  # the receiver does not reassemble IMAGE chunks yet
+                "thumbnail": self._thumb(c.index),
             })
         return cams
+
+    def _thumb(self, index: int) -> dict[str, Any] | None:
+        t = self.thumbs.latest.get(index) if self.thumbs is not None else None
+        if t is None:
+            return None
+        return {"id": t.image_id, "camera_frame": t.camera_frame, "age_s": round(time.monotonic() - t.time, 1)}
 
     def _recording(self, p: Any) -> dict[str, Any]:
         rec: dict[str, Any] = {"on": p.recorder is not None, "path": str(p.recording_path) if p.record else None}

@@ -23,13 +23,21 @@ def test_rules_check_ok_and_against_the_rig() -> None:
 
 
 def test_rules_check_names_file_rule_and_field(tmp_path: Path) -> None:
+    rig = str(ROOT / "examples" / "rig.toml")
     bad = tmp_path / "bad.toml"
     bad.write_text('[[rules]]\nname = "door"\n[rules.when]\nspeed_m_s = [0, 1]\n[[rules.actions]]\n'
                    'output = "lazer"\n')
-    r = CliRunner().invoke(app, ["rules", "check", str(bad), "--rig", str(ROOT / "examples" / "rig.toml")], env=ENV)
+    r = CliRunner().invoke(app, ["rules", "check", str(bad), "--rig", rig], env=ENV)
     assert r.exit_code == 2
     out = " ".join(r.output.split())
     assert f"{bad}: rules[0] 'door'.actions[0].output: 'lazer' is not an actuator of the rig" in out
+    # A message with brackets in it reaches the terminal whole (rich would take [x, y, z] for markup).
+    bad.write_text('[[rules]]\nname = "post"\ndry_run = true\n[rules.when]\n'
+                   'distance_m = { point = [0, 0, 0], post = [0, 0] }\n')
+    r = CliRunner().invoke(app, ["rules", "check", str(bad)], env=ENV)
+    out = " ".join(r.output.split())
+    assert r.exit_code == 2
+    assert f"{bad}: rules[0] 'post'.when.distance_m: give exactly one of point = [x, y, z] or post = [x, y]" in out
 
 
 def test_run_with_a_bad_rules_file_exits_before_starting(tmp_path: Path) -> None:

@@ -51,7 +51,7 @@ def test_modbus_absent_at_start_then_killed_and_back(act) -> None:  # noqa: ANN0
     logs: list[str] = []
     eng = act.engine(COIL, [ActuatorConfig(name="valve", kind="modbus", address=f"127.0.0.1:{port}", timeout_s=0.3)])
     eng._log = logs.append  # the pipeline's log in a live run
-    eng.warn.sink = logs.append
+    eng.warn.log = logs.append
     eng.start()
     peer = ModbusPeer(port=port)
     durations = act.drive_entries(eng, 1)  # nobody listens: the firing fails, tracking goes on

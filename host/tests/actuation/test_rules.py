@@ -64,6 +64,8 @@ output = "hscam"
     ("[[rules]]\nname = \"a\"\ndry_run = true\n[rules.when]\ninside = { box = { min = [0, 0, 0], max = [1, 1, 1] }, "
      "sphere = { center = [0, 0, 0], radius = 1 } }\n", "exactly one of box, cylinder, sphere, polygon"),
     ("[[rules]]\nname = \"a\"\ndry_run = true\n[rules.when]\naltitude_m = [0, nan]\n", "not a finite number"),
+    ("[[rules]]\nname = \"a\"\ndry_run = true\nobjects = \"frist\"\n[rules.when]\naltitude_m = [0, 1]\n",
+     "rules[0] 'a'.objects: objects is \"any\", \"first\" or a track id (an integer >= 0), not 'frist'"),
 ])
 def test_bad_rules_files(tmp_path: Path, text: str, expect: str) -> None:
     with pytest.raises(RulesError) as ei:

@@ -8,7 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from flytrack_host.actuation.devices.base import Job
+from flytrack_host import hostclock
+from flytrack_host.actuation.devices.base import Job, OutputError
 from flytrack_host.actuation.devices.trigger_pulse import TriggerPulseOutput
 from flytrack_host.actuation.rules import Action
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
@@ -49,8 +50,8 @@ def _entry_run(act, dev: TriggerDevice, predict: bool, v: float = 1.0) -> tuple[
     for k in range(n):
         f = f0 + k
         ft = model.frame_to_host_time(f)
-        time.sleep(max(0.0, ft + 0.002 - time.time()))
-        eng.on_frame(act.result(f, {1: (float(xs[k]), v)}), ft, time.time())
+        time.sleep(max(0.0, ft + 0.002 - hostclock.now()))
+        eng.on_frame(act.result(f, {1: (float(xs[k]), v)}), ft, hostclock.now())
     act.wait_for(lambda: eng.firings.count >= 1, 5.0)
     eng.close()
     return entry, eng
@@ -73,10 +74,18 @@ def test_pulse_lands_on_the_entry_frame(act, built) -> None:  # noqa: ANN001
             out = TriggerPulseOutput(ActuatorConfig(name="hscam", kind="trigger_pulse"),
                                      {"trigger": dev, "clock": dev.model})
             now_frame = int(dev.query_clock().frame_count) - 1
-            job = Job("late", 1, now_frame - 2, now_frame, time.time(), time.time(), (0.0, 0.0, 0.0),
+            job = Job("late", 1, now_frame - 2, now_frame, hostclock.now(), hostclock.now(), (0.0, 0.0, 0.0),
                       Action(output="hscam"), True)
             late = out.perform(job)
             time.sleep(0.05)
+            # One pulse waits at a time: a second one before the first has fired is refused, clearly.
+            ahead = int(dev.query_clock().frame_count) + 20
+            first = out.perform(Job("busy", 1, ahead - 2, ahead, hostclock.now(), hostclock.now(), (0.0, 0.0, 0.0),
+                                    Action(output="hscam"), True))
+            with pytest.raises(OutputError, match="one pulse at a time"):
+                out.perform(Job("busy", 2, ahead - 1, ahead + 5, hostclock.now(), hostclock.now(), (0.0, 0.0, 0.0),
+                                Action(output="hscam"), True))
+            time.sleep(0.3)  # the first fires
         finally:
             dev.stop_clock_thread()
             dev.stop()
@@ -84,7 +93,7 @@ def test_pulse_lands_on_the_entry_frame(act, built) -> None:  # noqa: ANN001
     _, edges = sim.edges()
     trig = rising(edges, "trigger")
     pulses = rising(edges, "pulse0")
-    assert len(pulses) == 3
+    assert len(pulses) == 4 and first.frame_exact
 
     def frame_of(cycle: int) -> int:  # frame n begins at the n+1-th rising edge of the trigger
         return int(np.searchsorted(np.asarray(trig), cycle, side="right")) - 1
@@ -93,6 +102,7 @@ def test_pulse_lands_on_the_entry_frame(act, built) -> None:  # noqa: ANN001
     # The late pulse's frame is estimated from the host clock (when the PULSE reached the firmware):
     # exact in 6 of 6 runs here; a write delayed by a busy machine can move it by one.
     assert abs(late.scheduled_frame - frame_of(pulses[2])) <= 1
+    assert frame_of(pulses[3]) == ahead  # the first of the two, on its frame
 
     t = eng.firings.table()
     assert len(t) == 1 and t["flags"][0] & FIRING_FRAME_EXACT and not t["error"][0]

@@ -148,6 +148,27 @@ def test_evt3_written_by_us_reads_in_expelliarmus(tmp_path: Path) -> None:
         assert (r.info.format, r.info.width, r.info.height) == ("evt3", W, H)
 
 
+def test_evt3_vector_words_read_by_expelliarmus(tmp_path: Path) -> None:
+    # runs along a row at one time (an edge crossing the sensor) go out as VECT_BASE_X + VECT_12;
+    # within the first 4096 us expelliarmus' times are exact (see above), so every field is compared
+    rng = np.random.default_rng(11)
+    parts = []
+    for t in range(0, 4000, 4):
+        n = int(rng.integers(1, 9))
+        x0 = int(rng.integers(0, W - 12))
+        xs = np.sort(rng.choice(12, n, replace=False)) + x0
+        run = np.empty(n, EVENT_DTYPE)
+        run["t"], run["x"], run["y"], run["p"] = t, xs, rng.integers(0, H), rng.integers(0, 2)
+        parts.append(run)
+    ev = np.concatenate(parts)
+    path = tmp_path / "vec.raw"
+    write_events(path, ev, W, H)
+    words = np.frombuffer(path.read_bytes().split(b"% end\n", 1)[1], "<u2")
+    assert np.count_nonzero(words >> 12 == 0x4) > 500  # VECT_12 words were written
+    same(read_events(path), ev)
+    same(expelliarmus_read(path, "EVT3"), ev)
+
+
 def test_evt3_written_by_expelliarmus(tmp_path: Path) -> None:
     # expelliarmus 1.1.12's EVT 3.0 writer emits no TIME_HIGH word after the first (its own reader
     # then loses the high bits too), so its files are compared within the first 4096 us.

@@ -74,3 +74,31 @@ def test_tracking_through_water_with_the_shared_refraction_model() -> None:
     dry = tank_rig((640, 512), (512, 384), top_zoom=2.0)["top"]
     X = np.array([[0.2, 0.15, 0.2]])
     assert np.linalg.norm(wet.project(X) - dry.project(X)) > 8.0
+    # the tabulated projection the fit uses for refracting cameras agrees with the exact one
+    from flytrack_host.fish.views import CameraView, GridProjection
+
+    for cam in tank_rig((640, 512), (512, 384), top_zoom=2.0, water=1.333).values():
+        view = CameraView(cam)
+        grid = GridProjection(view, X[0])
+        pts = X + np.random.default_rng(0).uniform(-0.04, 0.04, (200, 3))
+        assert np.max(np.linalg.norm(grid.project(pts) - view.project(pts), axis=1)) < 0.01  # measured 0.003
+
+
+def test_no_model_from_two_fish_touching_in_the_top_view() -> None:
+    from flytrack_host.fish.model_init import ModelError
+    from flytrack_host.fish.shape import make_state, p_for_length
+
+    rig = tank_rig((640, 512), (512, 384), top_zoom=2.0)
+    views = [AirView(rig["top"]), AirView(rig["side"])]
+    X = make_state([[0.30, 0.15, 0.2], [0.30, 0.155, 0.23]], [[1, 0.3, 0], [1, -0.4, 0]],
+                   p_for_length(np.zeros((2, 3)), 0.05))
+    imgs = render_sequence(views, default_model(), X[None], np.random.default_rng(0), n_background=2)
+    sils = [warm_up(imgs[c][:2]).segment(imgs[c][2]) for c in range(2)]
+    assert len(sils[0].blobs) == 1 and len(sils[1].blobs) == 2  # one blob on top, two fish from the side
+    for js in range(2):
+        try:
+            generate_model(views[0], views[1], sils[0], sils[1], 0, js)
+        except ModelError as exc:
+            assert "not one fish in clear view" in str(exc)
+        else:
+            raise AssertionError("a model was made from two touching fish")

@@ -4,6 +4,7 @@ recording (failed ones with their error), the status line counts the failures.""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -18,6 +19,15 @@ from flytrack_host.rig import ActuatorConfig
 from flytrack_host.tracking.types import Estimate, FrameBundle, FrameResult
 
 PERIOD_FRAMES = 40  # the object is out for 20 frames, in for 20
+
+
+def _wait(cond, timeout_s: float = 10.0) -> bool:  # noqa: ANN001
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.005)
+    return False
 
 
 class InOutTracker:
@@ -48,13 +58,18 @@ def test_dead_then_live_then_killed_modbus_device_never_stops_tracking(helpers, 
     edges = [helpers.EdgeSim(i, pipe.address, frame0=100 * i) for i in range(2)]
     peer = ModbusPeer(port=port)
     status = []
+
+    def device_life() -> None:  # off the sending loop, so the frames keep their pace
+        if _wait(lambda: eng.firings.count >= 1):  # the firing at frame 20 found no device
+            peer.start()
+        if _wait(lambda: eng.firings.count >= 3):  # 60 and 100 reached it
+            peer.stop()  # switched off: 140 and 180 fail
+
+    life = threading.Thread(target=device_life, daemon=True)
+    life.start()
     try:
         t0 = time.monotonic()
         for k in range(200):  # entries at 20 (device absent), 60, 100 (up), 140, 180 (killed)
-            if k == 40:
-                peer.start()
-            if k == 120:
-                peer.stop()
             for e in edges:
                 e.send(k)
             if k == 199:
@@ -63,6 +78,7 @@ def test_dead_then_live_then_killed_modbus_device_never_stops_tracking(helpers, 
             time.sleep(max(0.0, t0 + (k + 1) / 100.0 - time.monotonic()))
         time.sleep(0.3)
     finally:
+        life.join(10)
         summary = pipe.stop()
         peer.stop()
         for e in edges:

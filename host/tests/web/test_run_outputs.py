@@ -76,3 +76,23 @@ def test_run_refuses_a_busy_http_address_and_bad_pose_settings(tmp_path):
         r = CliRunner().invoke(app, [*base, "--http", "off", *bad], env=env)
         assert r.exit_code == 2, (bad, r.output)
         assert msg in " ".join(r.output.split()), (bad, r.output)
+
+
+def test_default_port_taken_warns_and_runs_without_the_live_view(tmp_path):
+    """`flytrack run` with the default --http: a taken port is a warning, not a stopped run (tracking
+    matters more than the view); an address the user gave must bind (tested above)."""
+    from flytrack_host.outputs.launch import DEFAULT_HTTP, LiveOutputs
+    from flytrack_host.pipeline import HostPipeline
+    from flytrack_host.rig import load_rig
+
+    pipe = HostPipeline(load_rig(_rig(tmp_path)), {}, record=False)
+    assert LiveOutputs.from_options(http=DEFAULT_HTTP).http_required is False
+    assert LiveOutputs.from_options(http="127.0.0.1:9999").http_required is True
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        out = LiveOutputs(http=("127.0.0.1", busy.getsockname()[1]), http_required=False)
+        lines: list[str] = []
+        out.attach(pipe, echo=lines.append)
+    assert out.server is None and pipe.sinks == []
+    assert lines and lines[0].startswith("warning: live view and Braid events off: cannot listen on 127.0.0.1:")

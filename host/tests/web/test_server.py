@@ -102,7 +102,16 @@ class RawReader:
         return bytes(self.buf).count(b'"EndOfFrame"')
 
 
-def test_many_clients_get_the_same_stream(server):
+def test_many_clients_get_the_same_stream():
+    server = LiveServer("127.0.0.1", 0, calibration_xml="<multi_camera_reconstructor/>")  # 2 MB backlogs
+    server.start()
+    try:
+        _many_clients(server)
+    finally:
+        server.close()
+
+
+def _many_clients(server: LiveServer) -> None:
     readers = [Reader(server) for _ in range(20)]
     assert _wait(lambda: server.clients.count("braid") == 20)
     for i in range(20):  # 1000 frames/s in bursts of 10, as a fast rig would
@@ -115,7 +124,17 @@ def test_many_clients_get_the_same_stream(server):
     assert server.stats()["clients_dropped_slow"] == 0
 
 
-def test_client_that_never_reads_is_dropped_and_tracking_is_not_held(server):
+def test_client_that_never_reads_is_dropped_and_tracking_is_not_held():
+    # 1 MB backlogs: the reading client may be starved ~0.25 s by a loaded machine and stay.
+    server = LiveServer("127.0.0.1", 0, client_backlog_bytes=1 << 20)
+    server.start()
+    try:
+        _never_reads(server)
+    finally:
+        server.close()
+
+
+def _never_reads(server: LiveServer) -> None:
     good = RawReader(server)
     # A client that sends its request and then never reads a byte.
     lazy = socket.create_connection(("127.0.0.1", server.port))
@@ -123,8 +142,8 @@ def test_client_that_never_reads_is_dropped_and_tracking_is_not_held(server):
     lazy.sendall(b"GET /events HTTP/1.1\r\nHost: x\r\n\r\n")
     assert _wait(lambda: server.clients.count("braid") == 2)
     took = []
-    # 1000 frames a second of 10 targets, ~9 MB: far beyond the 256 kB backlog plus what the
-    # kernel buffers for the lazy client (~3 MB on loopback).
+    # 1000 frames a second of 10 targets, ~9 MB: far beyond the 1 MB backlog plus what the kernel
+    # buffers for the lazy client (~3 MB on loopback).
     for chunk in range(200):
         took += _feed(server, range(chunk * 10, chunk * 10 + 10), n=10)
         time.sleep(0.01)
@@ -132,7 +151,8 @@ def test_client_that_never_reads_is_dropped_and_tracking_is_not_held(server):
     assert _wait(lambda: good.frames == 2000, 30), good.frames
     # The tracking thread's side stayed an append: no call waited for the stuck client.
     took.sort()
-    assert took[len(took) // 2] < 1e-3 and took[-1] < 0.05, (took[len(took) // 2], took[-1])
+    # (the max also holds whatever the kernel took from this thread on a loaded machine)
+    assert took[len(took) // 2] < 1e-3 and took[-1] < 0.5, (took[len(took) // 2], took[-1])
     # Memory bounded: no backlog beyond the limit anywhere, the lazy client is gone.
     assert server.clients.count("braid") == 1
     assert all(c.backlog_bytes <= c.limit_bytes for c in list(server.clients.clients))
@@ -188,8 +208,20 @@ def test_oversized_and_malformed_requests_get_clear_errors(server):
 def test_token_needed_off_loopback_and_checked():
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("") and not is_loopback("192.168.1.5")
-    assert LiveServer("0.0.0.0", 0).token  # generated: printed by banner()
     assert parse_bind("0.0.0.0:9000") == ("0.0.0.0", 9000) and parse_bind(":0") == ("127.0.0.1", 0)
+    assert parse_bind("[::1]:8397") == ("::1", 8397)
+    # Every interface: a token is generated, printed by banner(), and asked for.
+    every = LiveServer("0.0.0.0", 0)
+    every.start()
+    try:
+        assert every.token and f"?token={every.token}" in every.banner()
+        local = f"http://127.0.0.1:{every.port}/"
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(local + "api/stats", timeout=10)
+        assert e.value.code == 401
+        assert urllib.request.urlopen(local + f"api/stats?token={every.token}", timeout=10).status == 200
+    finally:
+        every.close()
     with pytest.raises(ValueError, match="bad port"):
         parse_bind("host:http")
     s = LiveServer("127.0.0.1", 0, token="s3cret-token")
@@ -278,3 +310,17 @@ def test_a_braid_client_reading_with_requests_gets_one_event_per_chunk():
         r.close()
     finally:
         s.close()
+
+
+def test_objects_gone_without_a_death_get_one(server):
+    """A tracker restart drops every object without Death messages; Braid clients must hear of it."""
+    r = Reader(server)
+    assert _wait(lambda: server.clients.count("braid") == 1)
+    _feed(server, range(0, 3), n=3)  # objects 1, 2, 3
+    restarted = make_result(3, 1, first_id=10, born=[10])  # a fresh tracker: 1-3 gone, 10 born
+    server.on_frame(restarted, time.time(), time.time())
+    assert _wait(lambda: r.frames == 4)
+    last = [e.json()["msg"] for e in r.events if e.json()["synced_frame"] == 3]
+    assert [next(iter(m)) for m in last] == ["Birth", "Update", "Death", "Death", "Death", "EndOfFrame"]
+    assert [m["Death"] for m in last if "Death" in m] == [1, 2, 3]
+    assert server.stats()["deaths_added"] == 3

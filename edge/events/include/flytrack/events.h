@@ -78,6 +78,10 @@ ft_ev_reader *ft_ev_open_mem(const uint8_t *buf, size_t len, int format, const c
 /* Fills out with up to cap events (cap >= 16). Returns the number written, 0 at the clean end of
  * the file, -1 once the reader has met damage (after returning every event before it). */
 long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap);
+/* Streams (a pipe, "/dev/stdin"): ft_ev_read returns the events that have arrived rather than wait
+ * to fill out; ft_ev_poll waits at most timeout_ms for input, 1 when ft_ev_read has something to
+ * do (always for files and memory), 0 on timeout. */
+int ft_ev_poll(ft_ev_reader *r, int timeout_ms);
 void ft_ev_get_info(const ft_ev_reader *r, ft_ev_info *info);
 const char *ft_ev_error(const ft_ev_reader *r);      /* "" when none */
 long long ft_ev_error_offset(const ft_ev_reader *r); /* -1 when none */
@@ -87,9 +91,10 @@ const char *ft_ev_format_name(int format); /* "aedat2", "aedat3", "aedat4", "evt
 int ft_ev_format_from_name(const char *name); /* the reverse, -1 if unknown */
 
 /* Writers: AEDAT 4.0 (compression = ft_ev_compression) or EVT 3.0 (compression ignored). Events
- * must come in non-decreasing time (both formats are time-ordered); a step back is refused with
- * an error and nothing of that call written. ft_ev_writer_close flushes, frees, and returns 0
- * or -1 with the first error of the writer's life in err. */
+ * must come in non-decreasing time (both formats are time-ordered): a step back (or an EVT 3.0
+ * address over 2047) makes ft_ev_write return -1 with the reason in ft_ev_writer_error, nothing of
+ * that call written, and the writer stays usable. An I/O error fails the writer for good.
+ * ft_ev_writer_close flushes, frees, and returns 0, or -1 with the I/O error in err. */
 typedef struct ft_ev_writer ft_ev_writer;
 ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int height,
                                 int compression, char *err, size_t err_len);

@@ -4,7 +4,8 @@ The tracking thread only puts a job on the device's bounded queue (`OutputWorker
 blocks; a full queue drops the job, counted and recorded as an error). The worker connects, performs
 the jobs one by one and reports each outcome; a failure closes the connection, and the worker
 reconnects on its own every `RECONNECT_S` (also while no job comes), so a device that was absent at
-start or went away mid-run is back as soon as it answers. Failures are logged rate-limited.
+start or went away mid-run is back as soon as it answers. Failures are logged rate-limited per kind
+(the host's `ratelog.RateLimitedLog`: the first at once, then a count every few seconds).
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.rules import Action
+from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig
 
 log = logging.getLogger("flytrack.actuation")
@@ -46,7 +49,7 @@ class Job:
     pos: tuple[float, float, float]
     action: Action
     predicted: bool
-    queued_at: float = field(default_factory=time.time)
+    queued_at: float = field(default_factory=hostclock.now)
 
 
 @dataclass
@@ -126,28 +129,6 @@ class Output:
 
     def _close(self) -> None:
         pass
-
-
-class RateLimitedLog:
-    """Logs the first `burst` messages of a key, then at most one every `every_s` with a count."""
-
-    def __init__(self, sink: Callable[[str], None], burst: int = 5, every_s: float = 10.0):
-        self.sink = sink
-        self.burst = burst
-        self.every_s = every_s
-        self._n: dict[str, int] = {}
-        self._last: dict[str, float] = {}
-        self._held: dict[str, int] = {}
-
-    def __call__(self, key: str, message: str) -> None:
-        n = self._n[key] = self._n.get(key, 0) + 1
-        now = time.monotonic()
-        if n <= self.burst or now - self._last.get(key, -math.inf) >= self.every_s:
-            held = self._held.pop(key, 0)
-            self._last[key] = now
-            self.sink(message + (f" ({held} more like it not shown)" if held else ""))
-        else:
-            self._held[key] = self._held.get(key, 0) + 1
 
 
 @dataclass
@@ -243,7 +224,7 @@ class OutputWorker:
         try:
             done = self.output.perform(job)
         except Exception as exc:
-            out.time_sent = time.time()
+            out.time_sent = hostclock.now()
             out.error = f"{type(exc).__name__}: {exc}"
             self.stats.errors += 1
             self.stats.last_error = out.error

@@ -13,9 +13,9 @@ records that frame (from the trigger clock) and that it was late.
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 from flytrack_host.trigger.common import TriggerError
 
@@ -56,14 +56,17 @@ class TriggerPulseOutput(Output):
         dev = self._device()
         a = job.action
         if self.cfg.channel != 0:
-            t0 = time.time()
+            t0 = hostclock.now()
             dev.set_output(self.cfg.channel, a.level or 0)
-            return Done(t0, time.time())
+            return Done(t0, hostclock.now())
         width = (a.width_ms or DEFAULT_WIDTH_MS) / 1e3
         try:
             t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width)
             return Done(t0, t1, job.scheduled_frame, True)
         except TriggerError as exc:
+            if "BUSY" in str(exc):
+                raise OutputError("the firmware holds one pulse at a time and one is still waiting for its "
+                                  "frame (or the trigger is stopped): this pulse is dropped") from None
             if "BAD_ARG" not in str(exc) or job.scheduled_frame < 0:
                 raise
         # Too late for that frame: pulse at the earliest frame the firmware can still reach.

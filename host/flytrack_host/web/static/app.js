@@ -65,7 +65,7 @@ function tile(cam) {
       <div class="nums"><span>fps <b class="fps"></b></span><span>rx <b class="rx"></b></span>
       <span>lost <b class="lost"></b></span><span>late <b class="late"></b></span>
       <span>latency <b class="latency"></b></span><span>points <b class="npts"></b></span></div>
-      <canvas width="160" height="120"></canvas><div class="thumb"></div>`;
+      <canvas width="160" height="120"></canvas><img class="thumbimg" alt="" hidden><div class="thumb"></div>`;
     $("cameras").appendChild(el);
   }
   el.classList.toggle("dead", !cam.alive);
@@ -74,7 +74,15 @@ function tile(cam) {
   set(".fps", cam.fps === null ? "-" : cam.fps.toFixed(1)); set(".rx", cam.rx);
   set(".lost", cam.lost); set(".late", cam.late);
   set(".latency", cam.latency_ms === null ? "-" : `${cam.latency_ms.toFixed(1)} ms`); set(".npts", cam.n_points);
-  set(".thumb", cam.thumbnail ? "" : "no image from this edge");
+  const img = el.querySelector(".thumbimg");
+  if (cam.thumbnail) {
+    const src = `thumb/${cam.index}.png?id=${cam.thumbnail.id}`;
+    if (img.getAttribute("src") !== src) img.setAttribute("src", src);
+    img.hidden = false;
+    set(".thumb", `image of camera frame ${cam.thumbnail.camera_frame}, ${cam.thumbnail.age_s} s ago`);
+  } else {
+    set(".thumb", "no image from this edge");
+  }
   const c = el.querySelector("canvas"), g = c.getContext("2d");
   g.fillStyle = "#111"; g.fillRect(0, 0, c.width, c.height);
   const sx = c.width / (cam.width || 640), sy = c.height / (cam.height || 480);
@@ -89,7 +97,7 @@ function render(s) {
   f.updateTimes.push(now); if (f.updateTimes.length > 600) f.updateTimes.shift();
   // The page's delay: from the newest frame's estimate to now, counted when a new frame arrived.
   if (s.last_estimate_time && (!f.prev || s.frame !== f.prev.frame)) {
-    f.delays.push(now - s.last_estimate_time); if (f.delays.length > 600) f.delays.shift();
+    f.delays.push(now - (s.last_estimate_time + (s.wall_offset || 0))); if (f.delays.length > 600) f.delays.shift();
   }
   f.prev = s;
   $("rig").textContent = s.rig || "";
