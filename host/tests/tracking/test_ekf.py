@@ -165,7 +165,7 @@ def test_ordinary_updates_are_taken_and_shrink_the_covariance() -> None:
     H[..., 3:] = 0.0
     z = rng.normal(size=(T, 4))
     xp, Pp, ok = joseph_update(x, P, z, np.zeros_like(z), H, np.eye(4))
-    assert ok.all()
+    assert ok.shape == (T,) and ok.all()
     for k in range(T):
         assert np.trace(Pp[k, :3, :3]) < 0.1 * np.trace(P[k, :3, :3])
         assert not np.allclose(xp[k], x[k])
@@ -179,3 +179,42 @@ def test_transition_and_process_noise_are_cached_and_read_only() -> None:
     for M in (F, Q):
         with pytest.raises(ValueError, match="read-only"):
             M[0, 0] = 2.0
+
+
+def test_a_singular_innovation_covariance_refuses_that_target_only() -> None:
+    """One target of a batch with S singular (no information, R = 0 on its rows): numpy's batched
+    solve fails, the per-target fallback refuses just that one and updates the others."""
+    T, m = 3, 4
+    x = np.arange(T * 6, dtype=float).reshape(T, 6) * 0.01
+    P = np.broadcast_to(np.eye(6) * 1e-2, (T, 6, 6)).copy()
+    H = np.zeros((T, m, 6))
+    for k in (0, 2):
+        H[k, :3, :3] = np.eye(3) * 100.0
+        H[k, 3, 0] = 50.0
+    R = np.broadcast_to(np.eye(m), (T, m, m)).copy()
+    R[1] = 0.0  # target 1: H = 0 and R = 0, so S = 0
+    z = np.ones((T, m))
+    xp, Pp, ok = joseph_update(x, P, z, np.zeros((T, m)), H, R)
+    assert ok.shape == (T,) and ok.tolist() == [True, False, True]
+    np.testing.assert_array_equal(xp[1], x[1])
+    np.testing.assert_array_equal(Pp[1], P[1])
+    for k in (0, 2):
+        S = H[k] @ P[k] @ H[k].T + R[k]
+        K = P[k] @ H[k].T @ np.linalg.inv(S)
+        np.testing.assert_allclose(xp[k], x[k] + K @ z[k], rtol=1e-9, atol=1e-12)
+
+
+def test_symmetric_positive_definite_check() -> None:
+    A = np.diag([1.0, 2, 3, 4, 5, 6]) * 1e3
+    assert is_symmetric_positive_definite(A)
+    B = A.copy()
+    B[0, 1] = 1e-7  # asymmetry 1.7e-11 of the scale (the largest entry, 6e3): within rtol 1e-9
+    assert is_symmetric_positive_definite(B)
+    B[0, 1] = 1e-5  # 1.7e-9 of the scale: not symmetric
+    assert not is_symmetric_positive_definite(B)
+    C = A.copy()
+    C[2, 2] = np.nan
+    assert not is_symmetric_positive_definite(C)
+    D = A.copy()
+    D[3, 3] = -1.0
+    assert not is_symmetric_positive_definite(D)
