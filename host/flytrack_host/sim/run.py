@@ -221,6 +221,7 @@ def dvs_edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int,
         str(edge_bin), "--source", "events", "--input", "-",
         "--camera-index", str(cam_index), "--camera-name", cam.name,
         "--host", "127.0.0.1", "--port", str(port), "--control-port", "0", "--slice-us", str(slice_us),
+        "--realtime", "0",  # the events come as they happen: no pacing by their times on top
     ]
 
 
