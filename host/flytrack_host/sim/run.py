@@ -506,6 +506,7 @@ def _dvs_counts(dvs_cams: list[Camera], first: int, fs: Any, host_summary: dict[
             "datagrams_lost": int(r.get("lost", 0)),
             # What the 3D tracker got from this camera: trigger frames with its clusters, and points
             "frames_observed": int(o.get("frames_given", 0)), "points_observed": int(o.get("points_given", 0)),
+            "points_used": int(o.get("points_used", 0)),
             "sensor_t0_us_estimated": o.get("t0_us"),
         })
     return out
