@@ -654,6 +654,10 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     title = (f"{cfg.cameras} cameras, {cfg.animals} animals\n{cfg.fps:g} fps, {cfg.seconds:g} s, seed {cfg.seed}\n\n"
              f"RMSE {scores.rmse_mm:.2f} mm\nMOTA {scores.mota:.3f}\nIDF1 {scores.idf1:.3f}\n"
              f"ID switches {scores.id_switches}\ntracks {scores.tracks_found}")
+    dvs_obs = host_summary.get("dvs", {})
+    if dvs_obs:  # which observations came from event cameras
+        title += "\n\nDVS points used\n" + "\n".join(
+            f"cam {i}: {v.get('points_used', 0)} in {v.get('frames_given', 0)} fr." for i, v in dvs_obs.items())
     fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
     frames_triggered = max(fs.edges, fs.frames_rendered)
     return DemoReport(
