@@ -57,6 +57,8 @@ def test_dvs_clusters_reach_the_tracker_and_the_recording_flags_them(dvs_demo):
     # 3D tracker as 2D points of the DVS cameras at the trigger frames they cover.
     assert sum(d["clusters_received"] for d in r.dvs) > 0
     assert sum(d["points_observed"] for d in r.dvs) > 0
+    assert 0 < sum(d["points_used"] for d in r.dvs) <= sum(d["points_observed"] for d in r.dvs)
+    assert r.scores.false_positives == 0  # DVS points update tracks, never start phantom ones
     with h5py.File(r.recording, "r") as f:
         d = f["data2d_distorted"][:]
     dvs_rows = d[(d["flags"] & FLAG_DVS) != 0]

@@ -36,7 +36,8 @@ class DvsCameraStats:
     slices: int = 0
     clusters: int = 0
     frames_given: int = 0  # trigger frames this camera gave the tracker points for
-    points_given: int = 0
+    points_given: int = 0  # after the host's gate near the targets (HostPipeline._near_targets)
+    points_used: int = 0  # associated with a target by the 3D tracker
     no_slice: int = 0  # trigger frames without a recent slice (sensor silent, or behind)
     t0_us: float | None = None  # sensor time of trigger frame 0, as estimated
 
@@ -54,12 +55,17 @@ class DvsObservations:
     frame_of_host_time: the trigger clock model, host time (s) -> trigger frame (float)."""
 
     def __init__(self, cameras: dict[int, Camera | None], fps: float, max_age_frames: float = 2.0,
-                 min_mass: float = 0.0) -> None:
+                 min_mass: float = 0.0, blob_radius_px: float = 3.0) -> None:
+        """blob_radius_px: the animal's apparent radius on the event sensor, for the points' area. A
+        cluster's `size` is the tracker's a priori search radius (10% of the sensor), not the animal's;
+        as area it would fail the 3D tracker's area gate and drag each target's smoothed area away
+        from what the frame cameras see."""
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"fps must be positive, got {fps}")
         self.period_us = 1e6 / fps
         self.max_age_us = max_age_frames * self.period_us
         self.min_mass = float(min_mass)
+        self.area_px = math.pi * float(blob_radius_px) ** 2
         self.cams = {int(i): _Cam(c) for i, c in cameras.items()}
 
     @property
@@ -107,14 +113,19 @@ class DvsObservations:
             pts["x_undist"], pts["y_undist"] = u[:, 0], u[:, 1]
         else:
             pts["x_undist"], pts["y_undist"] = x, y
-        pts["area"] = np.pi * cl["size"].astype(np.float64) ** 2
+        pts["area"] = self.area_px
         pts["orientation"] = np.nan
         pts["eccentricity"] = np.nan
         pts["peak_diff"] = cl["mass"]
-        c.stats.frames_given += 1
-        c.stats.points_given += len(pts)
         return CameraFrame(cam_index, trigger_frame, trigger_frame, pts, recv, edge_done_ns=done_ns,
                            total_points=len(pts), dvs=True)
+
+    def count(self, cam_index: int, given: int, used: int = 0) -> None:
+        c = self.cams.get(cam_index)
+        if c is not None:
+            c.stats.frames_given += 1 if given else 0
+            c.stats.points_given += given
+            c.stats.points_used += used
 
     def stats(self) -> dict[int, dict[str, float | int | None]]:
         from dataclasses import asdict

@@ -69,8 +69,8 @@ def summary_table(r: DemoReport) -> Table:
     for d in r.dvs:
         t.add_row(f"DVS {d['name']} events", f"{d['events_received']}/{d['events_sent']}",
                   f"received/sent, {d['slices_received']} slices, {d['clusters_received']} clusters")
-        t.add_row(f"DVS {d['name']} observations", str(d["points_observed"]),
-                  f"2D points to the tracker in {d['frames_observed']} frames")
+        t.add_row(f"DVS {d['name']} points used", f"{d['points_used']}/{d['points_observed']}",
+                  f"by the 3D tracker / given, {d['frames_observed']} frames")
     if r.actuation:
         from flytrack_host.sim.closed_loop import closed_loop_line
 
