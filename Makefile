@@ -68,8 +68,10 @@ bench: build
 	@if [ -n "$(BENCH_JSON)" ]; then \
 	  $(PY) scripts/merge_json.py "$(BENCH_JSON)" $(foreach t,$(BENCH_TARGETS),$(BUILD)/bench/$(t).json); fi
 
+# The closed loop runs in the demo too (DEMO_RULES= turns it off).
+DEMO_RULES ?= examples/closed_loop.toml
 demo: build
-	@$(PY) -m flytrack_host.cli demo $(DEMO_ARGS)
+	@$(PY) -m flytrack_host.cli demo $(if $(DEMO_RULES),--rules $(DEMO_RULES)) $(DEMO_ARGS)
 
 clean:
 	rm -rf $(BUILD)

@@ -21,4 +21,5 @@ calib-bench-deps: setup
 # CALIB_INIT=factorization (default), pairwise or both: FlyTrack's initialisation (printed in the "init" column).
 CALIB_INIT ?= factorization
 bench-calib: calib-bench-deps
-	@$(PY) -m flytrack_host.calibration.bench --cameras 4 6 11 --init $(CALIB_INIT) $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \
+	  $(PY) -m flytrack_host.calibration.bench --cameras 4 6 11 --init $(CALIB_INIT) $(if $(BENCH_JSON),--json $(BENCH_JSON))

@@ -1,16 +1,21 @@
 # Trigger firmware (firmware/avr_trigger): AVR builds for both MCUs and the simavr tests.
-.PHONY: firmware-avr test-firmware
+# DVS USB bridge firmware (firmware/dvs_usb): the ATmega32U4 target build and its simulator build.
+.PHONY: firmware-avr firmware-dvs test-firmware
 
-firmware: firmware-avr
+firmware: firmware-avr firmware-dvs
 
 firmware-avr:
 	@$(MAKE) --no-print-directory -C firmware/avr_trigger ROOT=$(ROOT) OUT=$(BUILD)/firmware
 
-# Runs the real firmware in simavr (harness built by cbuild) and prints the figures.
-test-firmware: cbuild firmware-avr
+firmware-dvs:
+	@$(MAKE) --no-print-directory -C firmware/dvs_usb ROOT=$(ROOT) OUT=$(BUILD)/firmware
+
+# Runs the real firmware in simavr (harnesses built by cbuild) and prints the figures: the trigger's,
+# and the DVS bridge's sustained event rate, timestamp error and sync events == pulses sent.
+test-firmware: cbuild firmware-avr firmware-dvs
 	@$(PYTEST) -q -s tests/firmware host/tests/trigger
 
-PART_TARGETS += test-firmware
+PART_TARGETS += test-firmware firmware-dvs
 
 # CPU cost of the paced simavr harness (the simulated rig's trigger): prints % of a core.
 .PHONY: bench-trigger-sim

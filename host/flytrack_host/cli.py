@@ -31,8 +31,11 @@ _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.recording.cli", "app", "recording", "Recordings: recover after a crash, summarise."),
     ("flytrack_host.tracking.bench", "app", "bench", "Benchmarks that print measured figures."),
     ("flytrack_host.trigger.cli", "app", "trigger", "Trigger box: info, start, stop, watch, pulse, flash."),
-    ("flytrack_host.calibration.cli", "app", "calibrate", "Calibration: selfcal, dlt, align, report, convert."),
+    ("flytrack_host.calibration.cli", "app", "calibrate",
+     "Calibration: selfcal, dlt, align, intrinsics, collect, report, convert."),
+    ("flytrack_host.actuation.cli", "app", "rules", "Closed-loop rules: check, replay on a recording."),
     ("flytrack_host.batch.cli", "app", "batch", "Batches on Dask: re-track many recordings, sweep parameters, export."),
+    ("flytrack_host.events.cli", "app", "events", "Event-camera files: info, convert (AEDAT 2/3/4, EVT 2/3, DAT)."),
     ("flytrack_host.fish.cli", "app", "fish", "Fish: offline 3D shape tracking of schooling fish (track, demo)."),
 ]
 # (module, function, command name): top-level commands that live in their components.
@@ -40,8 +43,10 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.pipeline", "run_command", "run"),
     ("flytrack_host.io.cli", "export_command", "export"),
     ("flytrack_host.io.cli", "retrack_command", "retrack"),
+    ("flytrack_host.io.cli", "compare_command", "compare"),
     ("flytrack_host.sim.cli", "demo_command", "demo"),
     ("flytrack_host.wingbeat.cli", "wingbeat_command", "wingbeat"),
+    ("flytrack_host.edge_oak.cli", "edge_oak_command", "edge-oak"),
 ]
 
 
@@ -71,6 +76,15 @@ def rig_check(
                   f"trigger {rig.trigger.kind} at {rig.trigger.fps:g} fps", highlight=False)
     for cam in rig.cameras:
         console.print(f"  camera {cam.index}: {cam.name} from {cam.edge}", highlight=False)
+    from flytrack_host.pipeline import calibration_problems, load_cameras
+
+    try:
+        cameras = load_cameras(rig)
+    except Exception as exc:  # a calibration that does not load is an error of the rig
+        err_console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
+        raise typer.Exit(code=2) from None
+    for problem in calibration_problems(rig, cameras):
+        err_console.print(f"[yellow]warning[/yellow] {problem}", highlight=False, soft_wrap=True)
 
 
 def _register_groups() -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import json
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -31,17 +32,19 @@ import typer
 
 from flytrack_host import hostclock
 from flytrack_host.camera import Camera
+from flytrack_host.eventcam.observations import DvsObservations
 from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
-from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
+from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
 from flytrack_host.ratelog import RateLimitedLog
-from flytrack_host.receiver import Receiver, StatusReport
+from flytrack_host.receiver import DvsSlice, Receiver, StatusReport
 from flytrack_host.recording.schema import (
     ASSOCIATION,
     CAM_INFO,
     CAMERA_STATUS,
     COV_NAMES,
     DATA2D,
+    FLAG_DVS,
     FLAG_INCOMPLETE,
     FLAG_LATE,
     FLAG_REJECTED,
@@ -79,7 +82,8 @@ _UNTRACKED_WHY = {
     "late": "came after its trigger frame was tracked (late)",
 }
 RECORDING_INCOMPLETE_EXIT = 3  # `flytrack run` exit code when the recording lost data (a full disk)
-MAX_BACKLOG_S = 0.5  # a frame this far behind real time is recorded, not tracked: the host catches up
+RECEIVE_BATCH = 256  # datagrams taken from the socket per turn of the tracking thread
+MAX_BACKLOG_S = 1.0  # a frame this far behind real time is recorded, not tracked: the host catches up
 STALL_S = 0.2  # a turn of the tracking thread this late means the host was not scheduled
 
 
@@ -143,7 +147,8 @@ def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int,
         flags = (flags & ~FLAG_TRACKED) | FLAG_REJECTED
         if range_errors is not None:
             range_errors.extend(bad)
-    rows["flags"] = flags | (FLAG_TRUNCATED if fr.truncated else 0) | (FLAG_INCOMPLETE if fr.incomplete else 0)
+    rows["flags"] = (flags | (FLAG_TRUNCATED if fr.truncated else 0) | (FLAG_INCOMPLETE if fr.incomplete else 0)
+                     | (FLAG_DVS if fr.dvs else 0))
     if n:
         rows["frame_pt_idx"] = np.arange(n)
         names = pts.dtype.names or ()
@@ -218,11 +223,17 @@ class HostPipeline:
         self.results: list[FrameResult] = []
         self.latency = LatencyStats()
         self.untracked: dict[str, int] = {}
+        self.dvs_slices: dict[int, int] = {}  # DVS_CLUSTERS slices taken in, per event camera
+        dvs_idx = [c.index for c in rig.cameras if c.kind == "dvs"]
+        self.dvs_obs = (DvsObservations({i: self.cameras.get(i) for i in dvs_idx}, self.fps)
+                        if dvs_idx and self.fps else None)
         self.events: deque[str] = deque(maxlen=200)
         self.frames_tracked = 0
         self.tracker_errors = 0
         self.tracker_resets = 0
         self.n_objects = 0
+        self.n_estimates = 0  # estimates reported over the run
+        self.why_nothing: list[str] = []  # why no estimates although points arrived (set by stop)
         self.callback_errors = 0
         self.sinks: list[ResultSink] = list(sinks or [])  # live outputs and actuation, fed per frame
         self.sink_errors = 0
@@ -264,13 +275,13 @@ class HostPipeline:
         self.receiver = Receiver(self.rig, bind=self.bind, log=lambda m: self.log(m, "receiver"))
         self.live = LiveSender(self.rig.host.live_subscribers)
         self.sync = FrameSynchronizer(
-            [c.index for c in self.rig.cameras], self.fps, clock=self.clock,
+            [c.index for c in self.rig.cameras if c.kind == "frame"], self.fps, clock=self.clock,
             deadline_fraction=self.rig.host.sync_deadline_fraction,
             dead_timeout_s=self.dead_timeout_s, start_time=hostclock.now(),
         )
-        self._make_tracker()
         if self.record:
             self._start_recorder()
+        self._make_tracker(first=True)  # after the recorder: what it says goes into the text log too
         self._started_at = hostclock.now()
         self.log(f"pipeline started: {len(self.rig.cameras)} cameras, {self.fps:g} fps, "
                  f"listening on {self.receiver.address[0]}:{self.receiver.address[1]}")
@@ -294,9 +305,22 @@ class HostPipeline:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
+        if self.receiver is not None and self.sync is not None and self._error is None:
+            # What is still queued in the socket was received: take it in before the last bundles
+            # close (a backlog at stop, e.g. after a flood, is recorded, not dropped). Bounded in time.
+            end = time.monotonic() + 2.0
+            while time.monotonic() < end:
+                items = self.receiver.receive(0.0, max_batch=RECEIVE_BATCH)
+                if not items:
+                    break
+                for item in items:
+                    self._guarded(self._item, item)
         if self.sync is not None:
             self._handle(self.sync.flush())
         self._stopped_at = hostclock.now()
+        self.why_nothing = self._why_nothing()
+        for w in self.why_nothing:
+            self.log(f"no estimates: {w}", level=logging.WARNING)
         self.warn.flush()
         if self.receiver is not None:
             self.receiver.warn.flush()
@@ -333,12 +357,12 @@ class HostPipeline:
             summary = self.stop()
         return summary
 
-    def log(self, message: str, source: str = "host") -> None:
+    def log(self, message: str, source: str = "host", level: int = logging.INFO) -> None:
         t = hostclock.now()
         # The wall clock only labels the line; the recording keeps host time (monotonic).
         label = time.strftime('%H:%M:%S', time.localtime(hostclock.wall()))
         self.events.append(f"{label} {source}: {message}")
-        log.info("%s: %s", source, message)
+        log.log(level, "%s: %s", source, message)
         if self.recorder is not None:
             self.recorder.log(message, source, t)
 
@@ -376,17 +400,18 @@ class HostPipeline:
             self.recorder.append("trigger_clock_info", r)
 
     # --- setup --------------------------------------------------------------------------------
-    def _make_tracker(self) -> None:
+    def _make_tracker(self, first: bool = False) -> None:
         self.tracker = None
         if self.tracker_factory is None:
             return
+        for problem in calibration_problems(self.rig, self.cameras) if first else []:
+            self.log(problem, level=logging.WARNING)
         if not self.cameras:
-            self.log("no calibration: recording 2D data only, no 3D tracking")
             return
-        missing = [c.index for c in self.rig.cameras if c.index not in self.cameras]
-        if missing:
-            self.log(f"cameras {missing} have no calibration: their points cannot be used for 3D")
         self.tracker = self.tracker_factory(self.cameras, self.params, self.period)
+        path = getattr(self.tracker, "kernel_path", None)
+        if path is not None:
+            self.log(f"tracker: {'C kernel' if path == 'c' else 'NumPy'} path")
 
     def _start_recorder(self) -> None:
         meta = {
@@ -437,9 +462,15 @@ class HostPipeline:
                       "stopped or swapping); catching up")
         self._last_turn = now
         timeout = 0.05 if d is None else min(0.05, max(0.0, d - now))
-        for item in self.receiver.receive(timeout):
+        items = self.receiver.receive(timeout, max_batch=RECEIVE_BATCH)
+        for item in items:
             self._guarded(self._item, item)
-        self._handle(self.sync.poll(hostclock.now()))
+        poll_at = hostclock.now()
+        if len(items) >= RECEIVE_BATCH:
+            # Still working through a backlog: judge deadlines and silent cameras at the newest arrival
+            # handled, not at the wall of datagrams still queued (they would all look dead).
+            poll_at = min(poll_at, max((getattr(i, "recv_time", 0.0) for i in items), default=poll_at))
+        self._handle(self.sync.poll(poll_at))
         if now - self._wall_checked > 0.25:
             self._wall_checked = now
             step = hostclock.CLOCK.check_wall()
@@ -464,6 +495,36 @@ class HostPipeline:
             self._handle(outputs)
         elif isinstance(item, StatusReport):
             self._status(item)
+        elif isinstance(item, DvsSlice):
+            self._dvs_slice(item)
+
+    def _dvs_slice(self, item: DvsSlice) -> None:
+        """An event camera's time slice: kept, to give its clusters to the tracker at the trigger
+        frames it covers (flytrack_host.eventcam)."""
+        self.dvs_slices[item.camera_index] = self.dvs_slices.get(item.camera_index, 0) + 1
+        if self.dvs_obs is not None:
+            self.dvs_obs.add(item, self._frame_of_host_time)
+
+    def _frame_of_host_time(self, t: float) -> float:
+        """The trigger clock model inverted: host time -> trigger frame (NaN before it is known)."""
+        clock = self.sync.clock if self.sync is not None else None
+        if clock is None:
+            return math.nan
+        t0, t1 = float(clock.frame_to_host_time(0)), float(clock.frame_to_host_time(1000))
+        if not (math.isfinite(t0) and math.isfinite(t1)) or t1 <= t0:
+            return math.nan
+        return (t - t0) / ((t1 - t0) / 1000.0)
+
+    def _add_dvs(self, sb: SyncedBundle) -> None:
+        """Event cameras' observations join the bundle of frame cameras (a rig may mix them)."""
+        if self.dvs_obs is None:
+            return
+        tf = sb.bundle.trigger_frame
+        for ci in self.dvs_obs.indices:
+            fr = self.dvs_obs.frame(ci, tf)
+            if fr is not None:
+                sb.frames[ci] = fr
+                sb.bundle.detections[ci] = fr.points
 
     def _guarded(self, fn: Callable[..., object], *args: Any) -> bool:
         """Run one step of the tracking thread; an exception is logged (the first few in full) and
@@ -529,7 +590,10 @@ class HostPipeline:
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
-        behind = hostclock.now() - bundle.timestamp
+        # How far the host itself is behind: since the bundle's last frame reached this machine (the
+        # kernel's receive stamp), not since the trigger: cameras that deliver late are not the host's
+        # backlog and are still tracked.
+        behind = hostclock.now() - sb.last_arrival
         if behind > self.max_backlog_s and self.tracker is not None:
             # Bounded backlog: after a stall or an overload, frames this old are recorded, not tracked,
             # until the host is back near real time (the tracker predicts across the gap).
@@ -540,6 +604,7 @@ class HostPipeline:
                 self.recorder.append_many([("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp,
                                                                            FLAG_LATE)) for fr in sb.frames.values()])
             return
+        self._add_dvs(sb)
         if self.tracker is not None:
             try:
                 result = self.tracker.process(bundle)
@@ -558,6 +623,7 @@ class HostPipeline:
         if result is not None:
             self.frames_tracked += 1
             self.n_objects = len(result.estimates)
+            self.n_estimates += len(result.estimates)
             if self.live is not None:
                 self.live.send(result, bundle.timestamp)
             for sink in self.sinks:
@@ -595,6 +661,10 @@ class HostPipeline:
             rs = self.receiver.stats
             ss = self.sync.stats()
             for c in self.rig.cameras:
+                if c.kind == "dvs":
+                    r = rs.cameras[c.index]
+                    parts.append(f"{c.name}: slices {r.dvs_slices} events {r.status_frames_seen}")
+                    continue
                 r, s = rs.cameras[c.index], ss[c.index]
                 alive = "" if self.sync.cams[c.index].alive else " DEAD"
                 parts.append(f"{c.name}: rx {r.frames} lost {r.lost} late {s.late} bad {r.malformed} "
@@ -632,9 +702,20 @@ class HostPipeline:
             out += f" LOST {lost} rows"
         return out
 
+    def _why_nothing(self) -> list[str]:
+        """Reasons, with numbers, that a run whose points arrived produced no estimate."""
+        stats = getattr(self.tracker, "stats", None)
+        if self.n_estimates or not isinstance(stats, dict) or not stats.get("points"):
+            return []
+        from flytrack_host.tracking.diagnosis import why_no_estimates
+
+        return why_no_estimates(stats, self.cameras, self.params)
+
     def summary(self, recording_h5: Path | None = None) -> dict[str, Any]:
         rs = self.receiver.stats if self.receiver else None
         out: dict[str, Any] = {
+            "why_nothing": list(self.why_nothing),
+            "estimates": self.n_estimates,
             "duration_s": (self._stopped_at or hostclock.now()) - self._started_at,
             "frames_tracked": self.frames_tracked,
             "bundles_complete": self.sync.bundles_complete if self.sync else 0,
@@ -664,6 +745,8 @@ class HostPipeline:
             }
         if self.sync is not None:
             out["sync"] = {i: asdict(s) for i, s in self.sync.stats().items()}
+        if self.dvs_obs is not None:
+            out["dvs"] = self.dvs_obs.stats()
         if self.live is not None:
             out["live"] = asdict(self.live.stats)
         if self.recorder is not None:
@@ -672,6 +755,18 @@ class HostPipeline:
 
 
 # --- `flytrack run` -------------------------------------------------------------------------------
+
+
+def calibration_problems(rig: RigConfig, cameras: Mapping[int, Camera]) -> list[str]:
+    """What is missing for 3D tracking: no calibration at all, or rig cameras absent from it."""
+    if not cameras:
+        where = f" ({rig.calibration_path} has none of the rig's cameras)" if rig.calibration_path else ""
+        return [f"no calibration{where}: recording 2D data only, NO 3D tracking"]
+    missing = [f"{c.index} ({c.calib_name})" for c in rig.cameras if c.index not in cameras]
+    if missing:
+        return [f"camera(s) {', '.join(missing)} are not in the calibration {rig.calibration_path}: their points "
+                "cannot be used for 3D"]
+    return []
 
 
 def load_cameras(rig: RigConfig) -> dict[int, Camera]:
@@ -709,6 +804,13 @@ def run_command(
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
+    thumbnails: float = typer.Option(0.0, "--thumbnails", help=THUMBS_HELP),
+    rules: Path | None = typer.Option(
+        None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
+        "[[actuators]]."),
+    skip_bad_rules: bool = typer.Option(
+        False, "--skip-bad-rules", help="Run with the rules that are valid; each bad one is reported, logged in "
+        "the recording and counted (default: a bad rules file stops the run before it starts)."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
     until Ctrl-C.
@@ -725,7 +827,7 @@ def run_command(
     console = Console()
     try:
         outputs = LiveOutputs.from_options(http=http, pose=pose, pose_rate=pose_rate, pose_lead_ms=pose_lead_ms,
-                                           pose_lock=pose_lock)
+                                           pose_lock=pose_lock, thumbnails_every_s=thumbnails)
     except OutputsError as exc:
         console.print(f"[red]error[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
@@ -739,13 +841,11 @@ def run_command(
     except Exception as exc:
         console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
-    if rig.actuators:
-        # The rig file describes actuators already; this host does not drive them yet. Say so
-        # rather than let a lab believe its stimulus is running.
-        names = ", ".join(f"{a.name} ({a.kind})" for a in rig.actuators)
-        Console(stderr=True).print(f"[yellow]warning[/yellow] actuators are not driven by this version of "
-                                   f"flytrack run: {names}; live estimates go to host.live_subscribers",
-                                   highlight=False, soft_wrap=True)
+    for problem in calibration_problems(rig, cameras):
+        Console(stderr=True).print(f"[yellow]warning[/yellow] {problem}", highlight=False, soft_wrap=True)
+    from flytrack_host.actuation.cli import rules_for_run
+
+    run_rules = rules_for_run(rig, rules, skip_bad_rules)  # a bad rules file exits 2 here unless skipped
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
@@ -764,6 +864,7 @@ def run_command(
                         rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
                         clock=session.clock if session else None, fps=session.fps if session else None,
                         hold_until_synchronized=session is not None)
+    engine = run_rules.engine(pipe.fps, session) if run_rules is not None else None
     try:
         outputs.attach(pipe, echo=lambda s: None)  # printed after the first line below
         pipe.start()
@@ -775,6 +876,9 @@ def run_command(
         where = f"{bind or rig.host.listen} (features) or {http} (live outputs)"
         console.print(f"[red]error[/red] cannot listen on {where}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    if engine is not None:  # after start: its messages go into the recording's log too
+        engine.attach(pipe)
+        engine.start()
     if session is not None:
         session.attach(pipe)
         try:
@@ -814,6 +918,8 @@ def run_command(
         summary = pipe.stop()
     console.print(pipe.status_line(), highlight=False)
     console.print(summary["latency_text"], highlight=False)
+    for w in summary.get("why_nothing") or []:
+        Console(stderr=True).print(f"[yellow]warning[/yellow] no estimates: {w}", highlight=False, soft_wrap=True)
     if session is not None:
         t = session.summary()
         m = t["clock_model"]

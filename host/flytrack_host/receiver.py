@@ -28,16 +28,20 @@ from __future__ import annotations
 import ipaddress
 import select
 import socket
+import struct
 import time
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from flytrack_host import hostclock
 from flytrack_host.protocol import (
+    DvsClusters,
     EdgeStatus,
     FeatureFrame,
+    ImageChunk,
     ProtocolError,
     decode_datagram,
     join_feature_parts,
@@ -51,6 +55,8 @@ _HALF = 1 << 31
 SEQ_WINDOW = 512  # recent sequence numbers remembered per camera (duplicates, reordering)
 RESTART_GAP = 10_000  # a sequence number this far behind means the edge restarted
 FORWARD_RESTART_GAP = 1_000_000  # ... and this far ahead
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux
+SWITCH_CONFIRM = 3  # datagrams in a row from a new port, the old one silent: the edge restarted
 MAX_DATAGRAM_RATE = 20_000  # per camera and second: a larger gap in the time elapsed is no loss
 
 
@@ -69,6 +75,11 @@ class CameraRecvStats:
     second_sender: int = 0  # datagrams from another port while the camera's edge was sending
     seq_jumps: int = 0  # sequence jumps too large to be loss in the time elapsed
     other: int = 0
+    dvs_slices: int = 0  # DVS_CLUSTERS datagrams (event cameras)
+    dvs_clusters: int = 0
+    # The edge's own counts from its last STATUS (for an event camera: events read, events lost)
+    status_frames_seen: int = 0
+    status_frames_dropped: int = 0
 
 
 @dataclass
@@ -87,6 +98,15 @@ class ReceiverStats:
 class StatusReport:
     camera_index: int
     status: EdgeStatus
+    recv_time: float
+
+
+@dataclass(slots=True)
+class DvsSlice:
+    """One DVS_CLUSTERS datagram of an event camera, as received."""
+
+    camera_index: int
+    msg: DvsClusters
     recv_time: float
 
 
@@ -114,6 +134,9 @@ class Receiver:
         self.allowed: dict[int, str] = {c.index: str(ipaddress.ip_address(c.edge)) for c in rig.cameras}
         self.allowed_ips = set(self.allowed.values())
         self.stats = ReceiverStats(cameras={i: CameraRecvStats() for i in self.allowed})
+        # IMAGE chunks go here when set (the live page's thumbnails); it runs on the tracking thread,
+        # so it must only hand the chunk on.
+        self.on_image: Callable[[ImageChunk], object] | None = None
         self._seq = {i: _SeqState() for i in self.allowed}
         # (camera, camera_frame, part_count) -> (monotonic time of the first part, part_index -> part)
         self._parts: dict[tuple[int, int, int], tuple[float, dict[int, FeatureFrame]]] = {}
@@ -123,12 +146,17 @@ class Receiver:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
         except OSError:
             pass
+        try:  # each datagram's arrival as the kernel saw it: a stalled host still knows when frames came
+            self.sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+        except OSError:
+            pass
         self.sock.bind((host, port))
         self.sock.setblocking(False)
         self.warn = RateLimitedLog(self.log)
         self.sender_switch_s = sender_switch_s
         self._senders: dict[int, list] = {}  # camera -> [port, monotonic time last heard]
         self._restarted: set[int] = set()  # cameras whose next frame is the first after a restart
+        self._candidates: dict[int, list] = {}  # camera -> [port, held datagrams] of a would-be new sender
 
     @property
     def address(self) -> tuple[str, int]:
@@ -138,21 +166,32 @@ class Receiver:
         self.sock.close()
 
     # --- receiving ----------------------------------------------------------------------------
-    def receive(self, timeout: float, max_batch: int = 256) -> list[CameraFrame | StatusReport]:
+    def receive(self, timeout: float, max_batch: int = 256) -> list[CameraFrame | StatusReport | DvsSlice]:
         """Wait up to `timeout` s for datagrams; return what they carried (possibly nothing)."""
-        out: list[CameraFrame | StatusReport] = []
+        out: list[CameraFrame | StatusReport | DvsSlice] = []
         r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
         if r:
+            now = hostclock.now()
+            # Kernel receive stamps are on the real wall clock: mapped to host time by the offset
+            # measured now (a wall step between the two reads is caught by the bound below).
+            wall_to_host = now - time.time()  # noqa: TID251 - the kernel stamps on the real wall clock
             for _ in range(max_batch):
                 try:
-                    data, addr = self.sock.recvfrom(2048)
+                    data, anc, _flags, addr = self.sock.recvmsg(2048, 64)
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError as exc:  # e.g. ICMP errors surfacing on Linux; keep going
                     self._warn_once(f"socket error: {exc}", key="socket_error")
                     break
+                t = now
+                for level, kind, cdata in anc:
+                    if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(cdata) >= 16:
+                        sec, nsec = struct.unpack_from("qq", cdata)
+                        k = sec + nsec * 1e-9 + wall_to_host
+                        if now - 60.0 < k <= now:
+                            t = k  # when it reached this host, however long it then waited for us
                 try:
-                    self.handle(data, addr, hostclock.now(), out)
+                    self.handle(data, addr, t, out)
                 except Exception as exc:  # a bug on one datagram must not lose the batch
                     self.stats.internal_errors += 1
                     self._warn_once(f"datagram from {addr[0]} could not be handled: {exc!r}",
@@ -196,7 +235,7 @@ class Receiver:
                             key=f"wrong_address:{cam}")
             return
         cs = st.cameras[cam]
-        if not self._check_sender(cam, ip, addr[1], mono):
+        if not self._check_sender(cam, ip, addr[1], mono, data, now, out):
             return
         cs.packets += 1
         if not self._check_seq(cam, msg.seq if hasattr(msg, "seq") else None, now):
@@ -213,9 +252,16 @@ class Receiver:
                 self._restarted.discard(cam)
         elif isinstance(msg, EdgeStatus):
             cs.status += 1
+            cs.status_frames_seen, cs.status_frames_dropped = int(msg.frames_seen), int(msg.frames_dropped)
             out.append(StatusReport(cam, msg, now))
+        elif isinstance(msg, DvsClusters):
+            cs.dvs_slices += 1
+            cs.dvs_clusters += len(msg.clusters)
+            out.append(DvsSlice(cam, msg, now))
         else:
             cs.other += 1
+            if self.on_image is not None and isinstance(msg, ImageChunk):
+                self.on_image(msg)
 
     def _cam_for_datagram(self, data: bytes, ip: str) -> int | None:
         """Which camera a bad datagram is counted against: the camera_index field (the first
@@ -228,22 +274,43 @@ class Receiver:
         cams = [i for i, a in self.allowed.items() if a == ip]
         return cams[0] if len(cams) == 1 else None
 
-    def _check_sender(self, cam: int, ip: str, port: int, mono: float) -> bool:
-        """One sender per camera (see the module doc); False when the datagram is rejected."""
+    def _check_sender(self, cam: int, ip: str, port: int, mono: float, data: bytes = b"", now: float = 0.0,
+                      out: list | None = None) -> bool:
+        """One sender per camera (see the module doc); False when the datagram is rejected or held."""
         owner = self._senders.get(cam)
         if owner is None:
             self._senders[cam] = [port, mono]
             return True
         if owner[0] == port:
             owner[1] = mono
+            self._candidates.pop(cam, None)
             return True
         silent = mono - owner[1]
-        if silent < self.sender_switch_s:
-            self.stats.cameras[cam].second_sender += 1
-            self.warn(f"second_sender:{cam}",
-                      f"camera {cam}: datagrams from a second sender {ip}:{port} while {ip}:{owner[0]} is sending "
-                      f"(two edges with camera index {cam}, or a replay): rejected")
-            return False
+        if silent >= self.sender_switch_s:
+            # The owner went quiet. A new sender takes over once it sent SWITCH_CONFIRM datagrams in a
+            # row (a restarted edge does; one stray datagram of a flood does not); they are held until then.
+            cand = self._candidates.get(cam)
+            if cand is None or cand[0] != port:
+                cand = self._candidates[cam] = [port, []]
+            cand[1].append((data, (ip, port), now))
+            if len(cand[1]) < SWITCH_CONFIRM:
+                return False
+            del self._candidates[cam]
+            self._switch(cam, ip, port, mono, silent)
+            st = self.stats
+            for d, a, t in cand[1][:-1]:  # the held ones, in order, then this one (counted once)
+                st.datagrams -= 1  # counted when it came; handled (and counted) now
+                st.bytes -= len(d)
+                self.handle(d, a, t, out if out is not None else [])
+            return True
+        self.stats.cameras[cam].second_sender += 1
+        self.warn(f"second_sender:{cam}",
+                  f"camera {cam}: datagrams from a second sender {ip}:{port} while {ip}:{owner[0]} is sending "
+                  f"(two edges with camera index {cam}, or a replay): rejected")
+        return False
+
+    def _switch(self, cam: int, ip: str, port: int, mono: float, silent: float) -> None:
+        owner = self._senders[cam]
         cs = self.stats.cameras[cam]
         cs.restarts += 1
         self._seq[cam] = _SeqState()
@@ -251,7 +318,6 @@ class Receiver:
         self.log(f"camera {cam}: edge restarted (new sender {ip}:{port} after {silent:.2f} s without datagrams "
                  f"from port {owner[0]}); mapped again by arrival")
         self._senders[cam] = [port, mono]
-        return True
 
     def _check_seq(self, cam: int, seq: int | None, now: float) -> bool:
         """Update loss/duplicate/reorder counters; False for a duplicate (dropped). `now` is the

@@ -199,11 +199,14 @@ def trace_rays(C: ArrayLike, d: ArrayLike, iface: FlatInterface | tuple) -> tupl
 def triangulate_rays(origins: ArrayLike, dirs: ArrayLike, weights: ArrayLike | None = None) -> F64:
     """The point (..., 3) nearest, in summed squared (weighted) distance, to the lines origins[..., k, :]
     + s dirs[..., k, :] (k along the second-to-last axis). NaN if the lines are (nearly) parallel.
-    Zero weights leave a line out (the batched birth search pads with them)."""
+    Zero weights leave a line out (the batched birth search pads with them); so does a line with a
+    non-finite origin or direction (a point with no preimage through the lens)."""
     o = np.asarray(origins, dtype=np.float64)
     t = np.asarray(dirs, dtype=np.float64)
-    t = t / np.sqrt(np.sum(t * t, axis=-1))[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = t / np.sqrt(np.sum(t * t, axis=-1))[..., None]
     w = np.ones(t.shape[:-1]) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = np.where(np.isfinite(o).all(axis=-1) & np.isfinite(t).all(axis=-1), w, 0.0)
     o = np.where(w[..., None] > 0, o, 0.0)
     t = np.where(w[..., None] > 0, t, 0.0)
     M = np.eye(3) - t[..., :, None] * t[..., None, :]  # (..., k, 3, 3)

@@ -51,6 +51,11 @@ class CameraConfig(_Strict):
     calibration_id: str | None = Field(
         None, description="Name of the camera in the calibration file, when it differs from `name`."
     )
+    kind: Literal["frame", "dvs"] = Field(
+        "frame",
+        description="frame: a camera whose edge sends FEATURES per trigger frame; dvs: an event camera "
+        "whose edge sends DVS_CLUSTERS per time slice (its clusters become 2D observations).",
+    )
 
     @field_validator("edge")
     @classmethod
@@ -220,13 +225,31 @@ def _fix_for(err: dict) -> str:
     return "see examples/rig.toml for a valid value"
 
 
+def _raw_duplicates(data: dict) -> list[str]:
+    seen: dict[object, str] = {}
+    out = []
+    cams = data.get("cameras") if isinstance(data, dict) else None
+    for i, cam in enumerate(cams if isinstance(cams, list) else []):
+        if not isinstance(cam, dict) or "index" not in cam:
+            continue
+        name = str(cam.get("name", f"cameras[{i}]"))
+        idx = cam["index"]
+        if idx in seen:
+            out.append(f"cameras {seen[idx]!r} and {name!r} share index {idx}; give every camera its own index")
+        else:
+            seen[idx] = name
+    return out
+
+
 def parse_rig(data: dict, path: Path | str = "<rig>") -> RigConfig:
     """Validate an already parsed TOML table."""
     path = Path(path)
     try:
         rig = RigConfig.model_validate(data)
     except ValidationError as exc:
-        problems = []
+        # Duplicate camera indices are checked on the raw table too: the model's own check runs only
+        # when every field is valid, and two edges on one index is the error that costs most live.
+        problems = _raw_duplicates(data)
         for err in exc.errors():
             msg = err["msg"].removeprefix("Value error, ")
             problems.append(f"{_loc(err['loc'])}: {msg} ({_fix_for(err)})")
@@ -235,17 +258,29 @@ def parse_rig(data: dict, path: Path | str = "<rig>") -> RigConfig:
     return rig
 
 
+def read_toml_file(path: Path, kind: str, example: str) -> tuple[dict | None, str | None]:
+    """(data, None), or (None, the problem in one line) for a missing file, a folder, bad TOML, a
+    binary file or a read error. `kind` names the file ("rig", "rules"), `example` shows one."""
+    if not path.exists():
+        return None, f"file not found; pass the path of a {kind} TOML file (see {example})"
+    if path.is_dir():
+        return None, f"is a folder; pass the path of a {kind} TOML file in it (see {example})"
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8")), None
+    except tomllib.TOMLDecodeError as exc:
+        return None, f"not valid TOML: {exc}"
+    except UnicodeDecodeError:
+        return None, f"not a text file; a {kind} file is UTF-8 TOML"
+    except OSError as exc:
+        return None, f"cannot be read: {exc.strerror or exc}"
+
+
 def load_rig(path: Path | str, check_files: bool = True) -> RigConfig:
     """Read and validate a rig file. Raises RigError with a readable message on any problem."""
     path = Path(path)
-    if not path.exists():
-        raise RigError(path, ["file not found; pass the path of a rig TOML file (see examples/rig.toml)"])
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise RigError(path, [f"not valid TOML: {exc}"]) from None
-    except UnicodeDecodeError:
-        raise RigError(path, ["not a text file; a rig file is UTF-8 TOML"]) from None
+    data, problem = read_toml_file(path, "rig", "examples/rig.toml")
+    if data is None:
+        raise RigError(path, [problem or "unreadable"])
     rig = parse_rig(data, path)
     if check_files and rig.calibration_path is not None and not rig.calibration_path.exists():
         raise RigError(

@@ -105,6 +105,7 @@ class CameraFrame:
     truncated: bool = False
     incomplete: bool = False  # a split frame with parts missing
     restarted: bool = False  # the first frame from a restarted edge (the receiver saw a new sender)
+    dvs: bool = False  # made from an event camera's clusters (flytrack_host.eventcam)
 
 
 @dataclass(slots=True)
@@ -151,6 +152,7 @@ class CameraSyncStats:
     early: int = 0  # frames numbered ahead of their arrival (misnumbered by the edge)
     restarts: int = 0  # edge restarts (re-mapped by arrival)
     missed: int = 0  # trigger frames an edge missed while it was down (restart gap)
+    ahead: int = 0  # mappings found ahead of the other cameras' arrivals and re-mapped
 
 
 @dataclass
@@ -166,6 +168,8 @@ class _Cam:
     rel_window: deque = field(default_factory=deque)  # (trigger frame, d, arrival) of recent frames
     seen_cf: deque = field(default_factory=lambda: deque(maxlen=512))  # recent camera frames accepted
     lag_win: deque = field(default_factory=deque)  # (arrival, lag to the trigger clock) over ~1 s
+    ahead_check_at: float = 0.0
+    restarted_at: float | None = None
     suspects: list[tuple[CameraFrame, int]] = field(default_factory=list)
     stats: CameraSyncStats = field(default_factory=CameraSyncStats)
 
@@ -308,6 +312,9 @@ class FrameSynchronizer:
             cam.last_cf, cam.last_tf = frame.camera_frame, tf
         self.max_accepted = max(self.max_accepted, tf)
         self._note_lag(cam, frame, tf)
+        if frame.trigger_frame < 0 and frame.recv_time >= cam.ahead_check_at:
+            cam.ahead_check_at = frame.recv_time + 0.05
+            out.extend(self._check_ahead(cam, frame.recv_time))
         out.extend(self._check_drift(cam, frame, tf))
         if tf <= self.last_closed:
             cam.stats.late += 1
@@ -315,7 +322,15 @@ class FrameSynchronizer:
             return out
         p = self.pending.get(tf)
         if p is None:
-            p = self.pending[tf] = _Pending({}, now, now + self.deadline_s)
+            deadline = now + self.deadline_s
+            others = [c.last_tf for c in self.cams.values() if c is not cam and c.alive and c.last_tf is not None]
+            if others and tf > max(others) + 1:
+                # Ahead of every other camera: a frame numbered wrongly must not close (and make late)
+                # the bundles the others have not delivered yet. It waits for them, or a dead timeout.
+                deadline = now + max(self.deadline_s, self.dead_timeout_s)
+            p = self.pending[tf] = _Pending({}, now, deadline)
+        elif p.deadline > now + self.deadline_s:
+            p.deadline = now + self.deadline_s  # another camera reached it: the usual deadline
         if frame.camera_index in p.frames:
             cam.stats.duplicate += 1
             out.append(UntrackedFrame(frame, tf, "duplicate"))
@@ -415,6 +430,8 @@ class FrameSynchronizer:
             w.popleft()
         if math.isfinite(t) and len(w) >= 3 and not continuous:
             floor = min(x[1] for x in w)
+            # Earlier than its camera's frames came in the last second. (A camera late for longer than
+            # that, back on time after a gap, is rejected for up to early_confirm_s, then confirmed.)
             if frame.recv_time - t < floor - self.early_s:
                 return "early"  # claims a pulse that had not happened when such frames arrive
         if not math.isfinite(t) and self.max_accepted >= 0 and tf > self.max_accepted + self.future_frames:
@@ -445,6 +462,40 @@ class FrameSynchronizer:
         while w and w[0][0] < frame.recv_time - self.lag_window_s:
             w.popleft()
 
+    def _check_ahead(self, cam: _Cam, now: float) -> list[SyncOutput]:
+        """A camera whose frames all arrive well before their mapped pulses, compared with the other
+        cameras' arrivals (so a clock-model step, common to all, cancels), is mapped ahead: a restarted
+        edge whose first frames came late and bunched up, or a counter that jumped. Frames cannot come
+        before their pulse: move its mapping back by the whole periods it is ahead."""
+        w = cam.lag_win
+        if cam.offset is None or len(w) < 8 or w[-1][0] - w[0][0] < 0.1:
+            return []
+        others = [min(x[1] for x in c.lag_win) for c in self.cams.values()
+                  if c is not cam and c.alive and len(c.lag_win) >= 8]
+        if not others:
+            return []
+        mine = min(x[1] for x in w)
+        d = mine - statistics.median(others)
+        # Ahead of the others (a clock step moves all cameras alike) and before its own pulses (other
+        # cameras late for longer than the window, in a stall, make no camera arrive before its pulse).
+        if d >= -self.early_s or mine >= -self.early_s:
+            return []
+        k = round(-d / self.period)
+        if k < 1:
+            return []
+        cam.offset += k
+        if cam.last_tf is not None:
+            cam.last_tf -= k
+        w.clear()
+        cam.rel_window.clear()
+        cam.stats.ahead += 1
+        note = ""
+        if cam.restarted_at is not None and now - cam.restarted_at < 3.0:
+            cam.stats.missed = max(0, cam.stats.missed - k)  # its gap was counted from the wrong mapping
+            note = " (after its restart)"
+        return [SyncEvent("ahead", cam.index, f"camera {cam.index}: frames numbered {k} ahead of their arrival "
+                                              f"against the other cameras{note}: re-mapped")]
+
     def _restart(self, cam: _Cam, frame: CameraFrame) -> list[SyncOutput]:
         """An edge restarted (new sender): map its counter again by arrival; count what it missed."""
         old_tf = cam.last_tf
@@ -453,24 +504,27 @@ class FrameSynchronizer:
         cam.seen_cf.clear()
         cam.lag_win.clear()
         cam.rel_window.clear()
-        cam.rel_base = None
+        # rel_base is kept: the camera arrives as it did against the others (same link, same edge), so
+        # the drift check can correct a restart placed a few frames off, instead of taking the wrong
+        # placement as the new normal.
         new_tf = self._frame_at(frame.recv_time - self._lag(cam.index))
         cam.offset = frame.camera_frame - new_tf
         cam.last_cf, cam.last_tf = None, None
+        cam.restarted_at = frame.recv_time
         missed = max(0, new_tf - (old_tf if old_tf is not None else new_tf) - 1)
         cam.stats.missed += missed
         return [SyncEvent("restart", cam.index,
                           f"camera {cam.index}: edge restarted; its camera frame {frame.camera_frame} is trigger "
                           f"frame {new_tf} (by arrival); {missed} trigger frames missed while it was down")]
 
-    def _check_reanchor(self, f: int, first_arrival: float) -> list[SyncOutput]:
+    def _check_reanchor(self, f: int, first_arrival: float, n_frames: int = 2) -> list[SyncOutput]:
         """Fixed-rate clock only: re-anchor after a pause of every camera (see the module doc)."""
         clock = self.clock
         if not isinstance(clock, FixedRateClock) or not clock.anchored:
             return []
         lag = first_arrival - clock.frame_to_host_time(f)
         run = self._late_run
-        if -2 * self.period < lag < 0:
+        if -2 * self.period < lag < 0 and n_frames >= 2:  # one camera alone may be misnumbered
             # A frame cannot come before its pulse: the first frame (the anchor) came late. The clock
             # follows the earliest arrivals, so no estimate is timed before its own frame.
             clock.start_time = (clock.start_time or 0.0) + lag
@@ -644,7 +698,9 @@ class FrameSynchronizer:
                 self.bundles_deadline += 1
             for i in p.frames:
                 self.cams[i].stats.tracked += 1
-            events = self._check_reanchor(f, min(fr.recv_time for fr in p.frames.values()))
+            arr = sorted(fr.recv_time for fr in p.frames.values())
+            # The second earliest arrival when there are several: one misnumbered frame cannot move it.
+            events = self._check_reanchor(f, arr[1] if len(arr) > 1 else arr[0], len(arr))
             bundle = FrameBundle(
                 trigger_frame=f,
                 timestamp=self.frame_time(f),

@@ -372,8 +372,16 @@ static void test_dvs(void) {
     CHECK_ERR(ft_dvs_word_encode(o, &w), FT_OK);
     CHECK(memcmp(o, ev_bytes, 4) == 0);
     {
-        const uint8_t reserved[4] = {0, 0x80, 0, 0}, both[4] = {0, 0, 0, 0xC0};
-        CHECK_ERR(ft_dvs_word_decode(reserved, &w), FT_E_BAD_FIELD);
+        const uint8_t sync[4] = {0, 0x80, 0x10, 0}, sync_wrap[4] = {0, 0x80, 0, 0x80},
+                      sync_reset[4] = {0, 0x80, 0, 0x40}, both[4] = {0, 0, 0, 0xC0};
+        CHECK_ERR(ft_dvs_word_decode(sync, &w), FT_OK);
+        CHECK(w.kind == FT_DVS_SYNC && w.ts == 0x10);
+        CHECK_ERR(ft_dvs_word_encode(o, &w), FT_OK);
+        CHECK(memcmp(o, sync, 4) == 0);
+        ft_dvs_decoder_init(&d);
+        CHECK(ft_dvs_apply(&d, &w, ev) == 0 && d.n_sync == 1 && d.sync_t_us == 0x10);
+        CHECK_ERR(ft_dvs_word_decode(sync_wrap, &w), FT_E_BAD_FIELD);
+        CHECK_ERR(ft_dvs_word_decode(sync_reset, &w), FT_E_BAD_FIELD);
         CHECK_ERR(ft_dvs_word_decode(both, &w), FT_E_BAD_FIELD);
     }
     w.x = 128;

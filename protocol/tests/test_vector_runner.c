@@ -54,9 +54,11 @@ static const char *status_tsv =
 static const char *dvs_words_tsv =
     "valid\tevent_wrap_event\t0b066400000000800e080300\t"
     "n_words=3 words[0].x=5 words[0].y=6 words[0].polarity=1 words[0].ts=100 words[0].reset=0 "
-    "words[0].wrap=0 words[0].t_us=100 words[1].x=0 words[1].y=0 words[1].polarity=0 "
-    "words[1].ts=0 words[1].reset=0 words[1].wrap=1 words[2].x=7 words[2].y=8 words[2].polarity=0 "
-    "words[2].ts=3 words[2].reset=0 words[2].wrap=0 words[2].t_us=16387\n"
+    "words[0].wrap=0 words[0].sync=0 words[0].t_us=100 words[1].x=0 words[1].y=0 "
+    "words[1].polarity=0 "
+    "words[1].ts=0 words[1].reset=0 words[1].wrap=1 words[1].sync=0 words[2].x=7 words[2].y=8 "
+    "words[2].polarity=0 "
+    "words[2].ts=3 words[2].reset=0 words[2].wrap=0 words[2].sync=0 words[2].t_us=16387\n"
     "invalid\tpartial_word\t0b0664\tTRUNCATED\n"
     "invalid\treset_and_wrap\t000000c0\tBAD_FIELD\n";
 

@@ -477,8 +477,11 @@ static inline ft_err vr_dvs_words(const uint8_t *b, size_t n, vr_result *r) {
         VR_DW("ts", w.ts);
         VR_DW("reset", w.kind == FT_DVS_RESET);
         VR_DW("wrap", w.kind == FT_DVS_WRAP);
+        VR_DW("sync", w.kind == FT_DVS_SYNC);
         if (ft_dvs_apply(&d, &w, &ev))
             VR_DW("t_us", ev.t_us);
+        else if (w.kind == FT_DVS_SYNC)
+            VR_DW("t_us", d.sync_t_us);
 #undef VR_DW
         if ((e = ft_dvs_word_encode(r->again + 4 * i, &w)) != FT_OK)
             return e;

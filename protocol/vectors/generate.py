@@ -76,8 +76,8 @@ HEADER_TEXT = """\
 # Canonical text: key=value joined by one space; UDP: type, flags, fixed fields in SPEC table order, then
 # records as arr[i].field (subarrays arr[i].cov[k]); reserved fields are not printed. IMAGE ends with
 # data=<lowercase hex>. Serial: msg_id, seq, payload fields; the hex is the whole wire frame incl. the final
-# 0x00 (a runner strips exactly that byte). DVS: n_words, per word x y polarity ts reset wrap (raw bits) and,
-# for event words only, t_us (decoder starting at offset 0). Integers decimal; f32 %.9g of the float32,
+# 0x00 (a runner strips exactly that byte). DVS: n_words, per word x y polarity ts reset wrap sync (raw bits)
+# and, for event and SYNC words only, t_us (decoder starting at offset 0). Integers decimal; f32 %.9g of the float32,
 # f64 %.17g; nan (whatever its sign/payload), inf, -inf. Text up to its first NUL; bytes 0x21..0x7e except
 # backslash as is, everything else (space, backslash, non-ASCII, control) as \\xhh (lowercase hex).
 """
@@ -646,9 +646,9 @@ def dvs_words() -> Family:
             raise SystemExit(f"dvs_words/{name}: codec accepted it, vector says {error}")
         fam._add("invalid", name, packet, error)
 
-    def word(x: int, y: int, p: int, ts: int, reset: int = 0, wrap: int = 0, res: int = 0) -> bytes:
+    def word(x: int, y: int, p: int, ts: int, reset: int = 0, wrap: int = 0, sync: int = 0) -> bytes:
         """One word packed by hand from the SPEC §2 table."""
-        return bytes([(x << 1) | p, y | (res << 7)]) + struct.pack("<H", ts | (reset << 14) | (wrap << 15))
+        return bytes([(x << 1) | p, y | (sync << 7)]) + struct.pack("<H", ts | (reset << 14) | (wrap << 15))
 
     valid("one_event", word(64, 32, 1, 1000))
     valid("corners_and_max_ts", word(0, 0, 0, 0) + word(127, 127, 1, 0x3FFF) + word(127, 0, 0, 5))
@@ -658,13 +658,16 @@ def dvs_words() -> Family:
     valid("reset_then_events", word(3, 3, 1, 500) + word(0, 0, 0, 0, wrap=1) + word(0, 0, 0, 0, reset=1)
           + word(9, 8, 0, 7) + word(0, 0, 0, 0, wrap=1) + word(10, 11, 1, 8))  # fmt: skip
     valid("special_words_ignored_bits", word(5, 6, 1, 123, wrap=1) + word(7, 8, 1, 9) + word(1, 2, 1, 3, reset=1))
+    valid("sync_words", word(3, 4, 1, 500) + word(0, 0, 0, 498, sync=1) + word(0, 0, 0, 0, wrap=1)
+          + word(0, 0, 0, 2, sync=1) + word(5, 6, 0, 3) + word(9, 9, 1, 77, sync=1))  # fmt: skip
     w = word(64, 32, 1, 1000) + word(65, 33, 0, 1001)
+    valid("event_then_sync", w[:4] + word(1, 1, 0, 1, sync=1))
     for n in (1, 2, 3, 5, 6, 7):
         invalid(f"size_{n}_not_multiple_of_4", w[:n], "TRUNCATED")
     invalid("reset_and_wrap", word(0, 0, 0, 0, reset=1, wrap=1), "BAD_FIELD")
     invalid("reset_and_wrap_second_word", w[:4] + word(1, 1, 0, 1, reset=1, wrap=1), "BAD_FIELD")
-    invalid("reserved_bit_event", w[:4] + word(1, 1, 0, 1, res=1), "BAD_FIELD")
-    invalid("reserved_bit_wrap_word", word(0, 0, 0, 0, wrap=1, res=1) + w, "BAD_FIELD")
+    invalid("sync_on_wrap_word", word(0, 0, 0, 0, wrap=1, sync=1) + w, "BAD_FIELD")
+    invalid("sync_on_reset_word", w[:4] + word(0, 0, 0, 0, reset=1, sync=1), "BAD_FIELD")
     invalid("order_truncated_before_field", word(0, 0, 0, 0, reset=1, wrap=1) + b"\x00\x00", "TRUNCATED")
     return fam
 

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from flytrack_host.sim.run import PREROLL_FRAMES, DemoConfig, find_edge_binary, run_demo, write_json
+from flytrack_host.testing import missing_part
+from flytrack_host.trigger import simulator
 
 
 @pytest.fixture(scope="module")
@@ -24,6 +26,36 @@ def demo(tmp_path_factory):
     cfg = DemoConfig(cameras=3, animals=2, fps=100.0, seconds=2.0, seed=1, out=out, progress=False)
     report = run_demo(cfg)
     return cfg, report
+
+
+@pytest.mark.slow
+def test_the_firmware_clocked_the_rig(demo):
+    """trigger "auto" must not fall back silently: where the AVR tools are (always under make), the
+    firmware in simavr ran; a fallback says why, in the report and in the demo's summary table."""
+    _, r = demo
+    if not simulator.tools_available():
+        missing_part("avr-gcc / simavr not installed: the demo fell back to the software trigger")
+    assert r.trigger == "firmware in simavr", r.trigger_note
+    assert "fell back" not in r.trigger_note
+
+
+@pytest.mark.slow
+def test_a_fallback_is_visible_in_the_summary(demo):
+    import dataclasses
+
+    from rich.console import Console
+
+    from flytrack_host.sim.cli import summary_table
+
+    _, r = demo
+    con = Console(record=True, width=200)
+    con.print(summary_table(r))
+    assert "FELL BACK" not in con.export_text()
+    fell = dataclasses.replace(r, trigger="software trigger",
+                               trigger_note="simavr is missing: fell back to the software trigger")
+    con.print(summary_table(fell))
+    text = con.export_text()
+    assert "software trigger (FELL BACK)" in text and "simavr is missing" in text
 
 
 @pytest.mark.slow

@@ -15,6 +15,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from flytrack_host.protocol import EdgeStatus, FeatureFrame
@@ -70,6 +71,21 @@ def test_aravis_fake_camera_streams_features(edge_bin: Path, receiver, fake_came
         assert m.n_points <= 32 and m.part_index < m.part_count
     # The fake camera's test pattern moves: after the background, some frames give points.
     assert sum(m.n_points for m in fr) > 0
+    # The fake camera's image is Aravis's diagonal ramp, value (x + y + frame id) mod 255 (times a gain
+    # scale): as it moves, the wrap from 254 to 0 leaves stripes along x + y = const, 255 apart in x + y.
+    # On the square 512 x 512 image every stripe's centre lies on the diagonal x = y, each stripe is
+    # oriented at -45 degrees (image axes, y down), the stripes of a frame are 127.5 px apart in x, four of
+    # them, and the difference at the wrap is nearly full scale.
+    with_points = [m for m in fr if m.n_points]
+    assert with_points
+    for m in with_points:
+        pts = m.points
+        assert m.n_points == 4, (m.camera_frame, pts)
+        np.testing.assert_allclose(pts["x_dist"], pts["y_dist"], atol=0.05)
+        np.testing.assert_allclose(pts["orientation"], -np.pi / 4, atol=1e-3)
+        xs = np.sort(pts["x_dist"])
+        np.testing.assert_allclose(np.diff(xs), 127.5, atol=1.0)
+        assert np.all((xs > 0) & (xs < 512)) and np.all(pts["peak_diff"] >= 200) and np.all(pts["area"] >= 100)
     st = [m for m in receiver.messages if isinstance(m, EdgeStatus)]
     assert st and st[-1].width == 512 and st[-1].height == 512 and st[-1].frames_seen == 25
 

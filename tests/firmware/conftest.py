@@ -9,6 +9,7 @@ from flytrack_host.testing import missing_part
 from flytrack_host.trigger import simulator
 
 FIGURES: dict[str, str] = {}
+DVS_FIGURES: dict[str, str] = {}
 
 
 @pytest.fixture(scope="session")
@@ -23,8 +24,17 @@ def figures() -> dict[str, str]:
     return FIGURES
 
 
+@pytest.fixture
+def dvs_figures() -> dict[str, str]:
+    return DVS_FIGURES
+
+
 def pytest_terminal_summary(terminalreporter) -> None:  # noqa: ANN001 - pytest hook
     if FIGURES:
         terminalreporter.section("trigger firmware figures (simavr)")
         for k, v in FIGURES.items():
+            terminalreporter.write_line(f"{k}: {v}")
+    if DVS_FIGURES:
+        terminalreporter.section("DVS bridge firmware figures (simavr)")
+        for k, v in DVS_FIGURES.items():
             terminalreporter.write_line(f"{k}: {v}")

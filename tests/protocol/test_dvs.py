@@ -32,11 +32,23 @@ def test_rejected_packet_leaves_state() -> None:
     dec.decode(word(0, 0, 0, 0, wrap=1))
     for bad, name in ((word(0, 0, 0, 0, wrap=1) + b"\x00", "TRUNCATED"),
                       (word(0, 0, 0, 0, wrap=1) + word(0, 0, 0, 0, reset=1, wrap=1), "BAD_FIELD"),
-                      (word(0, 0x80, 0, 1), "BAD_FIELD")):  # fmt: skip
+                      (word(0, 0x80, 0, 0, wrap=1), "BAD_FIELD"),  # SYNC on a WRAP word
+                      (word(0, 0x80, 0, 0, reset=1), "BAD_FIELD")):  # fmt: skip
         with pytest.raises(ProtocolError) as e:
             dec.decode(bad)
         assert e.value.name == name
     assert dec.offset == 0x4000
+
+
+def test_sync_words() -> None:
+    """SYNC (byte 1 bit 7, the bridge's external input) is a timed word, not an address event."""
+    dec = DvsDecoder()
+    pkt = word(5, 6, 1, 100) + word(0, 0x80, 0, 120) + word(0, 0, 0, 0, wrap=1) + word(0, 0x80, 0, 7) + word(7, 8, 0, 9)
+    ev, sync = dec.decode_with_sync(pkt)
+    assert ev.tolist() == [(5, 6, 1, 100), (7, 8, 0, 0x4000 + 9)]
+    assert sync.tolist() == [120, 0x4000 + 7]
+    assert dec.sync_decoded == 2 and dec.events_decoded == 2
+    assert DvsDecoder().decode(pkt).tolist() == ev.tolist()  # decode() leaves them out
 
 
 def test_encode_events_inserts_wraps() -> None:

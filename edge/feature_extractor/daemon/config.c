@@ -18,7 +18,10 @@ typedef struct {
 
 static const opt_doc docs[] = {
     {"config", "FILE", "read options from a TOML file (flags given too win)"},
-    {"source", "KIND", "frame source: raw, y4m, v4l2, aravis (default raw)"},
+    {"source", "KIND",
+     "frame source: raw, y4m, v4l2, aravis (default raw); event source: events (an event "
+     "file: AEDAT 2/3/4, EVT 2/3, DAT) or dvs128 (a DVS128 on USB, libusb); events go out in "
+     "DVS_CLUSTERS slices"},
     {"input", "WHERE",
      "raw/y4m: file or - for stdin (default -); v4l2: device (/dev/video0); "
      "aravis: camera name as Aravis lists it (e.g. Aravis-Fake-<serial>) or IP"},
@@ -64,6 +67,16 @@ static const opt_doc docs[] = {
     {"intrinsics", "FX,FY,CX,CY[,SKEW]", "camera matrix for lens-distortion correction"},
     {"distortion", "K1,K2,P1,P2,K3", "OpenCV distortion coefficients (as host camera.py)"},
     {"verbose", "0|1", "log every control message and source event"},
+    {"event-format", "FMT", "events: aedat2, aedat3, aedat4, evt2, evt3, dat or auto (default)"},
+    {"slice-us", "US", "event sources: event time per DVS_CLUSTERS slice (default 1000)"},
+    {"realtime", "0|1",
+     "events: play the file at its recorded pace (1, default) or at once (0); with --input - "
+     "(stdin, e.g. a live producer) events are taken as they arrive"},
+    {"reopen-ms", "MS", "dvs128: while unplugged, try to reopen it this often (default 500)"},
+    {"dvs-biases", "HEX", "dvs128: 72 hex digits, the 12 x 3 bias bytes to send (default: keep)"},
+    {"dvs-invert-polarity", "0|1",
+     "dvs128: 1 for an original DVS128, whose raw polarity bit 1 means OFF (jAER, libcaer); 0 "
+     "(default) for the FlyTrack bridge, whose words follow the SPEC (1 = ON)"},
 };
 
 static void usage(const char *prog) {
@@ -75,7 +88,9 @@ static void usage(const char *prog) {
         "heartbeat,\n"
         "and obeys CONTROL messages (set parameter, new background, full frame, regions, start,\n"
         "stop) with a CONTROL_ACK. Exit status: 0 done (source ended, --max-frames, SIGINT/TERM),\n"
-        "2 bad configuration, 3 source failed (cannot open, vanished, ended inside a frame).\n\n"
+        "2 bad configuration, 3 source failed (cannot open, vanished, ended inside a frame).\n"
+        "Event sources (--source events | dvs128) send DVS_CLUSTERS per time slice instead of\n"
+        "FEATURES; a DVS128 unplugged while running is reopened when it comes back.\n\n"
         "options (also TOML keys in --config FILE):\n",
         prog);
     for (size_t i = 0; i < sizeof docs / sizeof docs[0]; i++) {
@@ -222,8 +237,9 @@ static int apply(edge_config *c, const char *key, const char *v) {
     if (!strcmp(key, name))                                                                        \
         return copy_str(key, v, c->field, sizeof c->field);
     if (!strcmp(key, "source")) {
-        if (strcmp(v, "raw") && strcmp(v, "y4m") && strcmp(v, "v4l2") && strcmp(v, "aravis"))
-            return err(key, v, "unknown source (raw, y4m, v4l2, aravis)");
+        if (strcmp(v, "raw") && strcmp(v, "y4m") && strcmp(v, "v4l2") && strcmp(v, "aravis") &&
+            strcmp(v, "events") && strcmp(v, "dvs128"))
+            return err(key, v, "unknown source (raw, y4m, v4l2, aravis, events, dvs128)");
         return copy_str(key, v, c->source, sizeof c->source);
     }
     if (!strcmp(key, "pixel-format")) {
@@ -262,6 +278,31 @@ static int apply(edge_config *c, const char *key, const char *v) {
         return parse_list(key, v, c->distortion, 5, 5);
     if (!strcmp(key, "control-allow"))
         return parse_allow(c, key, v);
+    if (!strcmp(key, "event-format")) {
+        static const char *const fmts[] = {"auto", "aedat2", "aedat3", "aedat4",
+                                           "evt2", "evt3",   "dat"};
+        for (size_t i = 0; i < sizeof fmts / sizeof fmts[0]; i++)
+            if (!strcmp(v, fmts[i]))
+                return copy_str(key, v, c->event_format, sizeof c->event_format);
+        return err(key, v, "unknown event format (aedat2, aedat3, aedat4, evt2, evt3, dat, auto)");
+    }
+    if (!strcmp(key, "dvs-biases")) {
+        if (strlen(v) != 72)
+            return err(key, v, "needs 72 hex digits (12 biases x 3 bytes)");
+        for (int i = 0; i < 36; i++) {
+            unsigned byte;
+            if (!isxdigit((unsigned char)v[2 * i]) || !isxdigit((unsigned char)v[2 * i + 1]) ||
+                sscanf(v + 2 * i, "%2x", &byte) != 1)
+                return err(key, v, "not hex");
+            c->dvs_biases[i] = (uint8_t)byte;
+        }
+        c->have_dvs_biases = 1;
+        return 0;
+    }
+    INT("slice-us", 1, 10000000, slice_us)
+    BOOL("realtime", realtime)
+    BOOL("dvs-invert-polarity", dvs_invert_polarity)
+    INT("reopen-ms", 10, 3600000, reopen_ms)
     STR("input", input)
     INT("width", 0, 16384, width)
     INT("height", 0, 16384, height)
@@ -368,6 +409,10 @@ int edge_config_load(edge_config *c, int argc, char **argv) {
     snprintf(c->bind, sizeof c->bind, "0.0.0.0");
     c->control_port = 7701;
     c->status_interval_ms = 1000;
+    snprintf(c->event_format, sizeof c->event_format, "auto");
+    c->slice_us = 1000;
+    c->realtime = 1;
+    c->reopen_ms = 500;
     ft_fx_params_default(&c->fx, 1, 1, FT_FX_MONO8);
     for (int i = 1; i < argc; i++)
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {

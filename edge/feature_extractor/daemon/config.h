@@ -9,8 +9,8 @@
 #define EDGE_MAX_CONTROL_ALLOW 16
 
 typedef struct {
-    char source[16]; /* raw, y4m, v4l2, aravis */
-    char input[256]; /* path, "-" (stdin), /dev/videoN, or camera name */
+    char source[16]; /* raw, y4m, v4l2, aravis; event sources: events, dvs128 */
+    char input[256]; /* path, "-" (stdin), /dev/videoN, camera name, or event file */
     uint32_t width, height;
     int pixel_format; /* -1: the source's */
     double fps;
@@ -37,6 +37,14 @@ typedef struct {
     int n_control_allow;
     int control_allow_any;      /* "any": every sender */
     int control_allow_loopback; /* "loopback": 127.0.0.0/8 */
+    /* event sources (edge_dvs.c) */
+    char event_format[16]; /* events: auto, aedat2, aedat3, aedat4, evt2, evt3, dat */
+    int64_t slice_us;      /* events per DVS_CLUSTERS slice, in event time */
+    int realtime;          /* events: play the file at its recorded pace */
+    int reopen_ms;         /* dvs128: retry period while unplugged */
+    uint8_t dvs_biases[36];
+    int have_dvs_biases;
+    int dvs_invert_polarity; /* dvs128: raw bit 0 = 1 means OFF (an original DVS128, as jAER) */
 } edge_config;
 
 /* 0 = ok, 1 = --help printed, -1 = error (message printed to stderr). */

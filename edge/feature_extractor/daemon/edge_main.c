@@ -18,6 +18,7 @@
 #include <unistd.h>
 
 #include "config.h"
+#include "edge_dvs.h"
 #include "flytrack/features.h"
 #include "flytrack/udp.h"
 #include "source.h"
@@ -486,6 +487,8 @@ int main(int argc, char **argv) {
     int rc = edge_config_load(&e.cfg, argc, argv);
     if (rc)
         return rc > 0 ? 0 : 2;
+    if (edge_is_event_source(e.cfg.source)) /* events, not frames: edge_dvs.c */
+        return edge_dvs_run(&e.cfg, &ft_usb_libusb_ops);
     signal(SIGPIPE, SIG_IGN);
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);

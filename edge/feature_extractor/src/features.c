@@ -1,9 +1,10 @@
 /* libflytrack_features: see include/flytrack/features.h for the algorithm and the API.
  *
- * Speed plan: the per-pixel work is one tight loop over the frame against two precomputed per-pixel
- * integer thresholds (hi: brighter than the background by more than the allowed deviation; lo:
- * darker), so the hot loop is compares and an OR, which the compiler vectorises (-O3). Rows without
- * a candidate are never looked at again; only candidate pixels are labelled and measured. The float
+ * Speed plan: a pixel is a candidate against two precomputed per-pixel integer thresholds (hi:
+ * brighter than the background by more than the allowed deviation; lo: darker). The hot loop reads
+ * the frame alone, block by block, against each block's tightest bounds (max/min reductions the
+ * compiler vectorises, -O3); only blocks it cannot rule out are compared pixel by pixel with hi and
+ * lo. Only candidate pixels are labelled and measured. The float
  * background (mean, mean of squares) and the thresholds are recomputed only every
  * bg_update_interval frames.
  *
@@ -14,11 +15,15 @@
 #include "thresholds.h"
 
 #include <math.h>
+#if defined(__AVX2__) || defined(__AVX512BW__)
+#include <immintrin.h>
+#endif
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #define DEFAULT_MAX_CANDIDATES 65536u
+#define FT_BLOCK 64u /* pixels per block of the scan's first, frame-only pass */
 #define MAX_DIM 16384u
 #define FT_PI 3.14159265358979323846
 
@@ -43,6 +48,15 @@ struct ft_fx {
     float *mean, *sumsq;
     uint8_t *hi8, *lo8;
     uint16_t *hi16, *lo16;
+    /* Per block of FT_BLOCK pixels of a row: the lowest hi and the highest lo in it. A block whose
+     * pixels all lie within [blo, bhi] holds no candidate, which the scan checks reading the frame
+     * alone (see scan). */
+    size_t nblk; /* blocks per row */
+    uint8_t *bhi8, *blo8;
+    uint16_t *bhi16, *blo16;
+    /* The same bounds per whole row: the scan's very first check. */
+    uint8_t *rhi8, *rlo8;
+    uint16_t *rhi16, *rlo16;
     uint8_t *mask;   /* 1 = use, always allocated (all ones without a user mask) */
     uint8_t *luma;   /* YUYV: the luma plane of the current frame */
     uint32_t *label; /* per pixel: 0, or candidate index + 1 during a frame (reset after) */
@@ -172,6 +186,14 @@ void ft_fx_destroy(ft_fx *fx) {
     free(fx->lo8);
     free(fx->hi16);
     free(fx->lo16);
+    free(fx->bhi8);
+    free(fx->blo8);
+    free(fx->bhi16);
+    free(fx->blo16);
+    free(fx->rhi8);
+    free(fx->rlo8);
+    free(fx->rhi16);
+    free(fx->rlo16);
     free(fx->mask);
     free(fx->luma);
     free(fx->label);
@@ -223,14 +245,24 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
     fx->points = malloc(fx->cap * sizeof(ft_fx_point));
     int ok = fx->mean && fx->sumsq && fx->mask && fx->label && fx->cand_idx && fx->cand_d &&
              fx->parent && fx->cand_region && fx->regions && fx->ranks && fx->points;
+    fx->nblk = (fx->w + FT_BLOCK - 1) / FT_BLOCK;
+    size_t nb = fx->nblk * fx->h;
     if (p->pixel_format == FT_FX_MONO16) {
         fx->hi16 = malloc(fx->npix * sizeof(uint16_t));
         fx->lo16 = malloc(fx->npix * sizeof(uint16_t));
-        ok = ok && fx->hi16 && fx->lo16;
+        fx->bhi16 = malloc(nb * sizeof(uint16_t));
+        fx->blo16 = malloc(nb * sizeof(uint16_t));
+        fx->rhi16 = malloc(fx->h * sizeof(uint16_t));
+        fx->rlo16 = malloc(fx->h * sizeof(uint16_t));
+        ok = ok && fx->hi16 && fx->lo16 && fx->bhi16 && fx->blo16 && fx->rhi16 && fx->rlo16;
     } else {
         fx->hi8 = malloc(fx->npix);
         fx->lo8 = malloc(fx->npix);
-        ok = ok && fx->hi8 && fx->lo8;
+        fx->bhi8 = malloc(nb);
+        fx->blo8 = malloc(nb);
+        fx->rhi8 = malloc(fx->h);
+        fx->rlo8 = malloc(fx->h);
+        ok = ok && fx->hi8 && fx->lo8 && fx->bhi8 && fx->blo8 && fx->rhi8 && fx->rlo8;
         if (p->pixel_format == FT_FX_YUYV) {
             fx->luma = malloc(fx->npix);
             ok = ok && fx->luma;
@@ -293,12 +325,44 @@ static thr_cfg thr_config(const ft_fx *fx) {
 DEFINE_UPDATE(update8, uint8_t)
 DEFINE_UPDATE(update16, uint16_t)
 
+/* bhi = min(hi), blo = max(lo) over each block of FT_BLOCK pixels of a row (the last one may be
+ * short). */
+#define DEFINE_BLOCK_BOUNDS(NAME, T)                                                               \
+    static void NAME(size_t w, size_t h, size_t nblk, const T *restrict hi, const T *restrict lo,  \
+                     T *restrict bhi, T *restrict blo, T *restrict rhi, T *restrict rlo) {         \
+        for (size_t y = 0; y < h; y++) {                                                           \
+            T rh = hi[y * w], rl = lo[y * w];                                                      \
+            for (size_t b = 0; b < nblk; b++) {                                                    \
+                size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK < w ? x0 + FT_BLOCK : w;              \
+                T mh = hi[y * w + x0], ml = lo[y * w + x0];                                        \
+                for (size_t x = x0 + 1; x < x1; x++) {                                             \
+                    T vh = hi[y * w + x], vl = lo[y * w + x];                                      \
+                    mh = vh < mh ? vh : mh;                                                        \
+                    ml = vl > ml ? vl : ml;                                                        \
+                }                                                                                  \
+                bhi[y * nblk + b] = mh;                                                            \
+                blo[y * nblk + b] = ml;                                                            \
+                rh = mh < rh ? mh : rh;                                                            \
+                rl = ml > rl ? ml : rl;                                                            \
+            }                                                                                      \
+            rhi[y] = rh;                                                                           \
+            rlo[y] = rl;                                                                           \
+        }                                                                                          \
+    }
+DEFINE_BLOCK_BOUNDS(block_bounds8, uint8_t)
+DEFINE_BLOCK_BOUNDS(block_bounds16, uint16_t)
+
 static void refresh_thresholds(ft_fx *fx) {
     thr_cfg c = thr_config(fx);
-    if (fx->hi16)
+    if (fx->hi16) {
         ft_fx_thresh16(fx->npix, fx->mean, fx->sumsq, fx->mask, fx->hi16, fx->lo16, c);
-    else
+        block_bounds16(fx->w, fx->h, fx->nblk, fx->hi16, fx->lo16, fx->bhi16, fx->blo16, fx->rhi16,
+                       fx->rlo16);
+    } else {
         ft_fx_thresh8(fx->npix, fx->mean, fx->sumsq, fx->mask, fx->hi8, fx->lo8, c);
+        block_bounds8(fx->w, fx->h, fx->nblk, fx->hi8, fx->lo8, fx->bhi8, fx->blo8, fx->rhi8,
+                      fx->rlo8);
+    }
 }
 
 static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, int init) {
@@ -314,10 +378,88 @@ static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, i
 /* ---------------------------------------------------------------------------------------------- */
 /* Candidate scan: the hot loop */
 
-/* Returns the number of candidates; sets *overflow when more than fx->cap were found. */
-#define DEFINE_SCAN(NAME, T, HI, LO)                                                               \
+/* The scan rules pixels out coarse to fine, reading the frame alone until it cannot:
+ *  1. the whole row's brightest and darkest pixels against the row's bounds (the lowest hi and the
+ *     highest lo over the row): a max/min reduction, about the cost of reading the row;
+ *  2. if that fails (a candidate, or a background that varies a lot along the row), each full block
+ *     of FT_BLOCK pixels against its own bounds, all blocks of the row in one pass;
+ *  3. in a block that still cannot be ruled out, every pixel against its own hi and lo.
+ * The thresholds sit at least diff_threshold from a background that is usually smooth, so most rows
+ * end at step 1. Candidates are still found in raster order: the result is the plain per-pixel
+ * rule's. */
+#define DEFINE_BLOCK_OUT(NAME, T)                                                                  \
+    static inline int NAME(const T *restrict r, T bh, T bl) {                                      \
+        T out = 0; /* an OR of compare results: vector compares, one reduction at the end */       \
+        for (size_t x = 0; x < FT_BLOCK; x++)                                                      \
+            out |= (T)((r[x] > bh) | (r[x] < bl));                                                 \
+        return out != 0;                                                                           \
+    }                                                                                              \
+    /* The whole row's full blocks at once: lane-wise ORs into acc, one reduction per row. */      \
+    static inline int NAME##_row(const T *restrict r, const T *restrict bh, const T *restrict bl,  \
+                                 size_t nfull) {                                                   \
+        T acc[FT_BLOCK] = {0};                                                                     \
+        for (size_t b = 0; b < nfull; b++) {                                                       \
+            const T *restrict rb = r + b * FT_BLOCK;                                               \
+            const T h = bh[b], l = bl[b];                                                          \
+            for (size_t x = 0; x < FT_BLOCK; x++) { /* max(r, h) - h, max(r, l) - r: 0 = inside */ \
+                T v = rb[x], a = v > h ? v : h, c = v > l ? v : l;                                 \
+                acc[x] |= (T)((T)(a - h) | (T)(c - v));                                            \
+            }                                                                                      \
+        }                                                                                          \
+        T out = 0;                                                                                 \
+        for (size_t x = 0; x < FT_BLOCK; x++)                                                      \
+            out |= acc[x];                                                                         \
+        return out != 0;                                                                           \
+    }                                                                                              \
+    /* The whole row against its own bounds: a max/min reduction, about the cost of reading it. */ \
+    static inline int NAME##_whole(const T *restrict r, size_t w, T rh, T rl) {                    \
+        T mx = 0, mn = (T) ~(T)0;                                                                  \
+        for (size_t x = 0; x < w; x++) {                                                           \
+            mx = r[x] > mx ? r[x] : mx;                                                            \
+            mn = r[x] < mn ? r[x] : mn;                                                            \
+        }                                                                                          \
+        return (mx > rh) | (mn < rl);                                                              \
+    }
+DEFINE_BLOCK_OUT(block_out8, uint8_t)
+DEFINE_BLOCK_OUT(block_out16, uint16_t)
+
+/* Bit x set: pixel x of the block is a candidate (r > hi or r < lo). The compiler does not turn the
+ * plain loop into vector compares with a mask, so 8-bit frames use AVX-512BW or AVX2 when built
+ * for them (-march=native); the loop is the portable fallback and the reference. */
+#define DEFINE_BLOCK_MASK_SCALAR(NAME, T)                                                          \
+    static inline uint64_t NAME(const T *restrict r, const T *restrict hr, const T *restrict lr) { \
+        uint64_t m = 0;                                                                            \
+        for (size_t x = 0; x < FT_BLOCK; x++)                                                      \
+            m |= (uint64_t)((r[x] > hr[x]) | (r[x] < lr[x])) << x;                                 \
+        return m;                                                                                  \
+    }
+DEFINE_BLOCK_MASK_SCALAR(block_out16_mask, uint16_t)
+#if defined(__AVX512BW__)
+static inline uint64_t block_out8_mask(const uint8_t *r, const uint8_t *hr, const uint8_t *lr) {
+    __m512i v = _mm512_loadu_si512(r);
+    return _mm512_cmpgt_epu8_mask(v, _mm512_loadu_si512(hr)) |
+           _mm512_cmplt_epu8_mask(v, _mm512_loadu_si512(lr));
+}
+#elif defined(__AVX2__)
+/* Unsigned r > h <=> max(r, h) != h; r < l <=> min(r, l) != l. */
+static inline uint32_t out32_avx2(const uint8_t *r, const uint8_t *hr, const uint8_t *lr) {
+    __m256i v = _mm256_loadu_si256((const __m256i *)r);
+    __m256i h = _mm256_loadu_si256((const __m256i *)hr);
+    __m256i l = _mm256_loadu_si256((const __m256i *)lr);
+    __m256i in = _mm256_and_si256(_mm256_cmpeq_epi8(_mm256_max_epu8(v, h), h),
+                                  _mm256_cmpeq_epi8(_mm256_min_epu8(v, l), l));
+    return ~(uint32_t)_mm256_movemask_epi8(in);
+}
+static inline uint64_t block_out8_mask(const uint8_t *r, const uint8_t *hr, const uint8_t *lr) {
+    return (uint64_t)out32_avx2(r, hr, lr) | (uint64_t)out32_avx2(r + 32, hr + 32, lr + 32) << 32;
+}
+#else
+DEFINE_BLOCK_MASK_SCALAR(block_out8_mask, uint8_t)
+#endif
+
+#define DEFINE_SCAN(NAME, T, HI, LO, BHI, BLO, RHI, RLO, BLOCK_OUT)                                \
     static uint32_t NAME(ft_fx *fx, const T *restrict img, size_t stride_px, int *overflow) {      \
-        const size_t w = fx->w;                                                                    \
+        const size_t w = fx->w, nblk = fx->nblk;                                                   \
         const T *restrict hi = fx->HI;                                                             \
         const T *restrict lo = fx->LO;                                                             \
         const float *restrict mean = fx->mean;                                                     \
@@ -327,34 +469,48 @@ static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, i
             const T *restrict r = img + y * stride_px;                                             \
             const T *restrict hr = hi + y * w;                                                     \
             const T *restrict lr = lo + y * w;                                                     \
-            unsigned any = 0;                                                                      \
-            for (size_t x = 0; x < w; x++)                                                         \
-                any |= (unsigned)(r[x] > hr[x]) | (unsigned)(r[x] < lr[x]);                        \
-            if (!any)                                                                              \
-                continue;                                                                          \
-            for (size_t x = 0; x < w; x++) {                                                       \
-                if (!((r[x] > hr[x]) | (r[x] < lr[x])))                                            \
-                    continue;                                                                      \
-                if (n == fx->cap) {                                                                \
-                    *overflow = 1;                                                                 \
-                    return n;                                                                      \
+            const T *restrict bh = fx->BHI + y * nblk;                                             \
+            const T *restrict bl = fx->BLO + y * nblk;                                             \
+            if (!BLOCK_OUT##_whole(r, w, fx->RHI[y], fx->RLO[y]))                                  \
+                continue; /* the common case: a row smooth enough for one pair of bounds */        \
+            const size_t nfull = w / FT_BLOCK;                                                     \
+            /* Then its full blocks in one pass, reduced once; if they are clean, only a short     \
+             * last block, if any, is left to look at. */                                          \
+            size_t b0 = nfull && !BLOCK_OUT##_row(r, bh, bl, nfull) ? nfull : 0;                   \
+            for (size_t b = b0; b < nblk; b++) {                                                   \
+                size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK;                                      \
+                uint64_t m = 0; /* bit x - x0: pixel x is a candidate */                           \
+                if (x1 <= w) {                                                                     \
+                    if (!BLOCK_OUT(r + x0, bh[b], bl[b]))                                          \
+                        continue;                                                                  \
+                    m = BLOCK_OUT##_mask(r + x0, hr + x0, lr + x0);                                \
+                } else {                                                                           \
+                    for (size_t x = x0; x < w; x++) /* the short last block */                     \
+                        m |= (uint64_t)((r[x] > hr[x]) | (r[x] < lr[x])) << (x - x0);              \
                 }                                                                                  \
-                size_t idx = y * w + x;                                                            \
-                float d = (float)r[x] - mean[idx];                                                 \
-                if (pol == FT_FX_POLARITY_BOTH)                                                    \
-                    d = fabsf(d);                                                                  \
-                else if (pol == FT_FX_POLARITY_DARK)                                               \
-                    d = -d;                                                                        \
-                fx->cand_idx[n] = (uint32_t)idx;                                                   \
-                fx->cand_d[n] = d;                                                                 \
-                fx->label[idx] = n + 1;                                                            \
-                n++;                                                                               \
+                for (; m; m &= m - 1) { /* candidates in raster order */                           \
+                    size_t x = x0 + (size_t)__builtin_ctzll(m);                                    \
+                    if (n == fx->cap) {                                                            \
+                        *overflow = 1;                                                             \
+                        return n;                                                                  \
+                    }                                                                              \
+                    size_t idx = y * w + x;                                                        \
+                    float d = (float)r[x] - mean[idx];                                             \
+                    if (pol == FT_FX_POLARITY_BOTH)                                                \
+                        d = fabsf(d);                                                              \
+                    else if (pol == FT_FX_POLARITY_DARK)                                           \
+                        d = -d;                                                                    \
+                    fx->cand_idx[n] = (uint32_t)idx;                                               \
+                    fx->cand_d[n] = d;                                                             \
+                    fx->label[idx] = n + 1;                                                        \
+                    n++;                                                                           \
+                }                                                                                  \
             }                                                                                      \
         }                                                                                          \
         return n;                                                                                  \
     }
-DEFINE_SCAN(scan8, uint8_t, hi8, lo8)
-DEFINE_SCAN(scan16, uint16_t, hi16, lo16)
+DEFINE_SCAN(scan8, uint8_t, hi8, lo8, bhi8, blo8, rhi8, rlo8, block_out8)
+DEFINE_SCAN(scan16, uint16_t, hi16, lo16, bhi16, blo16, rhi16, rlo16, block_out16)
 
 static void luma_from_yuyv(size_t w, size_t h, const uint8_t *restrict img, size_t stride,
                            uint8_t *restrict out) {

@@ -27,7 +27,12 @@
  *   it arrived) and sleeps in ppoll until the next timer is due or the pty has input. While the
  *   firmware works it is emulated at most 50 us ahead of the wall clock. UART bytes reach the pty
  *   when their stop bit ends on the simulated wire, not earlier. An edge-log comment
- *   "# paced t0_monotonic=S t0_realtime=S" gives the wall time at which cycle 0 was due.
+ *   "# paced t0_monotonic=S t0_realtime=S ppm=P drift_ppm_per_s=D" gives the wall time at which
+ *   cycle 0 was due and the simulated crystal's error.
+ * - --ppm P and --drift-ppm-per-s D (paced only) make the simulated crystal run off its nominal
+ *   frequency as a real one does: at wall time t after the start it runs at
+ *   f_cpu x (1 + (P + D t) 1e-6), so cycle c is due at the t where
+ *   c = f_cpu (t + 1e-6 (P t + D t^2 / 2)). A host clock model must then recover that rate.
  * - --event-period N injects a square wave on the event input pin (INT0), first rising edge at
  *   --event-phase, high for --event-high cycles, to test the event timestamps.
  *
@@ -56,6 +61,7 @@
 #include <errno.h>
 #include <getopt.h>
 #include <signal.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -508,8 +514,20 @@ static void usage(const char *argv0) {
             "usage: %s --elf FILE [--mcu atmega328p|atmega32u4] [--freq HZ] [--edges FILE]\n"
             "       [--pty-file FILE] [--realtime] [--max-seconds SIM_S] [--max-cycles N]\n"
             "       [--event-period CYCLES --event-phase CYCLES --event-high CYCLES] [--irq-log]\n"
-            "       [--help]\n",
+            "       [--ppm P] [--drift-ppm-per-s D] [--help]\n",
             argv0);
+}
+
+/* The paced crystal: cycles due by wall time t (s after the start), and its inverse. */
+static double g_ppm, g_drift; /* ppm, ppm per second */
+static double cycles_at(double t, double freq) {
+    return freq * (t + 1e-6 * (g_ppm * t + 0.5 * g_drift * t * t));
+}
+static double time_of(double c, double freq) {
+    double a = 0.5e-6 * g_drift, b = 1.0 + 1e-6 * g_ppm, x = c / freq;
+    if (a == 0.0)
+        return x / b;
+    return 2.0 * x / (b + sqrt(b * b + 4.0 * a * x)); /* the root of a t^2 + b t = x near x / b */
 }
 
 int main(int argc, char **argv) {
@@ -531,6 +549,8 @@ int main(int argc, char **argv) {
                                          {"event-high", required_argument, 0, 'W'},
                                          {"help", no_argument, 0, 'h'},
                                          {"irq-log", no_argument, 0, 'I'},
+                                         {"ppm", required_argument, 0, 'q'},
+                                         {"drift-ppm-per-s", required_argument, 0, 'd'},
                                          {0, 0, 0, 0}};
     int o;
     while ((o = getopt_long(argc, argv, "", opts, NULL)) != -1) {
@@ -552,6 +572,12 @@ int main(int argc, char **argv) {
             break;
         case 'r':
             realtime = 1;
+            break;
+        case 'q':
+            g_ppm = strtod(optarg, NULL);
+            break;
+        case 'd':
+            g_drift = strtod(optarg, NULL);
             break;
         case 's':
             max_seconds = strtod(optarg, NULL);
@@ -707,8 +733,8 @@ int main(int argc, char **argv) {
          * clock. */
         struct timespec rt;
         clock_gettime(CLOCK_REALTIME, &rt);
-        fprintf(g_log, "# paced t0_monotonic=%.9f t0_realtime=%.9f\n", t0,
-                (double)rt.tv_sec + (double)rt.tv_nsec * 1e-9);
+        fprintf(g_log, "# paced t0_monotonic=%.9f t0_realtime=%.9f ppm=%.6f drift_ppm_per_s=%.6f\n",
+                t0, (double)rt.tv_sec + (double)rt.tv_nsec * 1e-9, g_ppm, g_drift);
     }
     int state = cpu_Running, rc = 0;
     if (!realtime) {
@@ -742,7 +768,7 @@ int main(int argc, char **argv) {
             if (limit && g_avr->cycle >= limit)
                 break;
             double now = now_s() - t0;
-            uint64_t wall_c = now > 0 ? (uint64_t)(now * (double)freq) : 0;
+            uint64_t wall_c = now > 0 ? (uint64_t)cycles_at(now, (double)freq) : 0;
             if (limit && wall_c > limit)
                 wall_c = limit;
             if (loop_len)
@@ -778,7 +804,7 @@ int main(int argc, char **argv) {
             }
             if (g_tx_len && g_tx_due[0] < wake_c)
                 wake_c = g_tx_due[0];
-            double wait = (double)wake_c / (double)freq - (now_s() - t0);
+            double wait = time_of((double)wake_c, (double)freq) - (now_s() - t0);
             if (wait > 2e-6) {
                 if (wait > 0.5)
                     wait = 0.5;

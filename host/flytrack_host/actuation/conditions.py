@@ -6,6 +6,8 @@ microseconds a frame whatever the number of objects.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from flytrack_host.actuation.rules import Condition, Region, Target, _Range
@@ -68,14 +70,14 @@ def closing_speed(t: Target, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
     return np.where(n > 0, out, 0.0)
 
 
-def turn_rate_deg_s(vel_prev: np.ndarray, vel: np.ndarray, dt: float) -> np.ndarray:
-    """Angle between successive velocity vectors per second (NaN where either is ~zero)."""
+def turn_rate_deg_s(vel_prev: np.ndarray, vel: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
+    """Angle between successive velocity vectors per second (NaN where either is ~zero or dt is 0)."""
     a = np.linalg.norm(vel_prev, axis=1)
     b = np.linalg.norm(vel, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         cos = np.einsum("ij,ij->i", vel_prev, vel) / (a * b)
-    ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    return np.where((a > 1e-6) & (b > 1e-6) & (dt > 0), ang / dt, np.nan)
+        ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) / dt
+    return np.where((a > 1e-6) & (b > 1e-6) & (np.asarray(dt) > 0), ang, np.nan)
 
 
 def condition_mask(c: Condition, pos: np.ndarray, vel: np.ndarray, turn: np.ndarray | None = None) -> np.ndarray:
@@ -98,4 +100,57 @@ def condition_mask(c: Condition, pos: np.ndarray, vel: np.ndarray, turn: np.ndar
     if c.turn_rate_deg_s is not None:
         tr = turn if turn is not None else np.full(len(pos), np.nan)
         ok &= np.nan_to_num(_in_range(tr, c.turn_rate_deg_s), nan=False) & np.isfinite(tr)
+    return ok
+
+
+Mask = Callable[[np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
+
+
+def _compile_region(region: Region) -> Callable[[np.ndarray], np.ndarray]:
+    if region.box is not None:
+        lo, hi = np.asarray(region.box.min, float), np.asarray(region.box.max, float)
+        return lambda pos: ((pos >= lo) & (pos <= hi)).all(axis=1)
+    return lambda pos: region_mask(region, pos)
+
+
+def compile_condition(c: Condition) -> Mask:
+    """`condition_mask` for one condition with its constants made once (the per-frame call is a few
+    NumPy operations on the frame's objects)."""
+    parts: list[Callable[[np.ndarray, np.ndarray, np.ndarray | None], np.ndarray]] = []
+    if c.inside is not None:
+        f_in = _compile_region(c.inside)
+        parts.append(lambda pos, vel, turn: f_in(pos))
+    if c.outside is not None:
+        f_out = _compile_region(c.outside)
+        parts.append(lambda pos, vel, turn: ~f_out(pos))
+    rest = c.model_copy(update={"inside": None, "outside": None})
+    others = any(getattr(rest, k) is not None for k in ("speed_m_s", "altitude_m", "distance_m",
+                                                         "closing_speed_m_s", "turn_rate_deg_s"))
+    if others:
+        parts.append(lambda pos, vel, turn: _others(rest, pos, vel, turn))
+
+    def mask(pos: np.ndarray, vel: np.ndarray, turn: np.ndarray | None = None) -> np.ndarray:
+        ok = np.isfinite(pos).all(axis=1) & np.isfinite(vel).all(axis=1)
+        for p in parts:
+            ok &= p(pos, vel, turn)
+        return ok
+
+    return mask
+
+
+def _others(c: Condition, pos: np.ndarray, vel: np.ndarray, turn: np.ndarray | None) -> np.ndarray:
+    ok = np.ones(len(pos), dtype=bool)
+    if c.speed_m_s is not None:
+        ok &= _in_range(np.linalg.norm(vel, axis=1), c.speed_m_s)
+    if c.altitude_m is not None:
+        ok &= _in_range(pos[:, 2], c.altitude_m)
+    if c.distance_m is not None:
+        d = distance(c.distance_m, pos)
+        ok &= (d >= c.distance_m.min) & (d <= c.distance_m.max)
+    if c.closing_speed_m_s is not None:
+        s = closing_speed(c.closing_speed_m_s, pos, vel)
+        ok &= (s >= c.closing_speed_m_s.min) & (s <= c.closing_speed_m_s.max)
+    if c.turn_rate_deg_s is not None:
+        tr = turn if turn is not None else np.full(len(pos), np.nan)
+        ok &= np.isfinite(tr) & _in_range(np.nan_to_num(tr, nan=0.0), c.turn_rate_deg_s)
     return ok

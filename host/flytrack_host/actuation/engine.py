@@ -7,8 +7,8 @@ the rules and hands the resulting actions to per-device worker threads.
     ...                      # pipe.stop() closes the engine (queued actions are finished first)
 
 `on_frame` runs on the tracking thread: per rule one vectorised condition over the frame's objects
-and a few dict updates per object, then `put_nowait` of each action (about 20-60 us a frame for a
-few rules; measured by `flytrack_host.actuation` tests). Nothing here waits for a device.
+and a few dict updates per object, then `put_nowait` of each action (`make bench-actuation` prints
+its cost per frame against the number of objects). Nothing here waits for a device.
 
 The frame each firing aims for is the first frame its slowest output can still reach (the measured
 trigger-to-estimate latency, the device's latency and its arming lead; `prediction.reachable_frame`),
@@ -22,23 +22,26 @@ from __future__ import annotations
 import logging
 import math
 import sys
-import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices import Output, make_output
-from flytrack_host.actuation.devices.base import Job, Outcome, OutputWorker, RateLimitedLog
+from flytrack_host.actuation.devices.base import Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
 from flytrack_host.actuation.prediction import reachable_frame
 from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
+from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
 log = logging.getLogger("flytrack.actuation")
-SWITCH_INTERVAL_S = 0.0005
+SWITCH_INTERVAL_S = 0.0002
+MAX_KEPT_FIRES = 100_000
 
 
 def estimates_arrays(result: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -58,22 +61,27 @@ class ActuationEngine:
         used = {a.output for r in rules.rules for a in r.actions}
         self.outputs: dict[str, Output] = {a.name: make_output(a, context) for a in actuators if a.name in used}
         self.evals = [RuleEvaluator(r, self.period_s) for r in rules.rules]
-        self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) for r in rules.rules]
+        # The same rules without prediction, for the "how far off without it" figure; a rule that does not
+        # predict is its own shadow, so it is not evaluated twice.
+        self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) if r.predict else None
+                       for r in rules.rules]
         self.rule_outputs = [[self.outputs[a.output] for a in r.actions] for r in rules.rules]
         self.firings = FiringLog(record=self._record)
-        self.shadow_fires: list[Fire] = []
-        self.fires: list[Fire] = []
+        # The latest firings (the recording keeps them all), and counts per rule.
+        self.shadow_fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
+        self.fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
+        self.fired: dict[str, int] = {r.name: 0 for r in rules.rules}
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
         self._pipe: Any = None
-        self._log_sink = log.warning
-        self.warn = RateLimitedLog(self._log)
+        self.warn = RateLimitedLog(lambda m: self._log(m))
         self.workers = {n: OutputWorker(o, self._done, self.warn) for n, o in self.outputs.items()}
-        self._dry = {r.name: r.dry_run for r in rules.rules}
+        self.rule_problems: list[str] = []  # rules left out at start (flytrack run --skip-bad-rules)
         self._started = False
         self._closed = False
-        self._lock = threading.Lock()
+        self._last_frame = -1
+        self._switch_interval: float | None = None  # Python's, restored at close
 
     @classmethod
     def from_files(cls, rig: RigConfig, rules_path: Path | str, fps: float,
@@ -89,6 +97,8 @@ class ActuationEngine:
         pipe.status_sources.append(self.status)
         names = ", ".join(f"{r.name}{' (dry run)' if r.dry_run else ''}" for r in self.rules.rules)
         self._log(f"rules from {self.rules_path}: {names}")
+        for p in self.rule_problems:
+            self._log(f"rule left out: {p}")
 
     def start(self) -> None:
         if not self._started:
@@ -96,6 +106,7 @@ class ActuationEngine:
             if self.workers and sys.getswitchinterval() > SWITCH_INTERVAL_S:
                 # A device thread waiting for the GIL would otherwise run only when the tracking thread
                 # blocks or after Python's 5 ms switch interval: 1-2 ms added to every action.
+                self._switch_interval = sys.getswitchinterval()
                 sys.setswitchinterval(SWITCH_INTERVAL_S)
             for w in self.workers.values():
                 w.start()
@@ -114,8 +125,14 @@ class ActuationEngine:
     # --- the tracking thread's part -----------------------------------------------------------
     def on_frame(self, result: Any, frame_time: float, estimate_time: float) -> None:
         t0 = time.perf_counter()
-        now = time.time()
+        now = hostclock.now()
         frame = int(result.trigger_frame)
+        if frame < self._last_frame:  # the trigger was re-armed (frame 0 again, a new tracker)
+            self._log(f"trigger frames restarted ({self._last_frame} -> {frame}): rule histories cleared")
+            for ev in (*self.evals, *self.shadow):
+                if ev is not None:
+                    ev.reset()
+        self._last_frame = frame
         ids, states = estimates_arrays(result)
         self.frames += 1
         for ev, sh, outs in zip(self.evals, self.shadow, self.rule_outputs, strict=True):
@@ -123,7 +140,7 @@ class ActuationEngine:
                                           self.period_s) for o in outs),
                          default=reachable_frame(frame, frame_time, now, 0.0, self.period_s))
             fires = ev.step(frame, target, ids, states)
-            self.shadow_fires.extend(sh.step(frame, target, ids, states))
+            self.shadow_fires.extend(fires if sh is None else sh.step(frame, target, ids, states))
             for f in fires:
                 self._dispatch(f, ev, frame_time, estimate_time)
         dt = time.perf_counter() - t0
@@ -132,6 +149,7 @@ class ActuationEngine:
 
     def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float) -> None:
         self.fires.append(f)
+        self.fired[f.rule] += 1
         pos = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
         rule = ev.rule
         if rule.dry_run or not rule.actions:
@@ -149,22 +167,29 @@ class ActuationEngine:
 
     def _done(self, o: Outcome) -> None:
         self.firings.add(o)
-        if o.error and not o.error.startswith("late"):
-            pass  # the worker has logged it (rate-limited)
-        elif o.error:
+        late = o.error.startswith("late")
+        if late:
             self.warn(f"{o.output}:late", f"output {o.output}: {o.error}")
+        if o.kind == "trigger_pulse" and o.job.action.level is None and (not o.error or late):
+            # The text log travels with every export (.braidz too): a high-speed camera's video is
+            # aligned with the tracks from this line even without the firings table.
+            how = "exact" if o.frame_exact else "estimated from the trigger clock: the PULSE was late"
+            self._log(f"{o.output}: pulse (high-speed camera trigger point) at trigger frame {o.scheduled_frame} "
+                      f"({how}); rule {o.job.rule}, object {o.job.obj_id}")
+        # other failures: the worker has logged them (rate-limited)
 
     # --- reporting ----------------------------------------------------------------------------
     def status(self) -> str:
         parts = []
         for ev in self.evals:
-            n = sum(1 for f in self.fires if f.rule == ev.rule.name)
-            parts.append(f"{ev.rule.name} {n}{' dry' if ev.rule.dry_run else ''}")
+            parts.append(f"{ev.rule.name} {self.fired[ev.rule.name]}{' dry' if ev.rule.dry_run else ''}")
         for name, w in self.workers.items():
             s = w.stats
             bad = s.errors + s.dropped
             state = "" if w.output.connected else " DOWN"
             parts.append(f"{name} ok {s.ok}" + (f" ERR {bad}" if bad else "") + state)
+        if self.rule_problems:
+            parts.append(f"{len(self.rule_problems)} rule problems")
         return "rules: " + ", ".join(parts)
 
     def summary(self) -> dict[str, Any]:
@@ -173,7 +198,7 @@ class ActuationEngine:
         out_rules = {}
         for ev in self.evals:
             d = per_rule.get(ev.rule.name, {"fired": 0, "latency_ms": {"n": 0}, "outputs": {}})
-            d["fired"] = sum(1 for f in self.fires if f.rule == ev.rule.name)
+            d["fired"] = self.fired[ev.rule.name]
             d["suppressed"] = dict(ev.suppressed)
             d["dry_run"] = ev.rule.dry_run
             out_rules[ev.rule.name] = d
@@ -186,6 +211,7 @@ class ActuationEngine:
             "outputs": {n: {**w.stats.__dict__, "connected": w.output.connected,
                             "lead_ms": w.output.lead_s * 1e3} for n, w in self.workers.items()},
             "firing_rows": int(len(rows)),
+            "rule_problems": list(self.rule_problems),
         }
 
     def close(self) -> None:
@@ -195,3 +221,6 @@ class ActuationEngine:
         self._closed = True
         for w in self.workers.values():
             w.stop()
+        self.warn.flush()  # the counts of messages held back
+        if self._switch_interval is not None:
+            sys.setswitchinterval(self._switch_interval)

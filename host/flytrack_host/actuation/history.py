@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flytrack_host.actuation.conditions import condition_mask, turn_rate_deg_s
+from flytrack_host.actuation.conditions import compile_condition, turn_rate_deg_s
 from flytrack_host.actuation.prediction import predict_states
 from flytrack_host.actuation.rules import Rule
 
@@ -53,6 +53,18 @@ class RuleEvaluator:
     suppressed: dict[str, int] = field(default_factory=dict)
     frames: int = 0
 
+    def __post_init__(self) -> None:
+        self._needs_turn = self.rule.when.turn_rate_deg_s is not None
+        self._mask = compile_condition(self.rule.when)
+        self._hold = self.rule.when.hold_ms / 1e3
+        self._after = self.rule.when.after_false_ms / 1e3
+
+    def reset(self) -> None:
+        """Forget every object and the last firing (trigger frames start again from 0)."""
+        self.objs.clear()
+        self.last_fire_frame = None
+        self.recent.clear()
+
     def _select(self, ids: np.ndarray) -> np.ndarray:
         o = self.rule.objects
         if o == "any" or len(ids) == 0:
@@ -66,27 +78,31 @@ class RuleEvaluator:
         Returns the firings (already through the gates)."""
         self.frames += 1
         r = self.rule
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        states = np.asarray(states, dtype=np.float64).reshape(-1, 6)
         if r.predict:
             ahead = min((target_frame - frame) * self.period_s, r.max_predict_ms / 1e3)
-            judged = predict_states(states, ahead)
+            judged = predict_states(states, ahead) if ahead > 0 else states
             at = target_frame
         else:
             judged = states
             at = target_frame  # the action still lands on the reachable frame, judged on frame `frame`
-        turn = np.full(len(ids), np.nan)
-        for i, oid in enumerate(ids.tolist()):
-            ob = self.objs.get(oid)
-            if ob is not None and ob.last_vel is not None and frame > ob.last_frame:
-                turn[i] = turn_rate_deg_s(ob.last_vel[None], states[i:i + 1, 3:6],
-                                          (frame - ob.last_frame) * self.period_s)[0]
-        mask = condition_mask(r.when, judged[:, :3], judged[:, 3:6], turn) & self._select(ids)
+        id_list = ids.tolist()
+        turn = None
+        if self._needs_turn:  # from each object's previous velocity (vectorised over the objects)
+            prev = np.full((len(ids), 3), np.nan)
+            dt = np.zeros(len(ids))
+            for i, oid in enumerate(id_list):
+                ob = self.objs.get(oid)
+                if ob is not None and ob.last_vel is not None and frame > ob.last_frame:
+                    prev[i] = ob.last_vel
+                    dt[i] = (frame - ob.last_frame) * self.period_s
+            turn = turn_rate_deg_s(prev, states[:, 3:6], dt)
+        mask = self._mask(judged[:, :3], judged[:, 3:6], turn)
+        if r.objects != "any":
+            mask &= self._select(ids)
         fires: list[Fire] = []
-        hold = r.when.hold_ms / 1e3
-        after = r.when.after_false_ms / 1e3
+        hold, after = self._hold, self._after
         seen = set()
-        for i, (oid, m) in enumerate(zip(ids.tolist(), mask.tolist(), strict=True)):
+        for i, (oid, m) in enumerate(zip(id_list, mask.tolist(), strict=True)):
             seen.add(oid)
             ob = self.objs.get(oid)
             if ob is None:
@@ -96,7 +112,8 @@ class RuleEvaluator:
                     ob.prev_false = at - ob.since
                     ob.fired = False
                 ob.state, ob.since = m, at
-            ob.last_vel, ob.last_frame = states[i, 3:6].copy(), frame
+            if self._needs_turn:
+                ob.last_vel, ob.last_frame = states[i, 3:6].copy(), frame
             if not m or ob.fired or ob.prev_false < 1:
                 continue
             if (at - ob.since) * self.period_s + _EPS < hold or ob.prev_false * self.period_s + _EPS < after:

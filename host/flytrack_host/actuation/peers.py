@@ -17,6 +17,8 @@ import time
 import tty
 from dataclasses import dataclass
 
+from flytrack_host import hostclock
+
 log = logging.getLogger("flytrack.actuation.peers")
 
 
@@ -61,7 +63,7 @@ class ModbusPeer:
     async def _action(self, func_code: int, start: int, address: int, count: int, registers: list,
                       values: list | None) -> None:
         if values is not None:
-            self.writes.append(Write(time.time(), func_code, address, list(values)))
+            self.writes.append(Write(hostclock.now(), func_code, address, list(values)))
         if self.delay_s:
             await asyncio.sleep(self.delay_s)
 
@@ -132,6 +134,86 @@ class ModbusPeer:
         return [w for w in self.writes if w.func_code in (5, 15) and w.address == address]
 
 
+class ModbusPeerProcess:
+    """A `ModbusPeer` in a process of its own (as a PLC is a machine of its own): the host process's
+    threads do not share Python's GIL with the server. Its writes are read back from a log file."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int | None = None, log_dir: str | os.PathLike | None = None):
+        import tempfile
+
+        self.host = host
+        self.port = port or free_tcp_port(host)
+        d = str(log_dir) if log_dir is not None else tempfile.mkdtemp(prefix="flytrack-modbus-")
+        self.log_path = os.path.join(d, "modbus_writes.log")
+        with open(self.log_path, "w"):
+            pass  # this run's writes only
+        self.proc = None
+
+    @property
+    def address(self) -> str:
+        return f"{self.host}:{self.port}"
+
+    def start(self, timeout_s: float = 10.0) -> ModbusPeerProcess:
+        import subprocess
+        import sys
+
+        self.proc = subprocess.Popen([sys.executable, "-m", "flytrack_host.actuation.peers", self.host,
+                                      str(self.port), self.log_path], stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL)
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"Modbus server process exited with {self.proc.returncode}")
+            with contextlib.suppress(OSError), socket.create_connection((self.host, self.port), 0.2):
+                return self
+            time.sleep(0.05)
+        self.stop()
+        raise RuntimeError(f"Modbus server process did not listen on {self.address} within {timeout_s} s")
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5.0)
+            except Exception:
+                self.proc.kill()
+                self.proc.wait(5.0)
+
+    @property
+    def writes(self) -> list[Write]:
+        out = []
+        with contextlib.suppress(FileNotFoundError), open(self.log_path) as f:
+            for line in f:
+                parts = line.split()
+                if len(parts) >= 3:
+                    out.append(Write(float(parts[0]), int(parts[1]), int(parts[2]), [int(v) for v in parts[3:]]))
+        return out
+
+    def coil_writes(self, address: int = 0) -> list[Write]:
+        return [w for w in self.writes if w.func_code in (5, 15) and w.address == address]
+
+
+def _serve_logged(host: str, port: int, log_path: str) -> None:
+    """The child process of ModbusPeerProcess: serve until terminated, one log line per write."""
+    import signal
+
+    peer = ModbusPeer(host, port)
+    f = open(log_path, "a", buffering=1)  # noqa: SIM115 - open for the life of the process
+
+    async def action(func_code: int, start: int, address: int, count: int, registers: list,
+                     values: list | None) -> None:
+        if values is not None:
+            f.write(f"{hostclock.now():.6f} {func_code} {address} {' '.join(str(int(v)) for v in values)}\n")
+
+    peer._action = action  # type: ignore[method-assign]
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    peer.start()
+    stop.wait()
+    peer.stop()
+    f.close()
+
+
 class PtyPair:
     """Two pseudo-terminals joined back to back by a thread: a serial line on which a Modbus RTU server
     and client talk (each opens one end by its /dev/pts path)."""
@@ -184,9 +266,15 @@ class CanListener:
         while not self._stop.is_set():
             msg = self.bus.recv(0.1)
             if msg is not None:
-                self.frames.append((time.time(), int(msg.arbitration_id), bytes(msg.data)))
+                self.frames.append((hostclock.now(), int(msg.arbitration_id), bytes(msg.data)))
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(1.0)
         self.bus.shutdown()
+
+
+if __name__ == "__main__":  # python -m flytrack_host.actuation.peers HOST PORT LOG: the server process
+    import sys
+
+    _serve_logged(sys.argv[1], int(sys.argv[2]), sys.argv[3])

@@ -21,9 +21,9 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from flytrack_host.rig import ActuatorConfig
 
@@ -188,7 +188,7 @@ class Rule(_Strict):
     name: str = Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.\-]+$")
     when: Condition
     actions: list[Action] = Field(default_factory=list)
-    objects: Literal["any", "first"] | int = Field("any", description="any object, the oldest track, or a track id")
+    objects: str | int = Field("any", description="any object, the oldest track (first), or a track id")
     cooldown_s: float = Field(0.0, ge=0, description="no firing within this long of the last one")
     max_per_minute: float | None = Field(None, gt=0, description="at most this many firings in any 60 s")
     armed_after_s: float = Field(0.0, ge=0, description="arming window: seconds after the run started ...")
@@ -198,6 +198,13 @@ class Rule(_Strict):
     max_predict_ms: float = Field(
         50.0, ge=0, le=1000, description="predict at most this far ahead; when the action can only land later "
         "(a stalled host), the rule is judged at this horizon rather than on a long extrapolation")
+
+    @field_validator("objects", mode="before")
+    @classmethod
+    def _objects(cls, v: object) -> object:
+        if v in ("any", "first") or (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+            return v
+        raise ValueError(f"objects is \"any\", \"first\" or a track id (an integer >= 0), not {v!r}")
 
     @model_validator(mode="after")
     def _window(self) -> Rule:
@@ -254,15 +261,12 @@ def parse_rules(data: dict, path: Path | str = "<rules>") -> RuleSet:
 
 
 def load_rules(path: Path | str) -> RuleSet:
+    from flytrack_host.rig import read_toml_file
+
     path = Path(path)
-    if not path.exists():
-        raise RulesError(path, ["file not found; pass the path of a rules TOML file (see examples/closed_loop.toml)"])
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise RulesError(path, [f"not valid TOML: {exc}"]) from None
-    except UnicodeDecodeError:
-        raise RulesError(path, ["not a text file; a rules file is UTF-8 TOML"]) from None
+    data, problem = read_toml_file(path, "rules", "examples/closed_loop.toml")
+    if data is None:
+        raise RulesError(path, [problem or "unreadable"])
     return parse_rules(data, path)
 
 
@@ -310,20 +314,67 @@ def _action_problem(a: Action, kind: str, act: ActuatorConfig) -> str | None:
     return None
 
 
-def bind_rules(rules: RuleSet, actuators: list[ActuatorConfig], path: Path | str = "<rules>") -> None:
-    """Check every action against the rig's actuators; raises RulesError listing all problems."""
+def _bind_problems(rules: list[Rule], actuators: list[ActuatorConfig], first: int = 0) -> list[tuple[int, str]]:
     by_name = {a.name: a for a in actuators}
     problems = []
-    for i, r in enumerate(rules.rules):
+    for i, r in enumerate(rules, start=first):
         for j, a in enumerate(r.actions):
             where = f"rules[{i}] {r.name!r}.actions[{j}]"
             act = by_name.get(a.output)
             if act is None:
                 known = ", ".join(sorted(by_name)) or "none: add [[actuators]] to the rig file"
-                problems.append(f"{where}.output: {a.output!r} is not an actuator of the rig (known: {known})")
+                problems.append((i, f"{where}.output: {a.output!r} is not an actuator of the rig (known: {known})"))
                 continue
             why = _action_problem(a, act.kind, act)
             if why:
-                problems.append(f"{where}: {why}")
+                problems.append((i, f"{where}: {why}"))
+    return problems
+
+
+def bind_rules(rules: RuleSet, actuators: list[ActuatorConfig], path: Path | str = "<rules>") -> None:
+    """Check every action against the rig's actuators; raises RulesError listing all problems."""
+    problems = _bind_problems(rules.rules, actuators)
     if problems:
-        raise RulesError(path, problems)
+        raise RulesError(path, [p for _, p in problems])
+
+
+def load_rules_skipping(path: Path | str, actuators: list[ActuatorConfig]) -> tuple[RuleSet | None, list[str]]:
+    """For a run that must go on whatever the rules file holds: every rule that validates and binds,
+    and one line (file, rule, field) per problem of the others. (None, problems) when nothing is usable."""
+    path = Path(path)
+    try:
+        return _only_good(list(enumerate(load_rules(path).rules)), actuators, path)
+    except RulesError as exc:
+        first = exc
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None, [str(first)]
+    raw = data.get("rules") if isinstance(data, dict) else None
+    if not isinstance(raw, list):
+        return None, [str(first)]
+    good: list[tuple[int, Rule]] = []
+    problems = []
+    for i, item in enumerate(raw):
+        try:
+            r = parse_rules({"rules": [item]}, path).rules[0]
+        except RulesError as exc:
+            problems += [f"{path}: " + p.replace("rules[0]", f"rules[{i}]", 1) for p in exc.problems]
+            continue
+        if any(r.name == g.name for _, g in good):
+            problems.append(f"{path}: rules[{i}] {r.name!r}: a rule of that name comes earlier; this one is left out")
+            continue
+        good.append((i, r))
+    rs, more = _only_good(good, actuators, path)
+    return rs, problems + more
+
+
+def _only_good(rules: list[tuple[int, Rule]], actuators: list[ActuatorConfig],
+               path: Path) -> tuple[RuleSet | None, list[str]]:
+    keep, problems = [], []
+    for i, r in rules:
+        bad = _bind_problems([r], actuators, first=i)
+        problems += [f"{path}: {p}" for _, p in bad]
+        if not bad:
+            keep.append(r)
+    return (RuleSet(rules=keep) if keep else None), problems

@@ -7,31 +7,16 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from flytrack_host.camera import Camera
+from flytrack_host.io.reprojection import recording_reprojection
 from flytrack_host.recording.reader import Recording
 
 
 def reprojection_errors(rec: Recording, cameras: Mapping[int, Camera]) -> np.ndarray:
     """Distance in pixels (distorted image) from each associated 2D point to its estimate's projection."""
-    k = pd.DataFrame(rec.table("kalman_estimates")[["obj_id", "trigger_frame", "x", "y", "z"]])
-    a = pd.DataFrame(rec.table("data_association"))
-    d2 = rec.table("data2d_distorted")
-    d = pd.DataFrame({"trigger_frame": d2["trigger_frame"], "camera_index": d2["camera_index"],
-                      "pt_idx": d2["frame_pt_idx"], "u": d2["x_dist"], "v": d2["y_dist"]})
-    if k.empty or a.empty:
-        return np.zeros(0)
-    d = d.drop_duplicates(["trigger_frame", "camera_index", "pt_idx"])
-    m = a.merge(k, on=["obj_id", "trigger_frame"]).merge(d, on=["trigger_frame", "camera_index", "pt_idx"])
-    out = []
-    for cam, g in m.groupby("camera_index"):
-        if int(cam) not in cameras:
-            continue
-        uv = cameras[int(cam)].project(g[["x", "y", "z"]].to_numpy())
-        out.append(np.hypot(uv[:, 0] - g["u"].to_numpy(), uv[:, 1] - g["v"].to_numpy()))
-    e = np.concatenate(out) if out else np.zeros(0)
-    return e[np.isfinite(e)]
+    return recording_reprojection({n: rec.table(n) for n in ("kalman_estimates", "data_association",
+                                                             "data2d_distorted")}, cameras)
 
 
 def recording_metrics(rec: Recording, cameras: Mapping[int, Camera]) -> dict[str, Any]:

@@ -365,10 +365,12 @@ def convert_cmd(
     dst: Path = typer.Argument(..., help="Output: .xml (flydra), .json (pymvg) or .toml (anipose)."),
     force: bool = typer.Option(False, "--force", help="Write even when the output cannot reproduce the source's "
                                "projection within 0.1 px."),
+    fmt: str | None = typer.Option(None, "--format", help="Output format when DST's suffix does not say: "
+                                   "flydra-xml, pymvg-json or anipose-toml."),
 ) -> None:
     """Convert a calibration between formats (a flydra .h5's calibration group too). The output is read
     back and compared with the source over each image: more than 0.1 px apart is an error unless --force."""
-    from flytrack_host.calibration.formats import compare_projections
+    from flytrack_host.calibration.formats import compare_projections, single_k_approximation
 
     warns: list[str] = []
     fidelity: dict[str, float] = {}
@@ -376,7 +378,12 @@ def convert_cmd(
     for w in warns:
         err.print(f"[yellow]warning[/yellow] {src}: {w}", highlight=False)
     tmp = dst.with_name(dst.name + ".tmp" + dst.suffix)
-    save_calibration(cams, tmp)
+    out = cams
+    is_xml = fmt == "flydra-xml" if fmt else dst.suffix.lower() == ".xml"
+    if not is_xml and any(c.K_dist is not None for c in cams.values()):
+        # One K per camera in the output: refit the distortion about P's K; the check below measures it.
+        out = {n: single_k_approximation(c) for n, c in cams.items()}
+    save_calibration(out, tmp, fmt=fmt)
     try:
         back = load_calibration(tmp, [])
         diff = compare_projections(cams, back)

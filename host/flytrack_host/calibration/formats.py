@@ -146,6 +146,33 @@ def load_flydra_h5_calibration(path: str | Path, warnings: list[str] | None = No
     return cams
 
 
+def single_k_approximation(cam: Camera) -> Camera:
+    """`cam` with its distortion about P's own K (K_dist dropped), the coefficients refitted by linear least
+    squares so the distorted projection stays as close as one K allows over the image (formats with one K
+    per camera). The caller measures how close (compare_projections)."""
+    if cam.K_dist is None:
+        return cam
+    gu, gv = np.meshgrid(np.linspace(0, cam.width - 1, 25), np.linspace(0, cam.height - 1, 25))
+    uv = np.stack([gu.ravel(), gv.ravel()], axis=1)
+    ideal = cam.undistort(uv)
+    ok = np.isfinite(ideal).all(axis=1)
+    uv, ideal = uv[ok], ideal[ok]
+    K = cam.K
+    y = (ideal[:, 1] - K[1, 2]) / K[1, 1]
+    x = (ideal[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    yd = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    xd = (uv[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+    r2 = x * x + y * y
+    # xd - x = x (k1 r2 + k2 r4 + k3 r6) + 2 p1 x y + p2 (r2 + 2 x^2); yd - y likewise: linear in the 5.
+    ax = np.stack([x * r2, x * r2**2, 2 * x * y, r2 + 2 * x * x, x * r2**3], axis=1)
+    ay = np.stack([y * r2, y * r2**2, r2 + 2 * y * y, 2 * x * y, y * r2**3], axis=1)
+    A = np.concatenate([ax * K[0, 0], ay * K[1, 1]])  # weighted to pixels
+    b = np.concatenate([(xd - x) * K[0, 0], (yd - y) * K[1, 1]])
+    coef = np.linalg.lstsq(A, b, rcond=None)[0]
+    return Camera(name=cam.name, width=cam.width, height=cam.height, K=cam.K, R=cam.R, t=cam.t,
+                  dist=coef, interface=cam.interface)
+
+
 def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str | None = None) -> None:
     """Write cameras in `fmt` (or guessed from the suffix: .xml, .json, .toml)."""
     if fmt is None:
@@ -154,7 +181,8 @@ def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str |
         if fmt is None:
             raise CalibrationFormatError(
                 f"{path}: cannot tell the output format from the suffix {suffix!r}. "
-                "Use .xml (flydra), .json (pymvg) or .toml (anipose), or name the format.")
+                "Use .xml (flydra), .json (pymvg) or .toml (anipose), or pass --format flydra-xml, pymvg-json "
+                "or anipose-toml.")
     writers = {"flydra-xml": save_flydra_xml, "pymvg-json": save_pymvg_json, "anipose-toml": save_anipose_toml}
     if fmt not in writers:
         raise CalibrationFormatError(f"cannot write format {fmt!r}; FlyTrack writes {sorted(writers)}.")
@@ -165,7 +193,8 @@ def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str |
     if fmt != "flydra-xml" and any(c.K_dist is not None for c in cameras.values()):
         raise CalibrationFormatError(
             f"{path}: {fmt} has one K per camera, but these cameras' distortion is about another K than their "
-            "projection's (flydra's model); write flydra XML (.xml), which keeps it exactly.")
+            "projection's (flydra's model); write flydra XML (.xml), which keeps it exactly, or convert with "
+            "`flytrack calibrate convert`, which approximates it and measures how well.")
     writers[fmt](cameras, path)
 
 

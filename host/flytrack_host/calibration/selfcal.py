@@ -493,6 +493,7 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
         raise SelfCalError(f"initialisation {init!r} unknown; choose one of {', '.join(INIT_METHODS)}.")
     check_observations(obs)
     t0 = time.perf_counter()
+    c0 = time.process_time()
     fixed = set() if refine_intrinsics or intrinsics is None else {n for n in obs.camera_names if n in intrinsics}
     if init == "factorization":
         cams, X, good, warns, gauge = factorization_cameras(obs, focal_px, intrinsics, ransac_px, seed,
@@ -500,6 +501,7 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
     else:
         cams, X, good, warns, gauge = initial_cameras(obs, focal_px, intrinsics, ransac_px, seed)
     t1 = time.perf_counter()
+    c1 = time.process_time()
     frames, inv = obs.point_index()
     init_cams = {c.name: Camera(c.name, c.width, c.height, c.K.copy(), c.R.copy(), c.t.copy(), c.dist.copy())
                  for c in cams}
@@ -544,11 +546,13 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
     X_cur = refine_points(cams, obs, inv, inlier, len(frames))
     assert bres is not None
     t2 = time.perf_counter()
+    c2 = time.process_time()
     all_res = _pixel_residuals(cams, X_cur, obs, inv)
     result = SelfCalResult(
         cameras={c.name: c for c in cams}, points=X_cur, point_frames=frames, obs=obs, inlier=inlier,
         obs_point=inv.copy(), residuals=all_res, initial_cameras=init_cams, initial_points=init_X,
-        initial_obs_mask=init_mask, timings={"init_s": t1 - t0, "bundle_s": t2 - t1}, warnings=warns,
+        initial_obs_mask=init_mask, timings={"init_s": t1 - t0, "bundle_s": t2 - t1,
+                                                  "init_cpu_s": c1 - c0, "bundle_cpu_s": c2 - c1}, warnings=warns,
         sigma_px=sigma, init_method=init)
     return result
 

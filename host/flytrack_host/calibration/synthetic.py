@@ -27,8 +27,9 @@ class SyntheticRig:
 
 
 def make_rig(n_cameras: int, arena: float = 1.0, seed: int = 0, width: int = 1280, height: int = 1024,
-             dist_k1: float = -0.12, dist_k2: float = 0.03) -> dict[str, Camera]:
-    """Cameras on a ring around (and above or below) a cubic arena, all looking at its centre."""
+             dist_k1: float = -0.12, dist_k2: float = 0.03, principal_offset_px: float = 15.0) -> dict[str, Camera]:
+    """Cameras on a ring around (and above or below) a cubic arena, all looking at its centre; principal
+    points up to principal_offset_px off the image centre (0: centred)."""
     rng = np.random.default_rng(seed)
     cams: dict[str, Camera] = {}
     centre = np.array([0.0, 0.0, arena / 2])
@@ -42,8 +43,9 @@ def make_rig(n_cameras: int, arena: float = 1.0, seed: int = 0, width: int = 128
         f = 0.8 * min(width, height) * dist_to_c / (arena * 1.5) * rng.uniform(0.95, 1.05)
         cam = Camera.look_at(f"cam{i + 1}", pos, centre + rng.normal(0, 0.03 * arena, 3), width, height, f,
                              dist=(dist_k1 * rng.uniform(0.7, 1.3), dist_k2 * rng.uniform(0.5, 1.5), 0, 0, 0))
-        cam.K[0, 2] += rng.uniform(-15, 15)
-        cam.K[1, 2] += rng.uniform(-15, 15)
+        off = rng.uniform(-1, 1, 2) * principal_offset_px  # drawn either way: the same rig otherwise
+        cam.K[0, 2] += off[0]
+        cam.K[1, 2] += off[1]
         cams[cam.name] = cam
     return cams
 
@@ -86,8 +88,9 @@ def observe(cameras: dict[str, Camera], points: NDArray[np.float64], noise_px: f
 
 
 def synthetic_rig(n_cameras: int, n_points: int = 3000, arena: float = 1.0, noise_px: float = 0.5,
-                  missing: float = 0.3, outliers: float = 0.02, seed: int = 0) -> SyntheticRig:
-    cams = make_rig(n_cameras, arena=arena, seed=seed)
+                  missing: float = 0.3, outliers: float = 0.02, seed: int = 0, dist_k2: float = 0.03,
+                  principal_offset_px: float = 15.0) -> SyntheticRig:
+    cams = make_rig(n_cameras, arena=arena, seed=seed, dist_k2=dist_k2, principal_offset_px=principal_offset_px)
     pts = led_path(n_points, arena=arena, seed=seed)
     obs, bad = observe(cams, pts, noise_px=noise_px, missing=missing, outliers=outliers, seed=seed)
     return SyntheticRig(cams, arena, pts, obs, bad, noise_px)

@@ -109,7 +109,7 @@ class HostStop(Fault):
     """SIGSTOP the host process itself for `hold_s` (an overloaded or swapping host), from a child
     shell, then SIGCONT: the host must catch up and say what it skipped."""
 
-    hold_s = 1.0
+    hold_s = 1.5
 
     def inject(self, ctx: Any) -> None:
         pid = os.getpid()
@@ -173,24 +173,28 @@ class MisnumberingEdge(Fault):
 
 
 class GarbageFlood(Fault):
-    """`n` random datagrams, then `n_valid` well-formed FEATURES with random camera indices, as fast
-    as a separate Python process sends them (`flood`), from its own socket on the edges' address."""
+    """`n` random datagrams, then `n_valid` well-formed FEATURES with random camera indices, from a
+    separate process on the edges' address, paced at `rate` datagrams a second (`flood`)."""
 
     n = 20_000
     n_valid = 5_000
+    rate = 25_000.0
 
     def inject(self, ctx: Any) -> None:
         subprocess.run([sys.executable, "-m", "flytrack_host.faults.inject", "127.0.0.1", str(ctx.port),
-                        str(self.n), str(self.n_valid)], check=True, timeout=120)
+                        str(self.n), str(self.n_valid), str(self.rate)], check=True, timeout=120)
         self.info["sent"] = self.n + self.n_valid
 
 
-def flood(host: str, port: int, n: int, n_valid: int) -> None:
+def flood(host: str, port: int, n: int, n_valid: int, rate: float) -> None:
     rng = np.random.default_rng(5)
     dst = (host, port)
+    t0 = time.monotonic()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        for _ in range(n):
+        for i in range(n):
             s.sendto(rng.integers(0, 256, int(rng.integers(1, 600)), dtype=np.uint8).tobytes(), dst)
+            if i % 500 == 0:
+                time.sleep(max(0.0, t0 + i / rate - time.monotonic()))
         for i in range(n_valid):
             f = FeatureFrame(camera_index=int(rng.integers(0, 65536)), seq=i, camera_frame=i,
                              device_timestamp_ns=ROGUE_MARK, total_points=1, points=make_points(1))
@@ -199,8 +203,9 @@ def flood(host: str, port: int, n: int, n_valid: int) -> None:
 
 
 class _FedEdge:
-    """A real `flytrack-edge` process for a camera, fed flat grey frames by this thread, one per
-    trigger pulse the simulated cameras saw (the feeder's edge counter)."""
+    """A real `flytrack-edge` process for a camera, fed flat grey frames by this thread, one for each
+    frame the simulated cameras rendered (so it keeps their pace, also when a busy machine makes them
+    lag behind the trigger)."""
 
     def __init__(self, ctx: Any, camera: int, log_name: str) -> None:
         from flytrack_host.sim.run import edge_command
@@ -213,10 +218,10 @@ class _FedEdge:
         self.written: dict[int, int] = {}  # camera frame -> trigger frame (pulse) it answers
 
     def feed_until(self, ctx: Any, end_mono: float, stop: threading.Event) -> None:
-        seen = ctx.feeder.edges_seen
+        seen = ctx.feeder.frames_rendered
         assert self.proc.stdin is not None
         while time.monotonic() < end_mono and not stop.is_set() and not ctx.feeder.done:
-            now_seen = ctx.feeder.edges_seen
+            now_seen = ctx.feeder.frames_rendered
             while seen < now_seen:
                 seen += 1
                 try:
@@ -262,12 +267,12 @@ class EdgeRestart(Fault):
         p = ctx.edges.procs[self.camera]
         p.kill()
         p.wait(5.0)
-        t_kill_seen = ctx.feeder.edges_seen
+        t_kill_seen = ctx.feeder.frames_rendered
         self._stop.wait(self.down_s)
         self.edge = _FedEdge(ctx, self.camera, "edge_restarted.log")
         self.truth_after[self.camera] = hostclock.now()
         self.t_end = hostclock.now()
-        self.info["pulses_while_down"] = ctx.feeder.edges_seen - t_kill_seen
+        self.info["pulses_while_down"] = ctx.feeder.frames_rendered - t_kill_seen
         self.edge.feed_until(ctx, time.monotonic() + 3600, self._stop)
 
     def cleanup(self) -> None:
@@ -278,5 +283,5 @@ class EdgeRestart(Fault):
             self.truth[self.camera] = dict(edge.written)
 
 
-if __name__ == "__main__":  # the flood's own process: python -m flytrack_host.faults.inject HOST PORT N N_VALID
-    flood(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]))
+if __name__ == "__main__":  # the flood's own process: python -m flytrack_host.faults.inject HOST PORT N N_VALID RATE
+    flood(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5]))

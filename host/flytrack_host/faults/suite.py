@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from flytrack_host.faults import inject as fi
 
 RESULT_TAG = "FAULT-RESULT "
@@ -38,6 +40,8 @@ class Scenario:
     trigger: str = "software"
     fixed_clock: bool = False
     lost_ok: bool = False  # the fault itself loses frames (a killed edge): lost is reported, not a failure
+    seconds: float = 3.0
+    kill_host_after_s: float | None = None  # SIGKILL the whole run this long after recording began
 
 
 SCENARIOS: list[Scenario] = [
@@ -48,24 +52,30 @@ SCENARIOS: list[Scenario] = [
              trigger="auto"),
     Scenario("wall+3600", "host wall clock steps +1 h", fi.WallStep, {"seconds": 3600.0}, "wall clock stepped",
              trigger="auto"),
+    Scenario("wall-1-fixed", "host wall clock steps -1 s, host on fixed-rate clock (--no-trigger)", fi.WallStep,
+             {"seconds": -1.0}, "wall clock stepped", fixed_clock=True),
     Scenario("misnumber", "edge sends frame numbers +48 (own address and port, 1 s)", fi.MisnumberingEdge,
              message="numbered ahead"),
     Scenario("second-edge", "second edge with camera index 1 (1 s)", fi.SecondEdge, message="second sender"),
     Scenario("restart", "edge SIGKILLed, new edge 0.6 s later", fi.EdgeRestart, message="edge restarted",
              lost_ok=True),
-    Scenario("edge-stop", "edge SIGSTOP 0.3 s, SIGCONT", fi.SignalEdge, {"hold_s": 0.3}, "late|silent"),
+    Scenario("edge-stop", "edge SIGSTOP 0.3 s, SIGCONT", fi.SignalEdge, {"hold_s": 0.3},
+             "camera 1.*(late|silent)"),
     Scenario("edge-gone", "camera gone 1 s and back (edge SIGSTOP/SIGCONT)", fi.SignalEdge, {"hold_s": 1.0},
-             "marked dead|sending again"),
-    Scenario("flood", "25k garbage + random-index datagrams", fi.GarbageFlood, message="malformed|not in the rig"),
-    Scenario("host-stop", "host process SIGSTOP 1 s, SIGCONT", fi.HostStop, message="stalled|behind real time",
-             trigger="auto"),
+             "camera 1 (silent|is sending again)"),
+    Scenario("flood", "25k garbage + random-index datagrams in 1 s", fi.GarbageFlood,
+             message="malformed|not in the rig", lost_ok=True),
+    Scenario("host-stop", "host process SIGSTOP 1.5 s, SIGCONT", fi.HostStop, message="stalled|behind real time",
+             trigger="auto", seconds=4.0),
+    Scenario("host-kill", "host SIGKILLed mid-run, then `recording recover`", fi.NoFault, message="recovered",
+             kill_host_after_s=2.0, seconds=6.0),
     Scenario("trigger-pause", "trigger pauses 0.5 s, host on fixed-rate clock (--no-trigger)", fi.TriggerPause,
-             message="re-anchored", trigger="auto", fixed_clock=True),
+             message="re-anchored", trigger="auto", fixed_clock=True, seconds=4.0),
 ]
 BY_NAME = {s.name: s for s in SCENARIOS}
 
 
-def run_one(name: str, out: Path, seconds: float = 3.0) -> dict[str, Any]:
+def run_one(name: str, out: Path) -> dict[str, Any]:
     """Run one scenario in this process (it forks the simulated cameras: call it in a fresh one)."""
     from flytrack_host.faults.measure import measure
     from flytrack_host.sim.run import PREROLL_FRAMES, DemoConfig, run_demo
@@ -76,7 +86,9 @@ def run_one(name: str, out: Path, seconds: float = 3.0) -> dict[str, Any]:
     if fault.needs_root and os.geteuid() != 0:
         row["skipped"] = "needs root (raw socket to send from the edge's own port)"
         return row
-    cfg = DemoConfig(cameras=3, animals=2, fps=100.0, seconds=seconds, seed=3, out=out, progress=False,
+    # 320 x 240 frames: a quarter of the rendering and extraction, so three runs at once fit a busy machine.
+    cfg = DemoConfig(cameras=3, animals=2, fps=100.0, seconds=sc.seconds, seed=3, out=out, progress=False,
+                     width=320, height=240,
                      trigger=sc.trigger, fault=fault, host_fixed_clock=sc.fixed_clock)
     rep = run_demo(cfg)
     row.update(measure(rep.recording, fault, PREROLL_FRAMES, rep.frames_rendered, cfg.cameras, sc.message))
@@ -88,6 +100,7 @@ def run_one(name: str, out: Path, seconds: float = 3.0) -> dict[str, Any]:
         "lost_ok": sc.lost_ok, "wall_s": rep.wall_s,
         "receiver": {k: v for k, v in (hs.get("receiver") or {}).items() if k != "cameras"},
         "receiver_cam1": (hs.get("receiver") or {}).get("cameras", {}).get("1"),
+        "receiver_lost": sum(c.get("lost", 0) for c in (hs.get("receiver") or {}).get("cameras", {}).values()),
         "sync_cam1": (hs.get("sync") or {}).get("1"),
         "host": {k: hs.get(k) for k in ("wall_clock_steps", "stalls", "behind_skipped", "range_errors",
                                          "untracked", "log_counts")},
@@ -95,9 +108,58 @@ def run_one(name: str, out: Path, seconds: float = 3.0) -> dict[str, Any]:
     return row
 
 
+def _run_killed(sc: Scenario, out: Path, timeout_s: float) -> dict[str, Any]:
+    """The host process SIGKILLed during its recording (with everything it started: its process group),
+    then `flytrack recording recover`: what was received up to the kill must be there."""
+    import signal
+
+    from flytrack_host import hostclock
+    from flytrack_host.recording import load_recording
+    from flytrack_host.sim.run import PREROLL_FRAMES
+
+    row: dict[str, Any] = {"name": sc.name, "fault": sc.label, "lost_ok": sc.lost_ok}
+    cmd = [sys.executable, "-m", "flytrack_host.faults", "one", sc.name, "--out", str(out)]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    meta = out / "recording.flytrack" / "meta.json"
+    end = time.monotonic() + timeout_s
+    while not meta.exists() and p.poll() is None and time.monotonic() < end:
+        time.sleep(0.05)
+    if not meta.exists():
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+        return {**row, "error": "the run never started recording"}
+    time.sleep(sc.kill_host_after_s or 0.0)
+    os.killpg(p.pid, signal.SIGKILL)  # the host, its edges, simulated cameras and trigger: all at once
+    t_kill = hostclock.now()
+    p.wait()
+    r = subprocess.run([sys.executable, "-m", "flytrack_host.cli", "recording", "recover", str(meta.parent)],
+                       capture_output=True, text=True, timeout=120)
+    said = (r.stdout + r.stderr).strip().splitlines()
+    d = load_recording(meta.parent).table("data2d_distorted")
+    d = d[d["camera_frame"] >= PREROLL_FRAMES]
+    got = {(int(c), int(f)) for c, f in zip(d["camera_index"], d["camera_frame"], strict=True)}
+    t = d["cam_received_timestamp"]
+    # Frames a camera delivered before the kill: from its first to its last recorded one, none missing.
+    missing = 0
+    for c in {k[0] for k in got}:
+        fs = sorted(f for cc, f in got if cc == c)
+        missing += (fs[-1] - fs[0] + 1) - len(fs)
+    row.update({"frames_lost": missing, "frames_misnumbered": int(np.sum(
+        d["trigger_frame"].astype(np.int64) != d["camera_frame"].astype(np.int64) - PREROLL_FRAMES)),
+        "recovery_s": 0.0, "rogue_tracked": 0, "mota": None, "message_count": 1,
+        "message": (f"`flytrack recording recover`: exit {r.returncode}, {len(got)} camera frames back, the last "
+                    f"{t_kill - np.nanmax(t):.2f} s before the kill" if len(t) and r.returncode == 0
+                    else f"recover: exit {r.returncode}: {said[-1] if said else '(nothing said)'}"),
+        "recover_exit": r.returncode, "frames_recovered": len(got),
+        "last_row_before_kill_s": float(t_kill - np.nanmax(t)) if len(t) else None, "fault_error": None})
+    return row
+
+
 def _run_child(name: str, root: Path, timeout_s: float) -> dict[str, Any]:
     out = root / name
     out.mkdir(parents=True, exist_ok=True)
+    if BY_NAME[name].kill_host_after_s is not None:
+        return _run_killed(BY_NAME[name], out, timeout_s)
     cmd = [sys.executable, "-m", "flytrack_host.faults", "one", name, "--out", str(out)]
     t0 = time.monotonic()
     try:
@@ -179,9 +241,10 @@ def main(argv: list[str] | None = None) -> int:
         print(RESULT_TAG + json.dumps(row, default=str), flush=True)
         return 0
     t0 = time.monotonic()
-    rows = run_suite(a.only, jobs=a.jobs)
+    root = Path(tempfile.mkdtemp(prefix="flytrack-faults-"))
+    rows = run_suite(a.only, jobs=a.jobs, root=root)
     print(format_table(rows))
-    print(f"\n{len(rows)} scenarios in {time.monotonic() - t0:.0f} s")
+    print(f"\n{len(rows)} scenarios in {time.monotonic() - t0:.0f} s; each run's rig, logs and recording in {root}")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1, default=str))
     return 1 if any("error" in r for r in rows) else 0

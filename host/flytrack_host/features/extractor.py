@@ -128,7 +128,7 @@ class FeatureExtractor:
                 raise FeatureError(
                     f"camera {camera.name} is {camera.width}x{camera.height}, frames are {width}x{height}"
                 )
-            K = camera.K
+            K = camera.Kd  # the distortion's K: the undistorted pixels come out in P's frame
             p.fx, p.skew, p.cx = float(K[0, 0]), float(K[0, 1]), float(K[0, 2])
             p.fy, p.cy = float(K[1, 1]), float(K[1, 2])
             p.k1, p.k2, p.p1, p.p2, p.k3 = (float(v) for v in camera.dist)

@@ -15,9 +15,15 @@ and a README, with Braid's file and column names (braid_types / flydra_types, sc
 
 Missing values (an unknown trigger timestamp, a NaN coordinate, a zero device timestamp or camera
 frame number, which Braid keeps as NonZeroU64) are written as empty fields, which Braid reads as
-None / NaN. Rows FlyTrack could not map to a trigger frame (-1) are left out: Braid's frame numbers
-are unsigned. Braid's camera numbers are u8: a camera index above 255 is an error. FlyTrack's
-orientation (radians) is Braid's slope = tan(orientation).
+None / NaN. Rows FlyTrack could not map to a trigger frame (-1) and 2D rows the live run rejected are
+left out (Braid's frame numbers are unsigned), counted in the returned counts (`<table> not exported:
+...`), the archive's textlog and its README. Optional parts: `reconstruct_latency_usec.hlog` (trigger
+to estimate, from the recording's latency table) and `reprojection_distance_100x_pixels.hlog` (each
+associated 2D point's distance to its estimate's projection, x100), HdrHistogram logs (io/hdr.py), and
+`images/<camera>.png` from the recording's background_<camera>.png files. Reading accepts a `.braidz`
+and Braid's uncompressed `.braid` folder (the same files, written while it records).
+Braid's camera numbers are u8: a camera index above 255 is an error. FlyTrack's orientation (radians) is
+Braid's slope = tan(orientation).
 """
 
 from __future__ import annotations
@@ -34,8 +40,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flytrack_host import __version__
+from flytrack_host import __version__, hostclock
 from flytrack_host.io.data2d import Data2D, empty_rows
+from flytrack_host.io.reprojection import associated_reprojection
 from flytrack_host.recording.reader import Recording
 from flytrack_host.recording.schema import FLAG_REJECTED
 
@@ -119,7 +126,11 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     if big:
         raise BraidzError(f"camera indices {big} do not fit Braid's camera numbers (0-255)")
     d2 = rec.table("data2d_distorted")
-    d2 = d2[(d2["trigger_frame"] >= 0) & ((d2["flags"] & FLAG_REJECTED) == 0)]
+    no_frame = d2["trigger_frame"] < 0
+    rejected = ~no_frame & ((d2["flags"] & FLAG_REJECTED) != 0)
+    skipped = {"data2d_distorted not exported: no trigger frame": int(no_frame.sum()),
+               "data2d_distorted not exported: rejected live": int(rejected.sum())}
+    d2 = d2[~no_frame & ~rejected]
     d2 = d2[np.argsort(d2["trigger_frame"], kind="stable")]
     orient = d2["orientation"].astype(np.float64)
     with np.errstate(invalid="ignore"):
@@ -147,6 +158,7 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     counts["data2d_distorted"] = len(data2d)
 
     k = rec.table("kalman_estimates")
+    skipped["kalman_estimates not exported: no trigger frame"] = int((k["trigger_frame"] < 0).sum())
     k = k[k["trigger_frame"] >= 0]
     k = k[np.argsort(k["trigger_frame"], kind="stable")]
     kal = pd.DataFrame({
@@ -158,6 +170,7 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     counts["kalman_estimates"] = len(kal)
 
     a = rec.table("data_association")
+    skipped["data_association not exported: no trigger frame"] = int((a["trigger_frame"] < 0).sum())
     a = a[a["trigger_frame"] >= 0]
     a = a[np.argsort(a["trigger_frame"], kind="stable")]
     assoc = pd.DataFrame({"obj_id": a["obj_id"], "frame": a["trigger_frame"], "cam_num": a["camera_index"],
@@ -171,7 +184,7 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
                           "tcnt": np.clip(np.round(c["fraction"] * 255), 0, 255).astype(np.int64),
                           "stop_timestamp": c["stop_timestamp"]}, columns=CLOCK_COLUMNS)
 
-    t0 = float(rec.meta.get("start_time", time.time()))
+    t0 = float(rec.meta.get("start_time", hostclock.wall()))  # a label: the export time if unknown
     log_rows = [(t0, "", t0, f"MainBrain running at {fps:g} fps" if fps else "MainBrain running at unknown fps"),
                 (t0, "", t0, json.dumps({"tracking_params": braid_tracking_params(rec.meta.get("tracking_params"))}))]
     for r in rec.textlog:
@@ -179,6 +192,9 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
             continue
         t = float(r.get("host_time", t0))
         log_rows.append((t, str(r.get("source", "")), t, str(r.get("message", ""))))
+    skipped_text = ", ".join(f"{k} {v}" for k, v in skipped.items() if v)
+    if skipped_text:
+        log_rows.append((t0, "", t0, f"FlyTrack export: rows left out ({skipped_text})"))
     textlog = pd.DataFrame(log_rows, columns=TEXTLOG_COLUMNS)
 
     rec_time = time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(t0))
@@ -199,8 +215,11 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
         "    z = zipfile.ZipFile('FILE.braidz')\n"
         "    df = pd.read_csv(z.open('kalman_estimates.csv.gz'), compression='gzip')\n\n"
         f"Written by FlyTrack {__version__} from the recording of rig {rec.meta.get('rig_name', '?')!r}.\n"
+        + (f"\nRows left out (Braid has no place for them): {skipped_text}.\n" if skipped_text else "")
     )
     cal_xml = _calibration_xml(rec)
+    hlogs = _hlogs(rec, kal, assoc, data2d, cal_xml, t0)
+    images = {f"images/{n[len('background_'):]}": b for n, b in rec.files.items() if n.startswith("background_")}
     tmp = out.with_name(out.name + ".tmp")
     with zipfile.ZipFile(tmp, "w") as z:
         z.writestr("README.md", readme, compress_type=zipfile.ZIP_DEFLATED)
@@ -210,14 +229,73 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
         for name, df in (("kalman_estimates", kal), ("data2d_distorted", data2d), ("data_association", assoc),
                          ("cam_info", cam_info), ("trigger_clock_info", clock), ("textlog", textlog)):
             z.writestr(f"{name}.csv.gz", _csv_gz(df), compress_type=zipfile.ZIP_STORED)
+        for name, text in hlogs.items():
+            z.writestr(name, text, compress_type=zipfile.ZIP_DEFLATED)
+        for name, data in images.items():
+            z.writestr(name, data, compress_type=zipfile.ZIP_STORED)
     tmp.replace(out)
+    counts.update(skipped)
+    counts.update({name: 1 for name in hlogs})
+    counts["images"] = len(images)
     return counts
+
+
+def _hlogs(rec: Recording, kal: pd.DataFrame, assoc: pd.DataFrame, data2d: pd.DataFrame, cal_xml: bytes | None,
+           t0: float) -> dict[str, str]:
+    """Braid's two HdrHistogram logs, where the recording has what they need."""
+    from flytrack_host.io.hdr import Histogram, hlog_text
+
+    out: dict[str, str] = {}
+    lat = rec.table("latency")
+    duration = float(kal["timestamp"].max() - kal["timestamp"].min()) if len(kal) else 0.0
+    duration = duration if np.isfinite(duration) else 0.0
+    if len(lat):
+        h = Histogram(1, 60_000_000, 3)
+        h.record((lat["estimate_time"] - lat["trigger_time"]) * 1e6)
+        if h.total:
+            out["reconstruct_latency_usec.hlog"] = hlog_text(h, t0, duration, "trigger to 3D estimate, microseconds")
+    if cal_xml is not None and len(assoc) and len(kal):
+        from flytrack_host.calibration.formats import load_flydra_xml
+
+        with tempfile.TemporaryDirectory() as d:
+            p = Path(d) / "calibration.xml"
+            p.write_bytes(cal_xml)
+            by_name = load_flydra_xml(p, [])
+        names = _cam_names(rec)
+        cams = {int(i): by_name[n] for i, n in names.items() if n in by_name}
+        d = associated_reprojection(kal[["obj_id", "frame", "x", "y", "z"]],
+                                    assoc.rename(columns={"cam_num": "camn"}), rec.table("data2d_distorted"), cams)
+        h = Histogram(1, 1_000_000, 3)
+        h.record(100.0 * d)
+        if h.total:
+            out["reprojection_distance_100x_pixels.hlog"] = hlog_text(
+                h, t0, duration, "distance of each associated 2D point to its estimate's projection, 1/100 px")
+    return out
 
 
 # --- reading ----------------------------------------------------------------------------------
 
 
-def _read_table(z: zipfile.ZipFile, name: str) -> pd.DataFrame | None:
+class _Folder:
+    """Braid's uncompressed `.braid` folder, read like the zip it becomes."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def namelist(self) -> list[str]:
+        return [p.relative_to(self.path).as_posix() for p in self.path.rglob("*") if p.is_file()]
+
+    def read(self, name: str) -> bytes:
+        return (self.path / name).read_bytes()
+
+    def __enter__(self) -> _Folder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+def _read_table(z: zipfile.ZipFile | _Folder, name: str) -> pd.DataFrame | None:
     names = set(z.namelist())
     # Braid archives may hold a top-level folder; accept "x/name" too.
     for cand in (f"{name}.csv", f"{name}.csv.gz"):
@@ -244,10 +322,14 @@ def _partial_gunzip(data: bytes) -> bytes:
 
 def read_braidz(path: Path | str) -> Data2D:
     path = Path(path)
-    try:
-        z = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise BraidzError(f"{path}: not a .braidz (zip) file: {exc}") from None
+    z: zipfile.ZipFile | _Folder
+    if path.is_dir():
+        z = _Folder(path)
+    else:
+        try:
+            z = zipfile.ZipFile(path)
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise BraidzError(f"{path}: not a .braidz (zip) file: {exc}") from None
     with z:
         d2 = _read_table(z, "data2d_distorted")
         if d2 is None:
@@ -261,6 +343,7 @@ def read_braidz(path: Path | str) -> Data2D:
         for n in z.namelist():
             if n == "calibration.xml" or n.endswith("/calibration.xml"):
                 cal = ("calibration.xml", z.read(n))
+        clock = _read_table(z, "trigger_clock_info")
         fps, params = None, None
         tl = _read_table(z, "textlog")
         if tl is not None and "message" in tl.columns:
@@ -276,8 +359,13 @@ def read_braidz(path: Path | str) -> Data2D:
                         params = json.loads(msg)["tracking_params"]
                     except (json.JSONDecodeError, KeyError, TypeError):
                         pass
-    return Data2D(rows=_rows_from_braid_df(d2), cam_names=names, fps=fps, calibration=cal,
+    data = Data2D(rows=_rows_from_braid_df(d2), cam_names=names, fps=fps, calibration=cal,
                   source=str(path), tracking_params=None, notes=[f"braid tracking_params: {params}"] if params else [])
+    if clock is not None and len(clock) and all(c in clock.columns for c in CLOCK_COLUMNS):
+        data.clock_samples = np.array(
+            list(clock[CLOCK_COLUMNS].itertuples(index=False, name=None)),
+            dtype=[("start_timestamp", "<f8"), ("framecount", "<f8"), ("tcnt", "<f8"), ("stop_timestamp", "<f8")])
+    return data
 
 
 def _rows_from_braid_df(d2: pd.DataFrame) -> np.ndarray:

@@ -127,6 +127,30 @@ def read_flydra_kalman(path: Path | str) -> pd.DataFrame | None:
     return df
 
 
+def read_flydra_association(path: Path | str) -> pd.DataFrame | None:
+    """The 2D points flydra's tracks used (obj_id, frame, camn, pt_idx): `ML_estimates` (older files:
+    `kalman_observations`) rows point with obs_2d_idx into the `ML_estimates_2d_idxs` VLArray, whose
+    rows are flattened (camn, frame_pt_idx) pairs. None when the file has neither."""
+    with h5py.File(path, "r") as h5:
+        ml = _table(h5, "ML_estimates")
+        if ml is None:
+            ml = _table(h5, "kalman_observations")
+        if ml is None or "ML_estimates_2d_idxs" not in h5 or "obs_2d_idx" not in (ml.dtype.names or ()):
+            return None
+        vl = h5["ML_estimates_2d_idxs"][...]
+    obj, frame, camn, pt = [], [], [], []
+    for o, f, i in zip(ml["obj_id"].tolist(), ml["frame"].tolist(), ml["obs_2d_idx"].tolist(), strict=True):
+        if not 0 <= int(i) < len(vl):
+            continue
+        pairs = np.asarray(vl[int(i)], dtype=np.int64)
+        for c, p in zip(pairs[0::2].tolist(), pairs[1::2].tolist(), strict=False):
+            obj.append(int(o))
+            frame.append(int(f))
+            camn.append(c)
+            pt.append(p)
+    return pd.DataFrame({"obj_id": obj, "frame": frame, "camn": camn, "pt_idx": pt})
+
+
 def read_flydra_h5(path: Path | str) -> Data2D:
     path = Path(path)
     try:

@@ -15,13 +15,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 from tqdm import tqdm
 
 from flytrack_host.camera import Camera
 from flytrack_host.io.data2d import Data2D, fill_undistorted, iter_bundles, n_frames
 from flytrack_host.recording.finalize import RecordingError
 from flytrack_host.recording.reader import load_recording
-from flytrack_host.recording.schema import CAM_INFO
+from flytrack_host.recording.schema import CAM_INFO, TRIGGER_CLOCK
 from flytrack_host.recording.writer import Recorder
 from flytrack_host.tracking.params import TrackingParams
 
@@ -40,11 +41,13 @@ def data2d_from_recording(path: Path) -> Data2D:
 
 
 def load_2d(path: Path | str) -> Data2D:
-    """2D data from a FlyTrack recording, a .braidz or a flydra .h5 (chosen by content)."""
+    """2D data from a FlyTrack recording, a .braidz or Braid's .braid folder, or a flydra .h5 (by content)."""
     path = Path(path)
     if not path.exists():
         raise RetrackError(f"{path}: no such file or folder")
-    if path.suffix == ".braidz" or (path.is_file() and path.read_bytes()[:2] == b"PK"):
+    is_braid_folder = path.is_dir() and (path.suffix == ".braid" or any(
+        (path / n).exists() for n in ("data2d_distorted.csv.gz", "data2d_distorted.csv")))
+    if path.suffix == ".braidz" or is_braid_folder or (path.is_file() and path.read_bytes()[:2] == b"PK"):
         from flytrack_host.io.braidz import read_braidz
 
         return read_braidz(path)
@@ -58,12 +61,14 @@ def load_2d(path: Path | str) -> Data2D:
         raise RetrackError(f"{path}: not a FlyTrack recording, .braidz or flydra .h5") from None
 
 
-def cameras_for(data: Data2D, calibration: Path | None = None) -> dict[int, Camera]:
-    """camera index -> Camera, from `calibration` (a file) or the calibration inside the data."""
+def cameras_for(data: Data2D, calibration: Path | None = None, warnings: list[str] | None = None) -> dict[int, Camera]:
+    """camera index -> Camera, from `calibration` (a file: flydra XML or .h5, pymvg, ...) or the calibration
+    inside the data. Cameras with 2D data but no calibration are named in `warnings` (and data.notes)."""
     from flytrack_host.calibration.formats import load_calibration
 
+    warns = warnings if warnings is not None else data.notes
     if calibration is not None:
-        by_name = load_calibration(calibration)
+        by_name = load_calibration(calibration, warns)
     elif data.cameras:
         return dict(data.cameras)
     elif data.calibration is not None:
@@ -71,14 +76,86 @@ def cameras_for(data: Data2D, calibration: Path | None = None) -> dict[int, Came
         with tempfile.TemporaryDirectory() as d:
             p = Path(d) / name
             p.write_bytes(blob)
-            by_name = load_calibration(p)
+            by_name = load_calibration(p, warns)
     else:
         raise RetrackError(f"{data.source}: holds no calibration; pass one with --calibration")
     cams = {idx: by_name[n] for idx, n in data.cam_names.items() if n in by_name}
     if not cams:
         raise RetrackError(f"no camera of {sorted(data.cam_names.values())} is in the calibration "
                            f"({sorted(by_name)})")
+    absent = sorted(n for n in data.cam_names.values() if n not in by_name)
+    if absent:
+        warns.append(f"camera(s) {', '.join(absent)} have 2D data but no calibration: their points are not used")
     return cams
+
+
+def calibration_xml(data: Data2D, cameras: Mapping[int, Camera]) -> bytes:
+    """The cameras used, as flydra XML named as in the data (exact: K_dist and <water> included), so a
+    retrack's output can be retracked again."""
+    from flytrack_host.calibration.formats import save_flydra_xml
+
+    by_name = {data.cam_names.get(i, cam.name): cam for i, cam in sorted(cameras.items())}
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "calibration.xml"
+        save_flydra_xml(by_name, p)
+        return p.read_bytes()
+
+
+def clock_from_samples(data: Data2D, fps: float) -> tuple[np.ndarray | None, list[str]]:
+    """The source's trigger clock samples through the clock model: early-frame samples corrected
+    (clock_model.correct_clock_counts), a fit of host time on frame; rows without a timestamp get one
+    from the fit. Returns corrected TRIGGER_CLOCK rows (or None) and log lines with the numbers."""
+    from flytrack_host.trigger.clock_model import ClockModel, correct_clock_counts
+
+    c = data.clock_samples
+    if c is None or not len(c) or c.dtype.names is None:
+        return None, []
+    names = c.dtype.names
+    if "framecount" not in names or "start_timestamp" not in names or "stop_timestamp" not in names:
+        return None, ["trigger_clock_info lacks framecount/start_timestamp/stop_timestamp: not used"]
+    t0 = np.asarray(c["start_timestamp"], dtype=np.float64)
+    t1 = np.asarray(c["stop_timestamp"], dtype=np.float64)
+    frac = (np.asarray(c["fraction"], dtype=np.float64) if "fraction" in names
+            else np.asarray(c["tcnt"], dtype=np.float64) / 255.0)
+    corr = correct_clock_counts(np.asarray(c["framecount"], dtype=np.float64), frac, 0.5 * (t0 + t1))
+
+    def fit(frames: np.ndarray) -> ClockModel:
+        m = ClockModel(frame_period_s=1.0 / fps, window=max(len(c), 2), max_rtt_s=0.02)
+        for a, b, f in zip(t0, t1, frames, strict=True):
+            m.add_sample(float(a), float(b), float(f) / fps)
+        return m
+
+    model = fit(corr.frames)
+    # A constant count offset (firmware numbering: the count of the pulse under way rather than of the
+    # frame) shows against the 2D rows' own trigger timestamps: frame f's timestamp sits at sample count
+    # f + k on the fit. Detected when the rows agree on one integer k to within 0.2 frames.
+    offset_line = ""
+    rows = data.rows
+    ts_ok = np.isfinite(rows["timestamp"]) & (rows["trigger_frame"] >= 0)
+    if model.fitted and ts_ok.sum() >= 3:
+        sel = np.flatnonzero(ts_ok)[:: max(1, int(ts_ok.sum()) // 2000)]
+        lag = np.array([model.host_time_to_frame(float(t)) for t in rows["timestamp"][sel]])
+        lag -= rows["trigger_frame"][sel]
+        k = int(np.round(np.median(lag)))
+        if k != 0 and np.percentile(np.abs(lag - k), 90) < 0.2:
+            corr.frames = corr.frames - k
+            model = fit(corr.frames)
+            offset_line = (f"; count offset {k:+d} frame(s) against the 2D rows' trigger timestamps detected and "
+                           "removed")
+    out = np.zeros(len(c), dtype=TRIGGER_CLOCK)
+    out["start_timestamp"], out["stop_timestamp"] = t0, t1
+    out["framecount"] = np.floor(corr.frames).astype(np.int64)
+    out["fraction"] = corr.frames - np.floor(corr.frames)
+    lines = [f"trigger clock: {len(c)} samples, {corr.early_fixed} taken early in a frame (count not yet "
+             f"incremented) corrected by one frame{offset_line}"]
+    if model.fitted:
+        lines[0] += (f"; fit residual {model.residual_s * 1e6:.0f} us, gain {model.gain:.8f}")
+        rows = data.rows
+        need = ~np.isfinite(rows["timestamp"]) & (rows["trigger_frame"] >= 0)
+        if need.any():
+            rows["timestamp"][need] = [model.frame_to_host_time(float(f)) for f in rows["trigger_frame"][need]]
+            lines.append(f"trigger clock: {int(need.sum())} 2D rows without a timestamp got one from the fit")
+    return out, lines
 
 
 def params_with(base: dict | None, toml_path: Path | None = None, sets: list[str] | None = None) -> TrackingParams:
@@ -88,15 +165,27 @@ def params_with(base: dict | None, toml_path: Path | None = None, sets: list[str
 
     values: dict[str, Any] = dict(base or {})
     if toml_path is not None:
-        data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        try:
+            data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise RetrackError(f"--params {toml_path}: {why}; expected a TOML file whose tracking table "
+                               "holds the parameters, e.g. motion_noise_scale = 0.2") from None
         values.update(data.get("tracking", data))
     for s in sets or []:
         key, sep, val = s.partition("=")
         if not sep:
             raise RetrackError(f"--set {s!r}: write KEY=VALUE, e.g. motion_noise_scale=0.2")
-        values[key.strip()] = tomllib.loads(f"v = {val.strip()}")["v"] if val.strip() else val
+        try:
+            values[key.strip()] = tomllib.loads(f"v = {val.strip()}")["v"] if val.strip() else val
+        except tomllib.TOMLDecodeError:
+            values[key.strip()] = val.strip()  # not a TOML value: the check below names the key and the type
     try:
         return TrackingParams.model_validate(values)
+    except ValidationError as exc:
+        errs = "; ".join(f"{'.'.join(str(x) for x in e['loc'])} = {e.get('input')!r}: {e['msg']}"
+                         for e in exc.errors())
+        raise RetrackError(f"tracking parameters: {errs}") from None
     except Exception as exc:
         raise RetrackError(f"tracking parameters: {exc}") from None
 
@@ -108,6 +197,10 @@ class RetrackResult:
     objects: int
     out: Path | None
     seconds: float
+    tracker_path: str = "numpy"  # "c" or "numpy": which tracker implementation ran
+    stats: dict[str, int] | None = None
+    why_nothing: list[str] | None = None  # reasons, with numbers, when points arrived but nothing tracked
+    notes: list[str] | None = None  # what the run said on the way (clock fit, missing calibration, ...)
 
 
 def retrack(
@@ -125,6 +218,8 @@ def retrack(
     rows = data.rows
     fill_undistorted(rows, cameras)
     tracker = tracker_factory(cameras, params, 1.0 / fps)
+    clock, clock_lines = clock_from_samples(data, fps)
+    notes = list(data.notes) + clock_lines
     rec = None
     if out is not None:
         rec = Recorder(out, flush_interval_s=1.0, on_full="block", meta={
@@ -132,15 +227,30 @@ def retrack(
             "tracking_params": params.model_dump(), "retracked_from": data.source, "saving_program": "flytrack retrack",
         })
         rec.start()
-        if data.calibration is not None:
-            rec.attach(data.calibration[0], data.calibration[1])
+        # The calibration used travels with the result (so it can be retracked again).
+        from flytrack_host.calibration.formats import CalibrationFormatError
+
+        try:
+            rec.attach("calibration.xml", calibration_xml(data, cameras))
+        except CalibrationFormatError as exc:  # e.g. tank-wall interfaces flydra XML cannot hold
+            if data.calibration is not None:
+                rec.attach(data.calibration[0], data.calibration[1])
+            notes.append(f"the calibration used could not be written as flydra XML ({exc}); "
+                         + ("the source's calibration file is attached instead" if data.calibration is not None
+                            else "the result carries no calibration"))
         ci = np.zeros(len(data.cam_names), dtype=CAM_INFO)
         for i, (idx, name) in enumerate(sorted(data.cam_names.items())):
             ci[i] = (idx, name.encode()[:64], b"", name.encode()[:64])
         rec.append("cam_info", ci)
         rec.log(f"MainBrain running at {fps:g} fps")
         rec.log(f"retracked from {data.source} with {params.model_dump_json()}")
+        path = getattr(tracker, "kernel_path", "numpy")
+        rec.log(f"tracker: {'C kernel' if path == 'c' else 'NumPy'} path")
+        for line in notes:
+            rec.log(line)
         rec.append("data2d_distorted", rows)
+        if clock is not None:
+            rec.append("trigger_clock_info", clock)
     from flytrack_host.pipeline import result_rows
 
     t0 = time.perf_counter()
@@ -160,8 +270,18 @@ def retrack(
         if on_result is not None:
             on_result(result)
     dt = time.perf_counter() - t0
+    stats = dict(getattr(tracker, "stats", {}) or {})
+    why: list[str] = []
+    if n_estimates == 0 and stats:
+        from flytrack_host.tracking.diagnosis import why_no_estimates
+
+        why = why_no_estimates(stats, cameras, params)
     h5 = None
     if rec is not None:
         rec.log(f"retrack done: {n} frames, {n_estimates} estimates, {len(ids)} objects in {dt:.2f} s")
+        for w in why:
+            rec.log(f"no estimates: {w}")
         h5 = rec.stop(finalize=True)
-    return RetrackResult(frames=n, estimates=n_estimates, objects=len(ids), out=h5, seconds=dt)
+    return RetrackResult(frames=n, estimates=n_estimates, objects=len(ids), out=h5, seconds=dt,
+                         tracker_path=getattr(tracker, "kernel_path", "numpy"), stats=stats, why_nothing=why,
+                         notes=notes)

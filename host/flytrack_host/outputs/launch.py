@@ -6,16 +6,19 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from flytrack_host.outputs.pose import PoseStream, parse_lock
+from flytrack_host.outputs.pose import PoseStream, check_settings, parse_lock
 from flytrack_host.web.server import LiveServer, parse_bind
 
 DEFAULT_HTTP = "127.0.0.1:8397"
 HTTP_HELP = ("Serve Braid's event stream (/events) and the live page on HOST:PORT; 'off' for none. "
              "Any address other than loopback needs the token printed at start.")
+THUMBS_HELP = ("Ask each camera's edge for a full frame every this many seconds (CONTROL on the rig's "
+               "host.control_port) for the live page's thumbnails; 0: show only images the edges send.")
 POSE_HELP = "Send the VR pose stream (UDP datagrams, see flytrack_host.outputs.pose) to HOST:PORT."
 
 
@@ -33,6 +36,7 @@ class LiveOutputs:
     pose_lead_s: float = 0.0
     pose_lock: str | int = "auto"
     pose_drop_s: float = 0.5
+    thumbnails_every_s: float = 0.0  # ask each edge for a full frame this often (0: only what they send)
     server: LiveServer | None = None
     pose_stream: PoseStream | None = None
     started: list[str] = field(default_factory=list)
@@ -40,7 +44,7 @@ class LiveOutputs:
     @classmethod
     def from_options(cls, http: str | None = DEFAULT_HTTP, pose: str | None = None, pose_rate: float = 200.0,
                      pose_lead_ms: float = 0.0, pose_lock: str = "auto", pose_drop_s: float = 0.5,
-                     token: str | None = None) -> LiveOutputs:
+                     token: str | None = None, thumbnails_every_s: float = 0.0) -> LiveOutputs:
         try:
             h = None if http is None or http.strip().lower() in ("off", "none", "") else parse_bind(http)
             p = None
@@ -49,17 +53,21 @@ class LiveOutputs:
                 if p[1] == 0:
                     raise ValueError("the pose destination needs a port")
             lock = parse_lock(pose_lock)
+            check_settings(pose_rate, pose_lead_ms / 1e3, pose_drop_s)
+            if not (math.isfinite(thumbnails_every_s) and 0 <= thumbnails_every_s <= 3600):
+                raise ValueError(f"--thumbnails must be 0 (off) to 3600 s, got {thumbnails_every_s}")
         except ValueError as exc:
             raise OutputsError(str(exc)) from None
         return cls(http=h, http_required=http != DEFAULT_HTTP, token=token, pose=p, pose_rate_hz=pose_rate,
                    pose_lead_s=pose_lead_ms / 1e3,
-                   pose_lock=lock, pose_drop_s=pose_drop_s)
+                   pose_lock=lock, pose_drop_s=pose_drop_s, thumbnails_every_s=thumbnails_every_s)
 
     def attach(self, pipe: Any, echo: Callable[[str], object] = print) -> None:
         """Join the pipeline's sinks and start. Raises OSError when the HTTP port cannot be bound,
         OutputsError for a bad pose setting."""
         if self.http is not None:
-            server = LiveServer(self.http[0], self.http[1], token=self.token)
+            server = LiveServer(self.http[0], self.http[1], token=self.token,
+                                thumbnails_every_s=self.thumbnails_every_s)
             try:
                 server.attach(pipe)
             except OSError as exc:

@@ -39,6 +39,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
+from flytrack_host import hostclock
 from flytrack_host.tracking.types import FrameResult
 
 MAGIC = b"FTPS"
@@ -116,6 +117,16 @@ def parse_lock(value: str | int | None) -> str | int:
     return i
 
 
+def check_settings(rate_hz: float, lead_s: float, drop_after_s: float) -> None:
+    """A clear ValueError for a setting out of range."""
+    if not (math.isfinite(rate_hz) and 1.0 <= rate_hz <= 2000.0):
+        raise ValueError(f"pose rate must be 1..2000 Hz, got {rate_hz}")
+    if not (math.isfinite(lead_s) and -1.0 <= lead_s <= 1.0):
+        raise ValueError(f"pose lead must be -1..1 s, got {lead_s}")
+    if not (math.isfinite(drop_after_s) and drop_after_s > 0):
+        raise ValueError(f"drop_after_s must be > 0, got {drop_after_s}")
+
+
 @dataclass
 class PoseStats:
     frames: int = 0
@@ -141,13 +152,8 @@ class PoseStream:
     the rest at `rate_hz`."""
 
     def __init__(self, destinations: Sequence[tuple[str, int]], rate_hz: float = 200.0, lead_s: float = 0.0,
-                 lock: str | int | None = "auto", drop_after_s: float = 0.5):
-        if not (math.isfinite(rate_hz) and 1.0 <= rate_hz <= 2000.0):
-            raise ValueError(f"pose rate must be 1..2000 Hz, got {rate_hz}")
-        if not (math.isfinite(lead_s) and -1.0 <= lead_s <= 1.0):
-            raise ValueError(f"pose lead must be -1..1 s, got {lead_s}")
-        if not (math.isfinite(drop_after_s) and drop_after_s > 0):
-            raise ValueError(f"drop_after_s must be > 0, got {drop_after_s}")
+                 lock: str | int | None = "auto", drop_after_s: float = 0.5, start: bool = True):
+        check_settings(rate_hz, lead_s, drop_after_s)
         self.destinations = list(destinations)
         self.period = 1.0 / rate_hz
         self.lead_s = lead_s
@@ -162,7 +168,8 @@ class PoseStream:
         self._seq = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="flytrack-pose", daemon=True)
-        self._thread.start()
+        if start:  # start=False: ticks driven by the caller (tests, benchmarks)
+            self._thread.start()
 
     # --- ResultSink: tracking thread -------------------------------------------------------------
     def on_frame(self, result: FrameResult, frame_time: float, estimate_time: float) -> None:
@@ -173,7 +180,8 @@ class PoseStream:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(2.0)
+        if self._thread.is_alive():
+            self._thread.join(2.0)
         self.sock.close()
 
     # --- sender thread ----------------------------------------------------------------------------
@@ -208,7 +216,7 @@ class PoseStream:
 
     def tick(self, now: float | None = None) -> list[bytes]:
         """One tick's datagrams (also used by the tests without the thread)."""
-        now = time.time() if now is None else now
+        now = hostclock.now() if now is None else now  # the estimates' times are host times
         self._take_latest(now)
         ids = self._select(now)
         out = []
@@ -288,7 +296,7 @@ class PoseClient:
                 if len(self.stats.errors) < 20:
                     self.stats.errors.append(str(exc))
                 continue
-            m.recv_time = time.time()
+            m.recv_time = time.time()  # noqa: TID251 - the stimulus program's own clock, a label
             return m
 
     def messages(self, timeout: float | None = 1.0) -> Iterator[PoseMessage]:

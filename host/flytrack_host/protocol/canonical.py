@@ -4,8 +4,8 @@ Conventions (the C vector runner prints the same):
 - `key=value` pairs joined by one space. UDP: `type`, `flags`, then the fixed fields in table order,
   then the records as `points[i].field`; subarrays as `objects[i].cov[k]`. Reserved fields are left out.
   IMAGE chunks end with `data=<lowercase hex of the chunk bytes>`. Serial: `msg_id`, `seq`, payload
-  fields. DVS packets: `n_words`, then per word `words[i].x/y/polarity/ts/reset/wrap` (raw bits) and,
-  for event words only, `words[i].t_us` (a decoder starting at offset 0).
+  fields. DVS packets: `n_words`, then per word `words[i].x/y/polarity/ts/reset/wrap/sync` (raw bits) and,
+  for event and SYNC words only, `words[i].t_us` (a decoder starting at offset 0).
 - Integers in decimal; f32 as `%.9g` of the float32 value, f64 as `%.17g`; `nan` (any sign or payload),
   `inf`, `-inf`.
 - Text: the bytes up to the first NUL, printable ASCII 0x21..0x7E as is except backslash; space,
@@ -85,7 +85,7 @@ def canonical_fields(msg: UdpMessage | SerialMessage | DvsPacket, seq: int | Non
         t = dvs_event_times(msg)
         items.append(f"n_words={len(w)}")
         for i in range(len(w)):
-            items += [f"words[{i}].{n}={int(w[n][i])}" for n in ("x", "y", "polarity", "ts", "reset", "wrap")]
+            items += [f"words[{i}].{n}={int(w[n][i])}" for n in ("x", "y", "polarity", "ts", "reset", "wrap", "sync")]
             if t[i] >= 0:
                 items.append(f"words[{i}].t_us={int(t[i])}")
     else:

@@ -1,7 +1,8 @@
 """DVS128 USB event words (protocol/SPEC.md §2): vectorised decoding with wrap/reset state, encoding.
 
-A bulk packet is a plain run of 4-byte words: byte 0 = x << 1 | polarity, byte 1 = y (bit 7 reserved),
-bytes 2-3 = u16 LE with a 14-bit timestamp, bit 14 RESET and bit 15 WRAP.
+A bulk packet is a plain run of 4-byte words: byte 0 = x << 1 | polarity, byte 1 = y | SYNC << 7,
+bytes 2-3 = u16 LE with a 14-bit timestamp, bit 14 RESET and bit 15 WRAP. A SYNC word is an external-input
+event (the bridge's sync input, wired to the trigger's frame output) at its timestamp, not an address event.
 """
 
 from __future__ import annotations
@@ -17,12 +18,13 @@ TS_MASK = (1 << TS_BITS) - 1
 WRAP_US = 1 << TS_BITS  # 0x4000: what a WRAP word adds to the running offset
 RESET_BIT = 0x4000  # in the u16 at bytes 2-3
 WRAP_BIT = 0x8000
+SYNC_BIT = 0x8000  # in the u16 at bytes 0-1 (byte 1, bit 7)
 DVS_WIDTH = DVS_HEIGHT = 128
 
 DVS_EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("polarity", "u1"), ("t_us", "<u8")], align=True)
 # Raw fields of every word (the canonical text of §5 lists these).
 DVS_WORD_DTYPE = np.dtype(
-    [("x", "u1"), ("y", "u1"), ("polarity", "u1"), ("reset", "u1"), ("wrap", "u1"), ("ts", "<u2")]
+    [("x", "u1"), ("y", "u1"), ("polarity", "u1"), ("reset", "u1"), ("wrap", "u1"), ("ts", "<u2"), ("sync", "u1")]
 )
 
 
@@ -36,10 +38,10 @@ def _words(packet: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
     both = (hi & (RESET_BIT | WRAP_BIT)) == (RESET_BIT | WRAP_BIT)
     if both.any():
         raise ProtocolError("BAD_FIELD", f"DVS word {int(np.argmax(both))} has both RESET and WRAP set")
-    reserved = (w & 0x8000) != 0
-    if reserved.any():
-        i = int(np.argmax(reserved))
-        raise ProtocolError("BAD_FIELD", f"DVS word {i} has the reserved bit (byte 1, bit 7) set")
+    special_sync = ((w & SYNC_BIT) != 0) & ((hi & (RESET_BIT | WRAP_BIT)) != 0)
+    if special_sync.any():
+        i = int(np.argmax(special_sync))
+        raise ProtocolError("BAD_FIELD", f"DVS word {i} has SYNC (byte 1, bit 7) set on a RESET or WRAP word")
     return w
 
 
@@ -53,15 +55,21 @@ class DvsDecoder:
     def __init__(self, offset: int = 0) -> None:
         self.offset = offset
         self.events_decoded = 0
+        self.sync_decoded = 0
 
     def reset(self) -> None:
         self.offset = 0
 
     def decode(self, packet: bytes | bytearray | memoryview) -> np.ndarray:
+        """The address events of a packet (SYNC words are skipped: see decode_with_sync)."""
+        return self.decode_with_sync(packet)[0]
+
+    def decode_with_sync(self, packet: bytes | bytearray | memoryview) -> tuple[np.ndarray, np.ndarray]:
+        """(address events, t_us of the SYNC words as uint64), both in stream order."""
         w = _words(packet)
         n = w.size
         if n == 0:
-            return np.zeros(0, DVS_EVENT_DTYPE)
+            return np.zeros(0, DVS_EVENT_DTYPE), np.zeros(0, np.uint64)
         hi = (w >> 16).astype(np.uint32)
         is_reset = (hi & RESET_BIT) != 0
         is_wrap = (hi & WRAP_BIT) != 0
@@ -72,16 +80,20 @@ class DvsDecoder:
         offs = np.where(
             last_reset >= 0, since_reset * np.uint64(WRAP_US), np.uint64(self.offset) + cw * np.uint64(WRAP_US)
         )
-        ev = ~(is_reset | is_wrap)
+        timed = ~(is_reset | is_wrap)
+        is_sync = timed & ((w & SYNC_BIT) != 0)
+        ev = timed & ~is_sync
         we = w[ev]
         out = np.empty(int(ev.sum()), DVS_EVENT_DTYPE)
         out["x"] = (we >> 1) & 0x7F
         out["y"] = (we >> 8) & 0x7F
         out["polarity"] = we & 1
         out["t_us"] = offs[ev] + ((we >> 16) & TS_MASK)
+        sync_t = (offs[is_sync] + ((w[is_sync] >> 16) & TS_MASK)).astype(np.uint64)
         self.offset = int(offs[-1])
         self.events_decoded += out.size
-        return out
+        self.sync_decoded += sync_t.size
+        return out, sync_t
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,20 +118,25 @@ def decode_dvs_words(packet: bytes | bytearray | memoryview) -> DvsPacket:
     out["ts"] = hi & TS_MASK
     out["reset"] = (hi & RESET_BIT) != 0
     out["wrap"] = (hi & WRAP_BIT) != 0
+    out["sync"] = (w & SYNC_BIT) != 0
     return DvsPacket(out)
 
 
 def encode_dvs_words(packet: DvsPacket) -> bytes:
     wd = packet.words
-    for name, top in (("x", 127), ("y", 127), ("polarity", 1), ("reset", 1), ("wrap", 1), ("ts", TS_MASK)):
+    limits = (("x", 127), ("y", 127), ("polarity", 1), ("reset", 1), ("wrap", 1), ("ts", TS_MASK), ("sync", 1))
+    for name, top in limits:
         if np.any(wd[name] > top):
             raise ProtocolError("BAD_FIELD", f"DVS word field {name} above {top}")
     if np.any(wd["reset"] & wd["wrap"]):
         raise ProtocolError("BAD_FIELD", "DVS word with both RESET and WRAP")
+    if np.any(wd["sync"] & (wd["reset"] | wd["wrap"])):
+        raise ProtocolError("BAD_FIELD", "DVS word with SYNC on a RESET or WRAP word")
     w = (
         (wd["x"].astype("<u4") << 1)
         | wd["polarity"].astype("<u4")
         | (wd["y"].astype("<u4") << 8)
+        | (wd["sync"].astype("<u4") << 15)
         | (wd["ts"].astype("<u4") << 16)
         | (wd["reset"].astype("<u4") << 30)
         | (wd["wrap"].astype("<u4") << 31)
@@ -164,9 +181,14 @@ def encode_events(x, y, polarity, t_us, offset: int = 0) -> bytes:
 
 
 def dvs_event_times(packet: DvsPacket, offset: int = 0) -> np.ndarray:
-    """t_us of each word as a fresh DvsDecoder at `offset` assigns it (for event words; -1 for others)."""
+    """t_us of each word as a fresh DvsDecoder at `offset` assigns it (address events and SYNC words; -1 for
+    RESET and WRAP words)."""
     dec = DvsDecoder(offset)
-    ev = dec.decode(encode_dvs_words(packet))
-    out = np.full(packet.words.size, -1, np.int64)
-    out[~(packet.words["reset"].astype(bool) | packet.words["wrap"].astype(bool))] = ev["t_us"].astype(np.int64)
+    ev, sync_t = dec.decode_with_sync(encode_dvs_words(packet))
+    wd = packet.words
+    timed = ~(wd["reset"].astype(bool) | wd["wrap"].astype(bool))
+    is_sync = timed & wd["sync"].astype(bool)
+    out = np.full(wd.size, -1, np.int64)
+    out[timed & ~is_sync] = ev["t_us"].astype(np.int64)
+    out[is_sync] = sync_t.astype(np.int64)
     return out

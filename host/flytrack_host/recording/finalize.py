@@ -9,8 +9,10 @@ latency histogram and its percentiles (0.1 ms bins) are accumulated over the sam
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +23,11 @@ from flytrack_host.recording.schema import dtype_from_json
 from flytrack_host.recording.writer import H5_NAME, META_NAME, RAW_SUFFIX, TEXTLOG_NAME
 
 ATTACHED = ("rig.toml", "rig.json")  # rig.json: a rig given without its TOML text
+
+
+def is_attached(name: str) -> bool:
+    """Small files a recording carries: the rig, the calibration, background images (background_<camera>.*)."""
+    return name in ATTACHED or (name.startswith(("calibration.", "background_")) and not name.endswith(".tmp"))
 CHUNK_BYTES = 8 << 20  # raw bytes copied per step when finalising
 H5_CHUNK_BYTES = 64 << 10  # HDF5 storage chunk of the tables
 
@@ -113,6 +120,14 @@ def finalize(folder: Path | str, out: Path | str | None = None) -> FinalizeRepor
     meta = read_meta(folder)
     report = FinalizeReport(h5_path=Path(out) if out is not None else folder / H5_NAME)
     tmp = report.h5_path.with_name(report.h5_path.name + ".tmp")
+    # HDF5 handles a full disk badly (it can crash the process): check the room first. The file is
+    # about the size of the raw files (no compression) plus its index.
+    need = sum(f.stat().st_size for f in folder.iterdir() if f.is_file() and f.suffix != ".tmp") + (1 << 20)
+    tmp.unlink(missing_ok=True)
+    free = shutil.disk_usage(report.h5_path.parent).free
+    if free < need:
+        raise OSError(errno.ENOSPC, f"not enough space: about {need / 1e6:.1f} MB needed, {free / 1e6:.1f} MB free "
+                      f"on the disk of {report.h5_path.parent} (the disk is full)")
     try:
         _write_h5(folder, meta, report, tmp)
     except BaseException:
@@ -147,7 +162,7 @@ def _write_h5(folder: Path, meta: dict, report: FinalizeReport, tmp: Path) -> No
                 g.attrs[k] = v
         files = h5.create_group("files")
         for p in sorted(folder.iterdir()):
-            if p.name in ATTACHED or (p.name.startswith("calibration.") and not p.name.endswith(".tmp")):
+            if is_attached(p.name):
                 files.create_dataset(p.name, data=np.frombuffer(p.read_bytes(), dtype=np.uint8))
         for k, v in meta.items():
             if k == "tables":

@@ -10,8 +10,8 @@ import h5py
 import numpy as np
 
 from flytrack_host.recording.finalize import (
-    ATTACHED,
     RecordingError,
+    is_attached,
     read_meta,
     read_raw_table,
     read_raw_textlog,
@@ -64,7 +64,7 @@ def _load_raw(folder: Path) -> Recording:
     files = {
         p.name: p.read_bytes()
         for p in folder.iterdir()
-        if p.name in ATTACHED or (p.name.startswith("calibration.") and not p.name.endswith(".tmp"))
+        if is_attached(p.name)
     }
     return Recording(tables=tables, textlog=log, meta=meta, files=files)
 

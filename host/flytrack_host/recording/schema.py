@@ -45,6 +45,7 @@ FLAG_LATE = 2
 FLAG_TRUNCATED = 4
 FLAG_INCOMPLETE = 8
 FLAG_REJECTED = 16  # recorded but never given to the tracker (future-dated, duplicate, unmapped)
+FLAG_DVS = 32  # the row is an event (DVS) camera's cluster, placed at this trigger frame (eventcam)
 
 KALMAN = np.dtype(
     [("obj_id", "<u4"), ("trigger_frame", "<i8"), ("timestamp", "<f8")]

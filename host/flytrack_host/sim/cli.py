@@ -9,9 +9,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, LiveOutputs, OutputsError
+from flytrack_host.outputs.launch import POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
-from flytrack_host.sim.run import ROOT, DemoConfig, DemoError, DemoReport, run_demo, write_json
+from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
 
 
 def _f(x: float, fmt: str = ".2f") -> str:
@@ -29,7 +29,10 @@ def summary_table(r: DemoReport) -> Table:
     c = r.config
     t.add_row("rig", f"{c['cameras']} cams, {c['animals']} animals",
               f"{c['fps']:g} fps, {c['seconds']:g} s, seed {c['seed']}")
-    t.add_row("trigger", r.trigger, "")
+    # A fallback from the firmware to the software trigger is said where the figures are read.
+    fell_back = "fell back" in getattr(r, "trigger_note", "")
+    t.add_row("trigger", f"[yellow]{r.trigger} (FELL BACK)[/yellow]" if fell_back else r.trigger,
+              r.trigger_note if fell_back else "")
     t.add_row("tracks found", str(s.tracks_found), f"{s.gt_objects} animals, {s.tracks_total} ids")
     t.add_row("3D RMSE", f"{_f(s.rmse_mm)} mm", f"matched within {s.match_threshold_m * 1000:.0f} mm")
     t.add_row("MOTA", _f(s.mota, ".4f"), f"{s.misses} misses, {s.false_positives} false pos.")
@@ -63,10 +66,15 @@ def summary_table(r: DemoReport) -> Table:
             f"{k.replace('simulated ', 'sim ')} {v:.1f}" for k, v in r.cpu_seconds.items()))
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
+    for d in r.dvs:
+        t.add_row(f"DVS {d['name']} events", f"{d['events_received']}/{d['events_sent']}",
+                  f"received/sent, {d['slices_received']} slices, {d['clusters_received']} clusters")
+        t.add_row(f"DVS {d['name']} observations", str(d["points_observed"]),
+                  f"2D points to the tracker in {d['frames_observed']} frames")
     if r.actuation:
         from flytrack_host.sim.closed_loop import closed_loop_line
 
-        t.add_row("closed loop", *closed_loop_line(r.actuation))
+        t.add_row("closed loop fired", *closed_loop_line(r.actuation))
     return t
 
 
@@ -77,8 +85,8 @@ def demo_command(
     seconds: float = typer.Option(10.0, "--seconds", help="Length of the run."),
     noise: float = typer.Option(2.0, "--noise", help="Sensor noise, grey levels (std)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the flight model, the rig and the rendering."),
-    out: Path = typer.Option(ROOT / "build" / "demo", "--out", help="Output folder (rig, calibration, "
-                             "recording, figure)."),
+    out: Path = typer.Option(Path("build") / "demo", "--out", help="Output folder (rig, calibration, "
+                             "recording, figure); relative to the current folder."),
     json_path: Path | None = typer.Option(None, "--json", help="Write every figure of the summary here."),
     trigger: str = typer.Option("auto", "--trigger", help="auto | simavr | software"),
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
@@ -88,17 +96,24 @@ def demo_command(
         "flight's ground truth (JSON `actuation`)."),
     serve: bool = typer.Option(False, "--serve", help="Serve Braid's event stream and the live page while it "
                                "runs (on --http, default 127.0.0.1:8397)."),
-    http: str = typer.Option("127.0.0.1:8397", "--http", help="With --serve: " + HTTP_HELP),
+    http: str = typer.Option("127.0.0.1:8397", "--http", help="With --serve: HOST:PORT to serve on. Any "
+                             "address other than loopback needs the token printed at start."),
     pose: str | None = typer.Option(None, "--pose", help=POSE_HELP),
     pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
     pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
     pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
+    dvs: int = typer.Option(0, "--dvs", help="Add N simulated DVS (event) cameras beside the frame cameras: "
+                            "events rendered from the flight model, streamed into their own flytrack-edge "
+                            "(--source events), DVS_CLUSTERS to the host; the JSON `dvs` counts events "
+                            "sent and received per DVS camera."),
+    dvs_sensor: str = typer.Option("davis346", "--dvs-sensor", help="dvs128 (128x128) or davis346 (346x260)."),
 ) -> None:
     """Simulated rig end to end: flight model, firmware trigger in simavr, rendered cameras, real edge
     extractors, UDP on loopback, the real host; scores against ground truth."""
     console = Console()
     cfg = DemoConfig(cameras=cameras, animals=animals, fps=fps, seconds=seconds, noise=noise, seed=seed,
-                     out=out, trigger=trigger, progress=not no_progress, rules=rules)
+                     out=out, trigger=trigger, progress=not no_progress, rules=rules,
+                     dvs=dvs, dvs_sensor=dvs_sensor)
     try:
         outputs = LiveOutputs.from_options(http=http if serve else None, pose=pose, pose_rate=pose_rate,
                                            pose_lead_ms=pose_lead_ms, pose_lock=pose_lock)

@@ -1,5 +1,6 @@
 """The demo's closed loop: the rules file drives the simulated rig's trigger firmware (its high-speed
-camera line), a real pymodbus TCP server on loopback (a coil) and a python-can virtual bus (a frame),
+camera line), a real pymodbus TCP server on loopback in its own process (a coil) and a python-can
+virtual bus (a frame),
 and the firings are scored against the simulated flight's ground truth.
 
     lab = ClosedLoopLab(rules_path, out)     # starts the Modbus server and the CAN listener
@@ -26,12 +27,12 @@ import numpy as np
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.firings import percentiles_ms
 from flytrack_host.actuation.history import RuleEvaluator
-from flytrack_host.actuation.peers import CanListener, ModbusPeer
+from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
-MATCH_WINDOW_FRAMES = 10  # a firing further than this from every true entry is a false fire
+MATCH_WINDOW_S = 0.3  # a firing further than this from every true entry is a false fire
 
 
 def expected_firings(rule: Any, gt: Any) -> list[tuple[int, int]]:
@@ -45,7 +46,7 @@ def expected_firings(rule: Any, gt: Any) -> list[tuple[int, int]]:
     return out
 
 
-def match(fired: list[int], expected: list[int], window: int = MATCH_WINDOW_FRAMES) -> tuple[list[int], int, int]:
+def match(fired: list[int], expected: list[int], window: int) -> tuple[list[int], int, int]:
     """Pairs firings with true entries, closest first; returns (signed frame errors, missed, false fires)."""
     pairs = sorted((abs(f - e), i, j) for i, f in enumerate(fired) for j, e in enumerate(expected)
                    if abs(f - e) <= window)
@@ -73,7 +74,7 @@ class ClosedLoopLab:
         self.rules = load_rules(self.rules_src)  # a bad file stops the demo before anything starts
         self.rules_copy = Path(out) / "rules.toml"
         shutil.copyfile(self.rules_src, self.rules_copy)
-        self.modbus = ModbusPeer().start()
+        self.modbus = ModbusPeerProcess(log_dir=str(out)).start()  # a process of its own, as a PLC
         self.can_channel = f"flytrack-demo-{uuid.uuid4().hex[:8]}"
         self.can = CanListener("virtual", self.can_channel)
 
@@ -102,23 +103,26 @@ class ClosedLoopLab:
             exp = [f for f, _ in expected_firings(ev.rule, gt)]
             fired = [f.scheduled_frame for f in engine.fires if f.rule == name]
             shadow = [f.scheduled_frame for f in engine.shadow_fires if f.rule == name]
-            errs, missed, false = match(fired, exp)
-            errs_np, _, _ = match(shadow, exp)
+            w = round(MATCH_WINDOW_S * gt.fps)
+            errs, missed, false = match(fired, exp, w)
+            errs_np, _, _ = match(shadow, exp, w)
             if pulse_frames is not None and len(pulse_frames):
                 # Frame errors of the high-speed camera pulse as the simulated pin saw it.
-                errs, _, _ = match([int(x) for x in pulse_frames], exp)
+                errs, _, _ = match([int(x) for x in pulse_frames], exp, w)
             rr = rows[rows["rule"] == name.encode()]
             exact = (rr["flags"] & FIRING_FRAME_EXACT) != 0
             # Latency: the frame's trigger time (clock model) -> the device's acknowledgement, per firing
             # the latest of its loopback devices (Modbus, CAN...). The firmware pulse is scheduled for a
             # later frame; its serial round trip is reported apart (pulse_ack_ms).
-            lat = []
+            lat, est, ack = [], [], []
             keys = {(int(o), int(c)) for o, c in zip(rr["obj_id"], rr["condition_frame"], strict=True)}
             for o, c in keys:
                 g = rr[(rr["obj_id"] == o) & (rr["condition_frame"] == c) & ~exact
                        & (rr["kind"] != b"trigger_pulse")]
                 if len(g) and np.all(np.isfinite(g["time_ack"])):
                     lat.append(float(np.max(g["time_ack"]) - g["frame_time"][0]))
+                    est.append(float(g["estimate_time"][0] - g["frame_time"][0]))
+                    ack.append(float(np.max(g["time_ack"]) - g["estimate_time"][0]))
             lp = percentiles_ms(lat)
             pulse = rr[rr["kind"] == b"trigger_pulse"]
             pp = percentiles_ms(pulse["time_ack"] - pulse["frame_time"])
@@ -134,6 +138,9 @@ class ClosedLoopLab:
                 "latency_ms_p50": lp.get("p50", math.nan),
                 "latency_ms_p99": lp.get("p99", math.nan),
                 "latency_n": lp["n"],
+                # Where it went: the host's trigger -> estimate, then estimate -> the devices' acknowledgement.
+                "latency_parts_ms_p50": {"trigger_to_estimate": percentiles_ms(est).get("p50", math.nan),
+                                         "estimate_to_ack": percentiles_ms(ack).get("p50", math.nan)},
                 "pulse_ack_ms_p50": pp.get("p50", math.nan),
                 "pulse_ack_ms_p99": pp.get("p99", math.nan),
                 "expected_frames": exp,
@@ -148,7 +155,8 @@ class ClosedLoopLab:
                 d["pulse_frames_on_pin"] = [int(x) for x in pulse_frames]
                 d["pulse_frames_recorded"] = recorded
                 d["pulse_frames_exact"] = int(np.sum((pulse["flags"] & FIRING_FRAME_EXACT) != 0))
-                d["pulse_frames_match_recording"] = sorted(int(x) for x in pulse_frames) == recorded
+                exact = {int(f) for f in pulse["scheduled_frame"][(pulse["flags"] & FIRING_FRAME_EXACT) != 0]}
+                d["pulse_frames_match_recording"] = exact <= {int(x) for x in pulse_frames}
             out_rules[name] = d
         return {
             "rules_file": str(self.rules_src),
@@ -166,14 +174,22 @@ class ClosedLoopLab:
 
 
 def closed_loop_line(act: dict[str, Any]) -> tuple[str, str]:
-    """The summary's one closed-loop line: value and note."""
+    """The summary's one closed-loop line: value and note (kept short: the table is 80 columns)."""
     parts_v, parts_n = [], []
-    for name, d in act.get("rules", {}).items():
-        parts_v.append(f"{d['fired']}/{d['expected']} fired")
-        parts_n.append(f"{name}: {d['missed']} missed, {d['false_fires']} false, frame err "
-                       f"{_fmt(d['frame_error_max'], 'd')} ({_fmt(d['frame_error_max_no_prediction'], 'd')} w/o "
-                       f"prediction), ack P50/P99 {_fmt(d['latency_ms_p50'])}/{_fmt(d['latency_ms_p99'])} ms")
+    for d in act.get("rules", {}).values():
+        parts_v.append(f"{d['fired']}/{d['expected']}, {d['missed']} miss, {d['false_fires']} false")
+        err, err_np = _span(d.get("frame_errors")), _span(d.get("frame_errors_no_prediction"))
+        p50, p99 = _fmt(d["latency_ms_p50"], ".1f"), _fmt(d["latency_ms_p99"], ".1f")
+        parts_n.append(f"frame err {err} ({err_np} unpredicted); ack P50/P99 {p50}/{p99} ms")
     return "; ".join(parts_v), "; ".join(parts_n)
+
+
+def _span(errs: list[int] | None) -> str:
+    """Signed frame errors as a range (+0, -3..+1), n/a when there is none."""
+    if not errs:
+        return "n/a"
+    lo, hi = min(errs), max(errs)
+    return f"{lo:+d}" if lo == hi else f"{lo:+d}..{hi:+d}"
 
 
 def _fmt(x: float, kind: str = ".2f") -> str:

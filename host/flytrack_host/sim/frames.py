@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flytrack_host.camera import Camera
+from flytrack_host.sim.dvs import evt2_header
 from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 
@@ -126,6 +127,8 @@ class FrameFeedStats:
     written_time: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     priority_raised: bool = False
     pulse_frames: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # pulse0 rising edges
+    dvs_events_sent: list[int] = field(default_factory=list)  # per DVS camera, written to its edge
+    dvs_syncs_sent: list[int] = field(default_factory=list)
 
 
 class FrameFeeder:
@@ -140,7 +143,10 @@ class FrameFeeder:
         seed: int,
         frame_format: str = "raw",
         warmup_frames: int = 0,
+        dvs: Sequence[tuple[tuple[int, int, list[tuple[bytes, int]]], int]] = (),
     ):
+        """dvs: simulated event cameras ((width, height, sim.dvs.render_stream's chunks), their edge's
+        stdin): at pulse n each gets the events since the last pulse and a sync event at the pulse."""
         if len(cameras) != len(edge_fds):
             raise ValueError("one edge pipe per camera is needed")
         self.n_frames = gt.n_frames
@@ -153,11 +159,14 @@ class FrameFeeder:
         # edges, rendered, render_s, write_s, done, bad lines, priority raised, pre-roll frames
         self._counters = ctx.RawArray("d", 8)
         self._pulses = ctx.RawArray("q", [-1] * 1024)  # frames of the pulse output's rising edges
+        self.n_dvs = len(dvs)
+        self._dvs_sent = ctx.RawArray("q", 2 * max(1, self.n_dvs))  # per DVS camera: events, sync events
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
             target=_feed,
             args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format, warmup_frames,
-                  self._handoff, self._edge_t, self._counters, self._written, self._edge_true, self._pulses),
+                  self._handoff, self._edge_t, self._counters, self._written, self._edge_true, self._pulses,
+                  list(dvs), self._dvs_sent),
             name="flytrack-sim-frames",
             daemon=True,
         )
@@ -227,6 +236,8 @@ class FrameFeeder:
             bad_lines=int(self._counters[5]),
             priority_raised=bool(self._counters[6]),
             pulse_frames=np.array([p for p in self._pulses if p >= 0], dtype=np.int64),
+            dvs_events_sent=[int(self._dvs_sent[2 * i]) for i in range(self.n_dvs)],
+            dvs_syncs_sent=[int(self._dvs_sent[2 * i + 1]) for i in range(self.n_dvs)],
         )
 
 
@@ -282,7 +293,7 @@ class _CameraLink:
         # Stamped as the write begins: a stamp after it could come late (the writer may not run again
         # before the edge and the host are done with the frame), and the write itself is a memory copy
         # of well under 0.1 ms, so the latency measured from here errs long, not short.
-        t_start = time.time()
+        t_start = time.time()  # noqa: TID251 - stamps compared across the simulated cameras' processes and the C harness's CLOCK_REALTIME
         if self.y4m:
             self._write(b"FRAME\n")
         self._write(memoryview(img))
@@ -352,8 +363,11 @@ def _feed(
     written_t,
     edge_true,
     pulses=None,
+    dvs=(),
+    dvs_sent=None,
 ) -> None:
     counters[6] = raise_priority()
+    dvs_links = [_DvsLink(r, fd) for r, fd in dvs]
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
     written_cond = threading.Condition()
     links = [_CameraLink(fd, frame_format, c, gt.fps, written_t, i, len(cameras), written_cond)
@@ -419,7 +433,7 @@ def _feed(
                         parser.pulse_frames.clear()
                     if n is None:
                         continue
-                    t_edge = time.time()
+                    t_edge = time.time()  # noqa: TID251 - cross-process stamp (see t_start)
                     counters[0] += 1
                     if n >= gt.n_frames:
                         done = True
@@ -437,8 +451,15 @@ def _feed(
                     for link, img in zip(links, imgs, strict=True):
                         link.put(n, img)
                     put_s += time.perf_counter() - t1
-                    handoff[n] = time.time()
+                    handoff[n] = time.time()  # noqa: TID251 - cross-process stamp (see t_start)
                     counters[1] += 1
+                    if dvs_links:
+                        t0 = time.perf_counter()
+                        for i, dl in enumerate(dvs_links):
+                            dl.pulse(n)
+                            if dvs_sent is not None:
+                                dvs_sent[2 * i], dvs_sent[2 * i + 1] = dl.events, dl.syncs
+                        render_s += time.perf_counter() - t0
                     # Let the links write before rendering ahead (this process's GIL would delay
                     # them), but never wait long for a slow edge.
                     target = int(counters[7] + counters[1])  # pre-roll frames went through the links too
@@ -461,6 +482,8 @@ def _feed(
                     counters[3] = put_s
             for link in links:  # every frame handed out reaches its edge, then the edges see EOF
                 link.finish()
+            for dl in dvs_links:
+                dl.close()
             for efd in edge_fds:
                 with contextlib.suppress(OSError):
                     os.close(efd)
@@ -477,4 +500,42 @@ def _feed(
         for efd in edge_fds:
             with contextlib.suppress(OSError):
                 os.close(efd)
+        for dl in dvs_links:
+            dl.close()
         counters[4] = 1
+
+
+class _DvsLink:
+    """One simulated DVS camera's stream into its edge's stdin: at pulse n, the EVT 2.0 words rendered
+    ahead for it (sim.dvs.render_stream), written whole."""
+
+    def __init__(self, stream: tuple[int, int, list[tuple[bytes, int]]], fd: int) -> None:
+        width, height, self.chunks = stream
+        self.fd = fd
+        self.events = self.syncs = 0
+        self.closed = False
+        grow_pipe(fd)
+        self._write(evt2_header(width, height))
+
+    def _write(self, data: bytes) -> None:
+        if self.closed:
+            return
+        try:
+            _write_all(self.fd, memoryview(data))
+        except OSError:  # the edge went away: stop feeding it (the demo reports its exit)
+            self.close()
+
+    def pulse(self, n: int) -> None:
+        if not 0 <= n < len(self.chunks):
+            return
+        data, n_ev = self.chunks[n]
+        self._write(data)
+        if not self.closed:
+            self.events += n_ev
+            self.syncs += 1
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            with contextlib.suppress(OSError):
+                os.close(self.fd)

@@ -84,12 +84,16 @@ def rig_config(
     live_subscribers: Sequence[str] = (),
     name: str = "simulated-rig",
     tracking: dict[str, Any] | None = None,
+    dvs_cameras: Sequence[Camera] = (),
 ) -> RigConfig:
-    """The rig file content for a simulated rig (all edges on loopback)."""
+    """The rig file content for a simulated rig (all edges on loopback); event cameras come after the
+    frame cameras, with the next indices."""
+    n = len(cameras)
     return RigConfig(
         name=name,
         calibration=calibration,
-        cameras=[CameraConfig(name=c.name, index=i, edge="127.0.0.1") for i, c in enumerate(cameras)],
+        cameras=[CameraConfig(name=c.name, index=i, edge="127.0.0.1") for i, c in enumerate(cameras)]
+        + [CameraConfig(name=c.name, index=n + i, edge="127.0.0.1", kind="dvs") for i, c in enumerate(dvs_cameras)],
         trigger=TriggerConfig(kind=trigger_kind, port=trigger_port, fps=fps),
         host=HostConfig(listen=listen, live_subscribers=list(live_subscribers)),
         recording=RecordingConfig(folder=recording_folder),

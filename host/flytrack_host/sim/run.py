@@ -92,6 +92,8 @@ class DemoConfig:
     # once the trigger runs; and the host on a fixed-rate clock instead of the trigger's (--no-trigger).
     fault: Any = None
     host_fixed_clock: bool = False
+    dvs: int = 0  # simulated DVS (event) cameras beside the frame cameras (sim/dvs.py)
+    dvs_sensor: str = "davis346"  # dvs128 (128 x 128) or davis346 (346 x 260)
 
     def check(self) -> None:
         if not 2 <= self.cameras <= 64:
@@ -104,6 +106,12 @@ class DemoConfig:
             raise DemoError(f"--seconds must be 0.1..3600, got {self.seconds}")
         if not (math.isfinite(self.noise) and 0 <= self.noise <= 40):
             raise DemoError(f"--noise must be 0..40 grey levels, got {self.noise}")
+        if not 0 <= self.dvs <= 16:
+            raise DemoError(f"--dvs must be 0..16 event cameras, got {self.dvs}")
+        from flytrack_host.sim.dvs import DVS_SIZES
+
+        if self.dvs_sensor not in DVS_SIZES:
+            raise DemoError(f"--dvs-sensor must be one of {', '.join(DVS_SIZES)}, got {self.dvs_sensor!r}")
         if self.trigger not in ("auto", "simavr", "software"):
             raise DemoError(f"--trigger must be auto, simavr or software, got {self.trigger!r}")
 
@@ -152,6 +160,7 @@ class DemoReport:
     host_summary: dict[str, Any] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=dict)  # per part of the simulated rig
     actuation: dict[str, Any] = field(default_factory=dict)  # closed loop vs ground truth (with --rules)
+    dvs: list[dict[str, Any]] = field(default_factory=list)  # per DVS camera: events sent and received
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -188,7 +197,7 @@ def _free_udp_port() -> int:
 def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list[str]:
     """The command line of one edge extractor reading raw 8-bit frames from stdin, with the camera's
     calibration for its undistorted coordinates (the same numbers as the calibration file)."""
-    K = cam.K
+    K = cam.Kd  # the distortion's K (flydra: intrinsic_linear): undistorted pixels are then P's
     return [
         str(edge_bin),
         "--source", "raw", "--input", "-",
@@ -200,14 +209,30 @@ def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list
     ]
 
 
-class EdgeFleet:
-    """One `flytrack-edge` process per camera, frames on stdin, logs in the output folder."""
+# DVS slice length in the demo: 2 slices per 100 fps frame keeps the host's datagram load low (1 ms
+# slices are 1000 datagrams/s per DVS camera for the Python receiver).
+DVS_SLICE_US = 5000
 
-    def __init__(self, edge_bin: Path, cameras: list[Camera], port: int, log_dir: Path):
+
+def dvs_edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int,
+                     slice_us: int = DVS_SLICE_US) -> list[str]:
+    """The command line of one edge reading a DVS camera's event stream (EVT 2.0) from stdin."""
+    return [
+        str(edge_bin), "--source", "events", "--input", "-",
+        "--camera-index", str(cam_index), "--camera-name", cam.name,
+        "--host", "127.0.0.1", "--port", str(port), "--control-port", "0", "--slice-us", str(slice_us),
+    ]
+
+
+class EdgeFleet:
+    """One `flytrack-edge` process per camera, frames (or events) on stdin, logs in the output folder."""
+
+    def __init__(self, edge_bin: Path, cameras: list[Camera], port: int, log_dir: Path, first_index: int = 0,
+                 command: Callable[[Path, int, Camera, int], list[str]] = edge_command):
         self.procs: list[subprocess.Popen] = []
         self.logs: list[Path] = []
-        for i, cam in enumerate(cameras):
-            cmd = edge_command(edge_bin, i, cam, port)
+        for i, cam in enumerate(cameras, start=first_index):
+            cmd = command(edge_bin, i, cam, port)
             log = log_dir / f"edge_{cam.name}.log"
             self.logs.append(log)
             with open(log, "wb") as lf:
@@ -259,7 +284,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     cfg.check()
     console = console or Console()
-    wall0 = time.time()
+    wall0 = time.monotonic()
     out = Path(cfg.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []
@@ -274,7 +299,12 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     arena = Arena()
     gt = simulate_flight(cfg.animals, cfg.seconds, cfg.fps, seed=cfg.seed, arena=arena, params=cfg.flight)
     cams = make_cameras(cfg.cameras, arena, seed=cfg.seed, width=cfg.width, height=cfg.height)
-    calib_path = _write_calibration(cams, out / "calibration.xml", notes)
+    dvs_cams: list[Camera] = []
+    if cfg.dvs:
+        from flytrack_host.sim.dvs import make_dvs_cameras
+
+        dvs_cams = make_dvs_cameras(cfg.dvs, arena, cfg.seed, cfg.dvs_sensor)
+    calib_path = _write_calibration(cams + dvs_cams, out / "calibration.xml", notes)
     edge_bin = find_edge_binary(cfg.edge_bin)
     port = _free_udp_port()
     live_port = _free_udp_port()
@@ -288,7 +318,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     cpu = CpuSampler()
     cpu.add("host", os.getpid())
-    edges = feeder = host = live = session = lab = engine = None
+    edges = dvs_edges = feeder = host = live = session = lab = engine = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
     live_frames = [0]
@@ -297,9 +327,25 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         # 2. Edge extractors, then the frame feeder (it forks: no thread may exist yet), which then
         #    follows the trigger's edge FIFO.
         edges = EdgeFleet(edge_bin, cams, port, out)
-        feeder = FrameFeeder(gt, cams, edges.stdin_fds, render_params, cfg.seed, warmup_frames=warmup)
+        dvs_links: list[tuple[Any, int]] = []  # (width, height, chunks), edge stdin
+        if dvs_cams:
+            from flytrack_host.sim.dvs import DvsRenderer, render_stream
+
+            dvs_edges = EdgeFleet(edge_bin, dvs_cams, port, out, first_index=len(cams), command=dvs_edge_command)
+            # Each sensor's clock has its own epoch (as a real DVS's): only the sync events tie it to frames.
+            # Rendered ahead, the whole run (the flight is known): a pulse then costs a write.
+            dvs_links = [((c.width, c.height, render_stream(
+                DvsRenderer(c, seed=cfg.seed * 1000 + 500 + i, t0_us=1_000_000 * (i + 1) + 12_345), gt, warmup)), fd)
+                for i, (c, fd) in enumerate(zip(dvs_cams, dvs_edges.stdin_fds, strict=True))]
+        feeder = FrameFeeder(gt, cams, edges.stdin_fds, render_params, cfg.seed, warmup_frames=warmup, dvs=dvs_links)
         edges.close_stdins()
         edges.check_started()
+        if dvs_edges is not None:
+            dvs_edges.close_stdins()
+            dvs_edges.check_started()
+            for p in dvs_edges.procs:
+                cpu.add("edges", p.pid)
+                raise_priority(p.pid)
         for p in edges.procs:
             cpu.add("edges", p.pid)
             # On a rig each edge has its own computer: here they run at the simulated hardware's
@@ -313,7 +359,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         trig.launch()
         cpu.add("simulated trigger", trig.sim.proc.pid if trig.sim is not None else None)
         rig = rig_config(
-            cams, cfg.fps, listen=f"127.0.0.1:{port}", trigger_kind=trig.kind, trigger_port=trig.port,
+            cams, cfg.fps, dvs_cameras=dvs_cams, listen=f"127.0.0.1:{port}", trigger_kind=trig.kind,
+            trigger_port=trig.port,
             calibration=calib_path.name if calib_path else None, recording_folder="recordings",
             live_subscribers=[f"127.0.0.1:{live_port}"], name="simulated-rig",
         )
@@ -344,7 +391,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         def on_result(r: Any) -> None:
             ids = np.fromiter((e.obj_id for e in r.estimates), dtype=np.int64, count=len(r.estimates))
             pos = np.array([e.state[:3] for e in r.estimates], dtype=np.float64).reshape(-1, 3)
-            results.append(HostResult(int(r.trigger_frame), time.time(), ids, pos))
+            # compared with the simulated cameras' stamps (sim/frames.py), made in other processes
+            results.append(HostResult(int(r.trigger_frame), time.time(), ids, pos))  # noqa: TID251
 
         host = HostPipeline(rig, cameras_for_host, clock=None if cfg.host_fixed_clock else session.clock, fps=fps,
                             hold_until_synchronized=True,
@@ -355,14 +403,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
                 engine = lab.engine(rig, fps, session)
             except RulesError as exc:
                 raise DemoError(str(exc)) from None
-            engine.attach(host)
-            engine.start()
         for fn in cfg.attach:
             try:
                 fn(host)
             except OSError as exc:
                 raise DemoError(f"a live output could not start: {exc}") from None
         host.start()
+        if engine is not None:  # after start: its messages go into the recording's log too
+            engine.attach(host)
+            engine.start()
         session.attach(host)
         live = _LiveCounter(live_port, live_frames)
         trig.follow_software(session.software)
@@ -395,7 +444,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         session = None
         feeder.finish()
         t_wait = time.monotonic() + 5.0
-        while time.monotonic() < t_wait and any(p.poll() is None for p in edges.procs):
+        all_procs = edges.procs + (dvs_edges.procs if dvs_edges is not None else [])
+        while time.monotonic() < t_wait and any(p.poll() is None for p in all_procs):
             cpu.sample()  # the feeder closed their stdin: they finish their frames and exit
             time.sleep(0.02)
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
@@ -411,6 +461,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             live.stop()
         if edges is not None:
             edges.stop()
+        if dvs_edges is not None:
+            dvs_edges.stop()
         if feeder is not None:
             feeder.stop()
         trig.close()
@@ -421,12 +473,42 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
                      notes, wall0, cams, warmup, trigger_summary, preroll)
     report.cpu_seconds = cpu.totals()
+    report.dvs = _dvs_counts(dvs_cams, len(cams), fs, host_summary, cfg.dvs_sensor)
+    if any(d["events_lost"] for d in report.dvs):
+        report.notes.append("DVS events lost between the simulated sensors and the host: "
+                            + ", ".join(f"{d['name']} {d['events_lost']}" for d in report.dvs))
     if lab is not None and engine is not None:
         try:
             report.actuation = lab.report(engine, gt, fs.pulse_frames if trig.mode == "simavr" else None)
         finally:
             lab.close()
     return report
+
+
+def _dvs_counts(dvs_cams: list[Camera], first: int, fs: Any, host_summary: dict[str, Any],
+                sensor: str) -> list[dict[str, Any]]:
+    """Per DVS camera: events (and sync events) the simulated sensor wrote into its edge, and what the
+    host heard back: the events the edge read (its last STATUS), its slices and clusters."""
+    recv = host_summary.get("receiver", {}).get("cameras", {})
+    out = []
+    for i, c in enumerate(dvs_cams):
+        r = recv.get(first + i, recv.get(str(first + i), {}))
+        obs = host_summary.get("dvs", {})
+        o = obs.get(first + i, obs.get(str(first + i), {}))
+        sent = int(fs.dvs_events_sent[i]) if i < len(fs.dvs_events_sent) else 0
+        got = int(r.get("status_frames_seen", 0))
+        out.append({
+            "name": c.name, "camera_index": first + i, "sensor": sensor, "width": c.width, "height": c.height,
+            "events_sent": sent, "sync_events_sent": int(fs.dvs_syncs_sent[i]) if i < len(fs.dvs_syncs_sent) else 0,
+            "events_received": got, "events_lost": sent - got,
+            "edge_events_dropped": int(r.get("status_frames_dropped", 0)),
+            "slices_received": int(r.get("dvs_slices", 0)), "clusters_received": int(r.get("dvs_clusters", 0)),
+            "datagrams_lost": int(r.get("lost", 0)),
+            # What the 3D tracker got from this camera: trigger frames with its clusters, and points
+            "frames_observed": int(o.get("frames_given", 0)), "points_observed": int(o.get("points_given", 0)),
+            "sensor_t0_us_estimated": o.get("t0_us"),
+        })
+    return out
 
 
 def _write_calibration(cams: list[Camera], path: Path, notes: list[str]) -> Path | None:
@@ -540,6 +622,9 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     if numbering["misnumbered"]:
         notes.append(f"the host's synchroniser gave {numbering['misnumbered']} of {numbering['camera_frames']} "
                      "camera frames a wrong trigger frame number (scores use the host's numbers)")
+    if host_summary.get("behind_skipped"):  # the bounded backlog of an overloaded host (issue 16)
+        notes.append(f"the host fell more than 1 s behind real time: {host_summary['behind_skipped']} frames were "
+                     "recorded but not tracked, so that it caught up")
     # Latency from the hand-over of the frames a bundle was made of to its estimate: independent of
     # the numbering, so a misnumbered frame still gets its true processing time.
     lat = []
@@ -604,7 +689,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         figure=str(fig),
         rig_file=str(rig_path),
         calibration=str(calib_path) if calib_path else None,
-        wall_s=time.time() - wall0,
+        wall_s=time.monotonic() - wall0,
         notes=[n for n in notes if n],
         host_summary=_jsonable(host_summary),
     )
@@ -657,7 +742,9 @@ def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 
             return out
         d = f["data2d_distorted"][:]
         lat = f["latency"][:] if "latency" in f else None
-    d = d[d["camera_frame"] >= preroll]
+    from flytrack_host.recording.schema import FLAG_DVS
+
+    d = d[(d["camera_frame"] >= preroll) & ((d["flags"] & FLAG_DVS) == 0)]  # frame cameras' rows
     if len(d) == 0:
         return out
     d["camera_frame"] -= preroll

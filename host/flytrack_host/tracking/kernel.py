@@ -24,8 +24,8 @@ from flytrack_host.tracking.params import TrackingParams
 
 LIB = "flytrack_tracker_kernel"
 SUBDIR = "host/flytrack_host/tracking/kernel"
-ABI_VERSION = 2
-CAM_STRIDE = 46  # FTK_CAM_STRIDE: doubles per camera in the packed table
+ABI_VERSION = 3
+CAM_STRIDE = 52  # FTK_CAM_STRIDE: doubles per camera in the packed table
 
 # Indices of the stats array (enum in tracker_kernel.h).
 (ST_POINTS, ST_NONFINITE, ST_NONFINITE_ORI, ST_MAX_PER_CAMERA, ST_CONFLICTS, ST_RESOLVE, ST_UPDATED,
@@ -114,7 +114,7 @@ class TrackerKernel:
         self.C = C = cams.n
         table = np.zeros((C, CAM_STRIDE))
         for s, cam in enumerate(cams.cameras):
-            K = cam.K
+            K = cam.Kd  # the distortion's K; P's own K is in the ray and projection matrices
             table[s, 0:9] = cam.R.ravel()
             table[s, 9:12] = cam.t
             table[s, 12:17] = (K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2])
@@ -122,6 +122,8 @@ class TrackerKernel:
             table[s, 22:25] = cams.centers[s]
             table[s, 25:34] = cams._ray_B[s].ravel()
             table[s, 34:46] = cams.P[s].ravel()
+            table[s, 46:50] = cams._dfA[s, 0].ravel()  # distortion frame (identity for OpenCV's model)
+            table[s, 50:52] = cams._dfb[s, 0]
         self._cams = table
         p = params
         self._params = KernelParams(

@@ -58,6 +58,28 @@ class TrackingParams(BaseModel):
             "position covariance) passes this, metres (Braid: 0.01212)."
         ),
     )
+    death_weak_frames: int = Field(
+        10, ge=0, description=(
+            "A target dies after this many consecutive frames in which fewer than birth_min_cameras cameras "
+            "updated it (0 = off). A target that left, coasting on chance false positives in single "
+            "cameras, ends here long before its covariance passes death_position_std_m; a real one seen "
+            "by 2 cameras each missing 5 % of frames goes 10 frames so with odds ~1e-10."
+        ),
+    )
+    report_max_coast_frames: int = Field(
+        2, ge=0, description=(
+            "A confirmed target is left out of the frame's estimates once it has gone this many "
+            "consecutive frames without any observation (0 = always reported); it stays alive and is "
+            "reported again at its next update."
+        ),
+    )
+    duplicate_distance_m: float = Field(
+        0.003, ge=0, description=(
+            "Two targets closer than this for duplicate_frames consecutive frames are one animal tracked "
+            "twice: the younger dies (0 = off). Below the 6 mm head-on pass the benchmark scenario has."
+        ),
+    )
+    duplicate_frames: int = Field(5, ge=1, description="See duplicate_distance_m.")
     min_eccentricity_for_orientation: float = Field(
         1.4, ge=1, description="Only points at least this elongated contribute to body orientation."
     )

@@ -7,10 +7,22 @@ distortion included, analytic Jacobian), and nearest-neighbour association: Dist
 the Mahalanobis measure plus GNNWith2DAssignment, run camera by camera in each frame so that each
 camera gives a track at most one point (sequential EKF updates at one timestamp).
 
-Track initiation is not compared: each birth our tracker makes (`Tracker.last_births`) starts a Stone
-Soup track at the same frame with the same state and covariance, and that frame's points update it
-through Stone Soup's own association. Deaths use our rule (position std over death_position_std_m),
-reporting our rule too (updated in confirm_min_frames frames). Stone Soup is imported only here.
+Two ways to start and end tracks:
+
+- own (`StoneSoupTracker(..., volume=(lo, hi))`, the main comparison): Stone Soup's own
+  MultiMeasurementInitiator. A point no track takes starts a holding track from a prior that covers
+  the volume (its centre, std half its extent per axis; velocity std initial_velocity_std_m_s) through
+  a single EKF update; holding tracks take further points by the same GNN association, camera by
+  camera, are confirmed after `min_points` updates and dropped when a frame period passes without one
+  (UpdateTimeDeleter). Confirmed tracks end by Stone Soup's CovarianceBasedDeleter on the position
+  block with our death threshold (trace over 3 x death_position_std_m^2). Every confirmed track is
+  reported.
+- given births (`add_births`, no volume): each birth our tracker makes (`Tracker.last_births`) starts
+  a Stone Soup track at the same frame with the same state and covariance; deaths use our rule
+  (position std over death_position_std_m), reporting our rule too (updated in confirm_min_frames
+  frames). This isolates the per-frame filter and association, with initiation handed over.
+
+Stone Soup is imported only here.
 """
 
 from __future__ import annotations
@@ -21,7 +33,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from stonesoup.base import Property
 from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
+from stonesoup.deleter.error import CovarianceBasedDeleter
+from stonesoup.deleter.time import UpdateTimeDeleter
 from stonesoup.hypothesiser.distance import DistanceHypothesiser
+from stonesoup.initiator.simple import MultiMeasurementInitiator, SinglePointInitiator
 from stonesoup.measures import Mahalanobis
 from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
 from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
@@ -87,7 +102,8 @@ def check_camera_model(cameras: Mapping[int, Camera], X: Sequence[float] = (0.6,
 
 class StoneSoupTracker:
     def __init__(self, cameras: Mapping[int, Camera], params: TrackingParams, frame_period_s: float,
-                 gate_sigma: float = 10.0) -> None:
+                 gate_sigma: float = 10.0, volume: tuple[Sequence[float], Sequence[float]] | None = None,
+                 min_points: int = 3) -> None:
         self.params = params
         self.frame_period_s = frame_period_s
         q = params.motion_noise_scale
@@ -104,9 +120,29 @@ class StoneSoupTracker:
         self.tracks: list[Track] = []
         self._n_upd: dict[int, int] = {}
         self._obj: dict[int, int] = {}
+        self._own_ids: dict[str, int] = {}
         self._next = 0
         p = params
         self._P0 = np.diag([p.initial_position_std_m**2, p.initial_velocity_std_m_s**2] * 3)
+        self.initiator: MultiMeasurementInitiator | None = None
+        if volume is not None:
+            lo, hi = np.asarray(volume[0], np.float64), np.asarray(volume[1], np.float64)
+            sv = np.zeros(6)
+            sv[list(_POS)] = (lo + hi) / 2
+            var = np.zeros(6)
+            var[list(_POS)] = ((hi - lo) / 2) ** 2
+            var[[1, 3, 5]] = p.initial_velocity_std_m_s**2
+            prior = GaussianState(StateVector(sv), np.diag(var))
+            self.initiator = MultiMeasurementInitiator(
+                prior_state=prior,
+                deleter=UpdateTimeDeleter(_dt.timedelta(seconds=frame_period_s * 0.999)),
+                data_associator=GNNWith2DAssignment(hyp),
+                updater=self.updater,
+                min_points=min_points,
+                initiator=SinglePointInitiator(prior, updater=self.updater),
+            )
+            self.deleter = CovarianceBasedDeleter(covar_trace_thresh=3 * p.death_position_std_m**2,
+                                                  mapping=list(_POS))
 
     def add_births(self, births: Sequence[Birth], frame: int) -> None:
         ts = self._ts(frame)
@@ -120,6 +156,53 @@ class StoneSoupTracker:
 
     def process(self, bundle: FrameBundle) -> dict[int, np.ndarray]:
         """Track one frame; returns reported id -> position (3,)."""
+        if self.initiator is not None:
+            return self._process_own(bundle)
+        return self._process_given(bundle)
+
+    def _detections(self, bundle: FrameBundle, ci: int, ts: _dt.datetime) -> set[Detection]:
+        arr = bundle.detections[ci]
+        u = arr["x_dist"].astype(np.float64)
+        v = arr["y_dist"].astype(np.float64)
+        ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(arr["area"])
+        model = self.models[ci]
+        return {Detection(StateVector([u[i], v[i]]), timestamp=ts, measurement_model=model)
+                for i in np.flatnonzero(ok)}
+
+    def _process_own(self, bundle: FrameBundle) -> dict[int, np.ndarray]:
+        """Stone Soup end to end: association, its initiator, its deleter (see the module docstring)."""
+        assert self.initiator is not None
+        ts = self._ts(bundle.trigger_frame)
+        tracks = set(self.tracks)
+        for ci in sorted(bundle.detections):
+            if ci not in self.models or not len(bundle.detections[ci]):
+                continue
+            dets = self._detections(bundle, ci, ts)
+            used: set[Detection] = set()
+            if tracks:
+                for track, hyp in self.associator.associate(tracks, dets, ts).items():
+                    if hyp:
+                        track.append(self.updater.update(hyp))
+                        used.add(hyp.measurement)
+            tracks |= self.initiator.initiate(dets - used, ts)
+        for track in tracks:
+            if track.state.timestamp < ts:
+                track.append(self.predictor.predict(track.state, timestamp=ts))
+        tracks -= self.deleter.delete_tracks(tracks)
+        self.tracks = list(tracks)
+        out: dict[int, np.ndarray] = {}
+        for track in self.tracks:
+            if track.id not in self._own_ids:  # Stone Soup's track uuid; id() could be reused
+                self._own_ids[track.id] = self._next
+                self._next += 1
+            out[self._own_ids[track.id]] = np.asarray(track.state.state_vector[list(_POS), 0], dtype=np.float64)
+            if len(track.states) > 2:  # only the latest state is needed; memory must not grow
+                last = track.states[-1]
+                track.states.clear()
+                track.append(last)
+        return out
+
+    def _process_given(self, bundle: FrameBundle) -> dict[int, np.ndarray]:
         ts = self._ts(bundle.trigger_frame)
         updated: set[int] = set()
         tracks = set(self.tracks)

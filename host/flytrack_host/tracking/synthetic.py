@@ -106,12 +106,16 @@ def make_scenario(
     height: int = 480,
     seed: int = 1,
     interface: FlatInterface | None = None,
+    cameras: dict[int, Camera] | None = None,
 ) -> Scenario:
     """Build a scenario. With `close_pass_m`, targets 0 and 1 fly head-on past each other at that
     distance mid-way through. `camera_outages`: (camera, first_frame, last_frame) spans where that
-    camera sends nothing. `corrupt_fraction`: share of points whose x_dist or area is set to NaN/inf."""
+    camera sends nothing. `corrupt_fraction`: share of points whose x_dist or area is set to NaN/inf.
+    `interface`: every camera sees the arena through it (e.g. FlatInterface.water_surface(z=0.3), the
+    arena's top). `cameras`: a rig to use instead of arena_cameras (n_cameras, width, height and
+    interface are then ignored)."""
     rng = np.random.default_rng(seed)
-    cams = arena_cameras(n_cameras, width, height, seed=seed, interface=interface)
+    cams = cameras if cameras is not None else arena_cameras(n_cameras, width, height, seed=seed, interface=interface)
     n_frames = int(round(duration_s * fps))
     t = np.arange(n_frames) / fps
     # Positions (targets, frames, 3); NaN where a target is absent.

@@ -7,7 +7,12 @@ One call of `Tracker.process` per trigger frame (seed 000 section 3, Braid's def
      EKF through every camera's distorted projection (Joseph form, ekf.py); a target without points
      keeps its prior as posterior;
   4. body orientation from the associated points' image angles (orientation.py);
-  5. deaths: a target whose position std passes death_position_std_m is removed;
+  5. deaths: a target whose position std passes death_position_std_m is removed; so is one updated by
+     fewer than birth_min_cameras cameras for death_weak_frames frames (it left, and chance false
+     positives kept it going), and the younger of two targets within duplicate_distance_m for
+     duplicate_frames frames (one animal tracked twice); a target without any observation for
+     report_max_coast_frames frames is not reported until it has one again. These support rules run in
+     Python on both paths;
   6. births from the points no target claimed (birth.py); a newborn is updated at once with them.
 Targets live in stacked arrays (state (T, 6), covariance (T, 6, 6), ...) so each step is a handful of
 NumPy calls whatever the number of targets and cameras; no per-point Python objects are made.
@@ -118,6 +123,11 @@ class Tracker:
         self._obj_id = np.empty(0, dtype=np.int64)
         self._n_obs = np.empty(0, dtype=np.int64)
         self._axis = np.empty((0, 3))
+        # Consecutive frames: without any observation (coast), with fewer than birth_min_cameras
+        # cameras (weak), within duplicate_distance_m of an older target (dup).
+        self._coast = np.empty(0, dtype=np.int64)
+        self._weak = np.empty(0, dtype=np.int64)
+        self._dup = np.empty(0, dtype=np.int64)
         if self.cams.refractive:
             # The C kernel's observation model is pinhole + distortion; refraction (Camera.interface,
             # e.g. <water>) is only in the NumPy path.
@@ -127,16 +137,6 @@ class Tracker:
                     "refractive interface (<water>), which only the NumPy path models")
             self.kernel_path, why = "numpy", "the calibration has a refractive interface (<water>), which the C " \
                 "kernel does not model"
-        elif self.cams.dist_frame:
-            # flydra calibrations whose distortion is about another K than P's (Camera.K_dist): the C
-            # kernel's model has one K per camera.
-            if params.kernel == "c":
-                raise ckernel.KernelUnavailable(
-                    "TrackingParams.kernel='c' asks for the C tracker kernel, but a camera's distortion is "
-                    "about another K than its projection's (flydra's intrinsic_linear), which only the NumPy "
-                    "path models")
-            self.kernel_path, why = "numpy", "a camera's distortion is about another K than P's (flydra's " \
-                "intrinsic_linear), which the C kernel does not model"
         else:
             self.kernel_path, why = select_kernel(params)
         msg = f"tracker: {'C kernel' if self.kernel_path == 'c' else 'NumPy'} path ({why})"
@@ -213,6 +213,7 @@ class Tracker:
         pos_var = np.max(np.diagonal(self._P[:, :3, :3], axis1=1, axis2=2), axis=1) if self.n_targets else None
         if pos_var is not None:
             dead = ~(pos_var <= self._death_var)  # NaN dies too
+            dead |= self._support_deaths(n_cams, pts.n > 0)
             if dead.any():
                 assign, n_cams = self._deaths(result, dead, assign, n_cams)
 
@@ -233,6 +234,7 @@ class Tracker:
         T = self.n_targets
         st = k.frame(raw, n_raw, T, dt)
         s["points"] += st[ckernel.ST_POINTS]
+        any_points = st[ckernel.ST_POINTS] > 0  # finite points, as pts.n on the NumPy path
         s["nonfinite_points"] += st[ckernel.ST_NONFINITE]
         s["nonfinite_orientation"] += st[ckernel.ST_NONFINITE_ORI]
         if st[ckernel.ST_RESOLVE]:
@@ -241,8 +243,9 @@ class Tracker:
         s["rejected_updates"] += st[ckernel.ST_REJECTED]
         assign = k.assign_view(T)
         n_cams = k.n_cams[:T]
-        if st[ckernel.ST_DEAD]:
-            assign, n_cams = self._deaths(result, k.dead[:T].astype(bool), assign, n_cams)
+        extra = self._support_deaths(n_cams, any_points)
+        if st[ckernel.ST_DEAD] or extra.any():
+            assign, n_cams = self._deaths(result, k.dead[:T].astype(bool) | extra, assign, n_cams)
         # The kernel's prefilter found no seed pair of unclaimed points (birth.seed_pairs' gate): then
         # the birth search would return nothing, so it is not called.
         if st[ckernel.ST_UNCLAIMED] >= p.birth_min_cameras and st[ckernel.ST_BIRTH_PAIRS]:
@@ -267,6 +270,29 @@ class Tracker:
         else:
             self.stats["merges_prevented"] += _prevent_merges(assign, k.pair_view(k.d2, N, T), best)
         return k.update(T)
+
+    def _support_deaths(self, n_cams: NDArray[np.intp], any_points: bool) -> NDArray[np.bool_]:
+        """Updates the coast, weak and duplicate counters from this frame's cameras per target and
+        returns who dies by death_weak_frames or as the younger of a duplicate (both paths, here).
+        A frame in which no camera sent any point (the whole rig out) is no evidence that a target
+        left: the coast and weak counts hold still, and the covariance rule alone applies."""
+        p = self.params
+        T = self.n_targets
+        seen = np.asarray(n_cams[:T])
+        if any_points:
+            self._coast = np.where(seen > 0, 0, self._coast + 1)
+            self._weak = np.where(seen >= p.birth_min_cameras, 0, self._weak + 1)
+        dead = np.zeros(T, dtype=bool)
+        if p.death_weak_frames:
+            dead |= self._weak >= p.death_weak_frames
+        if p.duplicate_distance_m > 0 and T > 1:
+            X = self._x[:, :3]
+            d2 = ((X[:, None, :] - X[None, :, :]) ** 2).sum(axis=2)
+            # Targets are stored oldest first: each is compared with the older ones only.
+            near = np.tril(d2 < p.duplicate_distance_m**2, k=-1).any(axis=1)
+            self._dup = np.where(near, self._dup + 1, 0)
+            dead |= self._dup >= p.duplicate_frames
+        return dead
 
     def _deaths(
         self, result: FrameResult, dead: NDArray[np.bool_], assign: NDArray[np.intp], n_cams: NDArray[np.intp]
@@ -486,6 +512,9 @@ class Tracker:
         self._obj_id = self._obj_id[keep]
         self._n_obs = self._n_obs[keep]
         self._axis = self._axis[keep]
+        self._coast = self._coast[keep]
+        self._weak = self._weak[keep]
+        self._dup = self._dup[keep]
         self._adopt()
 
     def _add_births(
@@ -512,6 +541,10 @@ class Tracker:
         self._obj_id = np.concatenate([self._obj_id, np.full(B, -1, dtype=np.int64)])
         self._n_obs = np.concatenate([self._n_obs, accepted.astype(np.int64)])
         self._axis = np.concatenate([self._axis, np.full((B, 3), np.nan)])
+        zeros = np.zeros(B, dtype=np.int64)
+        self._coast = np.concatenate([self._coast, zeros])
+        self._weak = np.concatenate([self._weak, zeros])
+        self._dup = np.concatenate([self._dup, zeros])
         self._adopt()
         sel[:, ~accepted] = -1
         if B:
@@ -527,7 +560,10 @@ class Tracker:
     ) -> None:
         """Estimates of the confirmed targets; with assign (C, T) and the rows' indices in their
         cameras' detection arrays, their associations too."""
-        conf = np.flatnonzero(self._obj_id >= 0)
+        reported = self._obj_id >= 0
+        if self.params.report_max_coast_frames:
+            reported &= self._coast < self.params.report_max_coast_frames
+        conf = np.flatnonzero(reported)
         if conf.size == 0:
             return
         # One fancy-indexed copy per array; each Estimate holds rows of these fresh arrays.

@@ -23,6 +23,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .common import TriggerError
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
@@ -86,6 +88,28 @@ def read_edges(path: str | Path) -> tuple[int, list[Edge]]:
     return f_cpu, edges
 
 
+def read_pacing(path: str | Path) -> tuple[float, float, float] | None:
+    """(anchor, ppm, drift_ppm_per_s) of a paced run (see read_pacing_anchor and host_time_of_cycle),
+    None when the run was not paced."""
+    for line in Path(path).read_text().splitlines():
+        if line.startswith("# paced"):
+            kv = dict(tok.split("=", 1) for tok in line.split()[2:] if "=" in tok)
+            return float(kv["t0_realtime"]), float(kv.get("ppm", 0.0)), float(kv.get("drift_ppm_per_s", 0.0))
+        elif line and not line.startswith("#"):
+            break
+    return None
+
+
+def host_time_of_cycle(cycle: float | np.ndarray, f_cpu: float, pacing: tuple[float, float, float]):  # noqa: ANN201
+    """The host time (time.time()) at which a paced run's cycle was due: the harness's crystal runs at
+    f_cpu (1 + (ppm + drift t) 1e-6), t the seconds since the anchor (trigger_sim.c, --ppm)."""
+    anchor, ppm, drift = pacing
+    a, b = 0.5e-6 * drift, 1.0 + 1e-6 * ppm
+    x = np.asarray(cycle, dtype=np.float64) / f_cpu
+    t = x / b if a == 0 else 2.0 * x / (b + np.sqrt(b * b + 4.0 * a * x))
+    return anchor + t
+
+
 def read_pacing_anchor(path: str | Path) -> float | None:
     """The host time (time.time()) at which a paced run's cycle 0 was due, or None when the run was
     not paced: cycle c of that run happened at anchor + c / f_cpu on the host's clock, to within
@@ -114,6 +138,8 @@ class SimulatedTrigger:
         event_phase_cycles: int = 0,
         event_high_cycles: int = 0,
         harness: str | Path | None = None,
+        ppm: float = 0.0,
+        drift_ppm_per_s: float = 0.0,
     ) -> None:
         if harness is None or elf is None:
             h, e = build(mcu)
@@ -124,6 +150,8 @@ class SimulatedTrigger:
         cmd = [str(harness), "--elf", str(elf), "--mcu", mcu, "--edges", str(self.edge_log)]
         if realtime:
             cmd.append("--realtime")
+            if ppm or drift_ppm_per_s:  # a crystal off its nominal frequency (paced runs only)
+                cmd += ["--ppm", repr(float(ppm)), "--drift-ppm-per-s", repr(float(drift_ppm_per_s))]
         if max_seconds:
             cmd += ["--max-seconds", str(max_seconds)]
         if event_period_cycles:

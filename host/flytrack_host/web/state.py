@@ -17,6 +17,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from flytrack_host import hostclock
 from flytrack_host.tracking.types import FrameResult
 
 TRAIL_SECONDS = 3.0
@@ -33,6 +36,7 @@ def _r(v: float, nd: int = 4) -> float | None:
 class LiveState:
     def __init__(self, pipeline: Any = None, rule_sources: list[Callable[[], list[str]]] | None = None):
         self.pipe = pipeline
+        self.thumbs: Any = None  # web.thumbs.ThumbnailAssembler, set by the server
         self.trails: dict[int, deque[tuple[float, float, float]]] = {}
         self.last_point_time: dict[int, float] = {}
         self.last_seen: dict[int, float] = {}
@@ -89,12 +93,15 @@ class LiveState:
 
     # --- snapshot (publisher thread, ~20 Hz) ------------------------------------------------------
     def snapshot(self, server_stats: dict[str, Any] | None = None, final: bool = False) -> dict[str, Any]:
-        now = time.time()
-        tracks = [{"id": i, "live": i in self.live_ids, "trail": [[_r(a), _r(b), _r(c)] for a, b, c in tr],
+        now = hostclock.now()
+        live = set(self.live_ids)
+        tracks = [{"id": i, "live": i in live, "trail": [[_r(a), _r(b), _r(c)] for a, b, c in tr],
                    "vel": [_r(v, 3) for v in self.velocity.get(i, (math.nan,) * 3)]}
                   for i, tr in sorted(self.trails.items())]
         snap: dict[str, Any] = {
             "time": now,
+            # host time -> the browser's wall clock, for the page's estimate-to-page delay
+            "wall_offset": hostclock.wall() - now,
             "final": final,
             "frame": self.last_frame,
             "frames_published": self.frames,
@@ -106,6 +113,7 @@ class LiveState:
             "deaths": self.deaths,
             "tracks": tracks,
             "rules": list(self.rule_firings) + [s for f in self.rule_sources for s in _safe(f)],
+            "rules_fired": [],
             "server": server_stats or {},
         }
         if self.pipe is not None:
@@ -119,13 +127,23 @@ class LiveState:
                                "sink_errors": getattr(p, "sink_errors", 0)}
         out["cameras"] = self._cameras(p)
         counts, edges = p.latency.histogram()
-        nz = [i for i, c in enumerate(counts.tolist()) if c]
-        last = (nz[-1] + 1) if nz else 0
+        c = counts.tolist()
+        total = sum(c)
+        # Show up to a little past the P99.5 bin (the last bin also holds everything beyond the
+        # histogram's range); what is cut off is one "beyond" count.
+        n_show = 10
+        if total:
+            cum = np.cumsum(c)
+            k = int(np.searchsorted(cum, 0.995 * total))
+            n_show = max(10, int(k * 1.25) + 2)
         out["latency"] = {"bin_ms": float(edges[1] - edges[0]) if len(edges) > 1 else 0.0,
-                          "counts": counts[: max(last, 1)].tolist(), **_lat_summary(p.latency)}
+                          "counts": c[:n_show], "beyond": int(sum(c[n_show:])), **_lat_summary(p.latency)}
         out["recording"] = self._recording(p)
         out["trigger"] = [s for f in p.status_sources for s in _safe(lambda f=f: [f()])]
         out["log"] = list(p.events)[-LOG_LINES:]
+        fired = _actuation_firings(p)
+        if fired:
+            out["rules_fired"] = fired
         return out
 
     def _cameras(self, p: Any) -> list[dict[str, Any]]:
@@ -176,9 +194,15 @@ class LiveState:
                 "latency_ms": lat_ms,
                 "points": pts,
                 "n_points": len(fr.points) if fr is not None else 0,
-                "thumbnail": None,  # the receiver does not reassemble IMAGE chunks yet
+                "thumbnail": self._thumb(c.index),
             })
         return cams
+
+    def _thumb(self, index: int) -> dict[str, Any] | None:
+        t = self.thumbs.latest.get(index) if self.thumbs is not None else None
+        if t is None:
+            return None
+        return {"id": t.image_id, "camera_frame": t.camera_frame, "age_s": round(time.monotonic() - t.time, 1)}
 
     def _recording(self, p: Any) -> dict[str, Any]:
         rec: dict[str, Any] = {"on": p.recorder is not None, "path": str(p.recording_path) if p.record else None}
@@ -198,6 +222,29 @@ class LiveState:
             self._disk = (mono, d)
         rec["disk"] = self._disk[1]
         return rec
+
+
+def _actuation_firings(p: Any) -> list[str]:
+    """The last firings of the actuation rules, read from any sink that keeps a `firings` log of rows
+    (flytrack_host.actuation's FiringLog: FIRINGS rows) - duck-typed, so the page needs no actuation."""
+    lines: list[str] = []
+    for sink in list(getattr(p, "sinks", [])):
+        log = getattr(sink, "firings", None)
+        rows = getattr(log, "rows", None)
+        if not isinstance(rows, list):
+            continue
+        lines.append(f"{getattr(log, 'count', len(rows))} actions fired, {getattr(log, 'failed', 0)} failed")
+        for r in rows[-RULE_LINES:]:
+            try:
+                r0 = r[0]
+                lat = (float(r0["time_ack"]) - float(r0["frame_time"])) * 1e3
+                err = r0["error"].decode(errors="replace")
+                lines.append(f"{r0['rule'].decode(errors='replace')} obj {int(r0['obj_id'])} -> "
+                             f"{r0['output'].decode(errors='replace')} frame {int(r0['scheduled_frame'])}"
+                             + (f" {lat:.1f} ms" if math.isfinite(lat) else "") + (f" ({err})" if err else ""))
+            except (IndexError, KeyError, TypeError, ValueError):
+                lines.append("(a firing row this page cannot read)")
+    return lines
 
 
 def _lat_summary(lat: Any) -> dict[str, float | None]:

@@ -18,7 +18,7 @@ err = Console(stderr=True)
 def load_events(path: Path) -> np.ndarray:
     """Events from a NumPy `.npy` of the event layout, or any event file the event readers open
     (AEDAT 2/3.1/4, EVT 2/3, DAT)."""
-    from flytrack_host.wingbeat.simulate import EVENT_DTYPE
+    from flytrack_host.events.files import EVENT_DTYPE, read_events
 
     if path.suffix == ".npy":
         ev = np.load(path, allow_pickle=False)
@@ -28,8 +28,6 @@ def load_events(path: Path) -> np.ndarray:
         for f in ("t", "x", "y", "p"):
             out[f] = ev[f]
         return out
-    from flytrack_host.events.files import read_events
-
     return read_events(path)
 
 
@@ -58,10 +56,12 @@ def wingbeat_command(
     simulate: float | None = typer.Option(None, "--simulate", help="First write FILE with this many seconds of a "
                                           "simulated 200 Hz fly (a 10 % frequency rise, 20 % noise events)."),
 ) -> None:
-    """Wing beats of a tethered fly from events (seed 002, part II): the fly is found in the first 0.1 s
-    (2-means on the events, body between the wings, heading across them), then each wing's leading (OFF)
-    and trailing (ON) edges are tracked by an EKF on a Fourier series and/or the weighted running average.
-    Prints frequency and amplitude per wing over time."""
+    """Wing-beat frequency and amplitude of a tethered fly from an event file (seed 002, part II).
+
+    The fly is found in the first 0.1 s (2-means on the events, body between the wings, heading across
+    them), then each wing's leading (OFF) and trailing (ON) edges are tracked by an EKF on a Fourier series
+    and/or the weighted running average. Prints frequency and amplitude per wing over time; `--plot` draws
+    the seed's figures."""
     from flytrack_host.wingbeat.analysis import score_wings, track_wings
     from flytrack_host.wingbeat.ekf import EkfParams
     from flytrack_host.wingbeat.geometry import WingbeatError

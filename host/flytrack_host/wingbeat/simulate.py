@@ -21,9 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-#: One event: t (microseconds), x, y, p (1 = ON). The same layout as flytrack_host.events' readers.
-EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "u1"],
-                        "offsets": [0, 8, 10, 12], "itemsize": 16})
+from flytrack_host.events.files import EVENT_DTYPE  # the event readers' layout: t (us), x, y, p (1 = ON)
 
 
 @dataclass

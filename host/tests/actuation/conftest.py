@@ -8,6 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.rules import parse_rules
 from flytrack_host.rig import ActuatorConfig
@@ -34,16 +35,16 @@ def drive_entries(eng: ActuationEngine, n_entries: int, fps: float = 100.0, fram
     """One object going out (x = 0) and in (x = 1.5) `n_entries` times; returns on_frame durations."""
     durations = []
     f = 0
-    t0 = time.time()
+    t0 = hostclock.now()
     for k in range(n_entries):
         if between is not None:
             between(k)
         for x in [0.0] * frames_out + [1.5] * frames_in:
             ft = t0 + f / fps
             if realtime:
-                time.sleep(max(0.0, ft + 0.002 - time.time()))
+                time.sleep(max(0.0, ft + 0.002 - hostclock.now()))
             s = time.perf_counter()
-            eng.on_frame(result(f, {1: (x, 0.0)}), ft, time.time())
+            eng.on_frame(result(f, {1: (x, 0.0)}), ft, hostclock.now())
             durations.append(time.perf_counter() - s)
             f += 1
     return durations
@@ -59,6 +60,7 @@ def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0) -> bool:
 
 
 class _Helpers:
+    BOX_RULE = BOX_RULE
     result = staticmethod(result)
     engine = staticmethod(engine)
     drive_entries = staticmethod(drive_entries)

@@ -51,7 +51,7 @@ def test_modbus_absent_at_start_then_killed_and_back(act) -> None:  # noqa: ANN0
     logs: list[str] = []
     eng = act.engine(COIL, [ActuatorConfig(name="valve", kind="modbus", address=f"127.0.0.1:{port}", timeout_s=0.3)])
     eng._log = logs.append  # the pipeline's log in a live run
-    eng.warn.sink = logs.append
+    eng.warn.log = logs.append
     eng.start()
     peer = ModbusPeer(port=port)
     durations = act.drive_entries(eng, 1)  # nobody listens: the firing fails, tracking goes on
@@ -77,7 +77,7 @@ def test_modbus_absent_at_start_then_killed_and_back(act) -> None:  # noqa: ANN0
     assert failed.tolist() == [True, False, True, False]
     assert eng.summary()["outputs"]["valve"]["errors"] == 2
     # The tracking thread's part never waited for the dead device.
-    assert max(durations) < 0.05, max(durations)
+    assert max(durations) < 0.2, max(durations)
 
 
 def test_slow_device_never_delays_tracking_and_full_queue_is_counted(act) -> None:  # noqa: ANN001
@@ -88,7 +88,7 @@ def test_slow_device_never_delays_tracking_and_full_queue_is_counted(act) -> Non
         eng.start()
         assert act.wait_for(lambda: eng.workers["valve"].output.connected, 5.0)
         durations = act.drive_entries(eng, 4, frames_out=3, frames_in=2)
-        assert max(durations) < 0.05, max(durations)  # 4 writes of 0.3 s each were asked within 20 frames
+        assert max(durations) < 0.2, max(durations)  # 4 writes of 0.3 s each (1.2 s) were asked within 20 frames
         eng.close()
         s = eng.summary()["outputs"]["valve"]
         assert s["dropped"] >= 1 and "queue full" in s["last_error"]

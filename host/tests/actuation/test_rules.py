@@ -64,6 +64,8 @@ output = "hscam"
     ("[[rules]]\nname = \"a\"\ndry_run = true\n[rules.when]\ninside = { box = { min = [0, 0, 0], max = [1, 1, 1] }, "
      "sphere = { center = [0, 0, 0], radius = 1 } }\n", "exactly one of box, cylinder, sphere, polygon"),
     ("[[rules]]\nname = \"a\"\ndry_run = true\n[rules.when]\naltitude_m = [0, nan]\n", "not a finite number"),
+    ("[[rules]]\nname = \"a\"\ndry_run = true\nobjects = \"frist\"\n[rules.when]\naltitude_m = [0, 1]\n",
+     "rules[0] 'a'.objects: objects is \"any\", \"first\" or a track id (an integer >= 0), not 'frist'"),
 ])
 def test_bad_rules_files(tmp_path: Path, text: str, expect: str) -> None:
     with pytest.raises(RulesError) as ei:
@@ -211,3 +213,13 @@ def test_reachable_frame_and_prediction() -> None:
     assert reachable_frame(10, math.nan, 0.0, 0.0, 0.01) == 11
     s = predict_states(np.array([[1.0, 2, 3, 1, -1, 0.5]]), 0.02)
     assert s[0, :3].tolist() == pytest.approx([1.02, 1.98, 3.01])
+
+
+def test_engine_forgets_histories_when_trigger_frames_restart(act) -> None:  # noqa: ANN001
+    eng = act.engine([], [], rule={**act.BOX_RULE, "dry_run": True, "cooldown_s": 0.1})
+    act.drive_entries(eng, 3)  # entries at frames 30, 65, 100
+    assert len(eng.fires) == 3
+    # The trigger re-armed (frame 0 again, a new tracker): the entry at the new frame 30 fires. Without the
+    # reset the last firing "at frame 101" would keep the cooldown on until the count passed it again.
+    act.drive_entries(eng, 1)
+    assert [f.condition_frame for f in eng.fires] == [30, 65, 100, 30]

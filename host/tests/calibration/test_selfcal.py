@@ -223,13 +223,19 @@ def test_board_intrinsics_are_held_fixed() -> None:
     fixed = self_calibrate(rig.obs, intrinsics=intr, seed=0)
     for n, c in fixed.cameras.items():
         assert np.array_equal(c.K, intr[n].K) and np.array_equal(c.dist, intr[n].dist), n
-    assert abs(reprojection_error(fixed.cameras, rig.obs, truth_inliers) / floor - 1.0) < 0.2
+    r_fixed = reprojection_error(fixed.cameras, rig.obs, truth_inliers) / floor
+    r_free = reprojection_error(free.cameras, rig.obs, truth_inliers) / floor
+    print(f"\nreprojection / noise floor: fixed {r_fixed:.4f}, free {r_free:.4f}")
+    # The README says "within 3 % of the noise floor in each case": this is that check.
+    assert abs(r_fixed - 1.0) < 0.03 and abs(r_free - 1.0) < 0.03
     assert centre_error(fixed.cameras, rig.cameras) <= centre_error(free.cameras, rig.cameras)
     assert centre_error(fixed.cameras, rig.cameras) < 0.01 * rig.arena_size
     # --refine-intrinsics: the file is only a start, the bundle adjustment moves K (the old behaviour).
     refined = self_calibrate(rig.obs, intrinsics=intr, seed=0, refine_intrinsics=True)
     assert all(not np.array_equal(c.K, intr[n].K) for n, c in refined.cameras.items())
-    assert abs(reprojection_error(refined.cameras, rig.obs, truth_inliers) / floor - 1.0) < 0.2
+    r_refined = reprojection_error(refined.cameras, rig.obs, truth_inliers) / floor
+    print(f"reprojection / noise floor: refined {r_refined:.4f}")
+    assert abs(r_refined - 1.0) < 0.03
     assert centre_error(refined.cameras, rig.cameras) < 0.01 * rig.arena_size
 
 

@@ -193,3 +193,12 @@ def test_tracker_follows_fish_under_water_on_the_numpy_path(caplog) -> None:  # 
     s2 = score_frames(sc.truth, [{e.obj_id: e.state[:3] for e in r.estimates} for r in res2])
     print(f"water ignored: {s2.line()}")
     assert not (s2.rmse_mm < 2.0 and s2.mota > 0.9)
+
+
+def test_triangulate_rays_leaves_out_a_line_that_is_not_finite():
+    from flytrack_host.refraction import triangulate_rays
+
+    o = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    d = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [np.nan, 0.0, 1.0]])
+    assert np.allclose(triangulate_rays(o, d), [0.0, 0.0, 1.0])  # the two good lines meet there
+    assert np.all(np.isnan(triangulate_rays(o[[0, 2]], d[[0, 2]])))  # one line left: no point

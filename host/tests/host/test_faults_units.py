@@ -207,13 +207,46 @@ def test_one_sender_per_camera_and_a_new_port_after_silence_is_a_restart(helpers
         assert [f.camera_frame for f in got] == list(range(5))
         assert rx.stats.cameras[0].second_sender == 5
         assert sum("second sender" in m for m in logs) == 1  # once, then counted
-        time.sleep(0.3)  # the first edge is gone; the new one takes over: a restart
+        time.sleep(0.3)  # the first edge went quiet: one stray datagram from elsewhere takes nothing over
+        b.send(77)
+        assert rx.receive(0.2) == [] and rx.stats.cameras[0].restarts == 0
+        a.send(5)  # the owner is back
+        assert [f.camera_frame for f in rx.receive(0.5)] == [5]
+        time.sleep(0.3)  # now it is gone for good; a new edge sends three frames: a restart
         b.seq = 0
-        b.send(0)
-        got = rx.receive(0.5)
-        assert len(got) == 1 and got[0].restarted and rx.stats.cameras[0].restarts == 1
+        for k in range(3):
+            b.send(k)
+        got = []
+        for _ in range(3):
+            got += rx.receive(0.2)
+        assert [f.camera_frame for f in got] == [0, 1, 2]  # held until confirmed, none lost
+        assert got[0].restarted and not got[1].restarted and rx.stats.cameras[0].restarts == 1
         assert rx.stats.cameras[0].reordered == 0 and rx.stats.cameras[0].lost == 0
+        # every datagram counted once: 5 + 1 from the owner, 3 from the new edge; 5 + 1 rejected/held
+        assert rx.stats.cameras[0].packets == 9 and rx.stats.datagrams == 5 + 5 + 1 + 1 + 3
     finally:
         a.close()
         b.close()
         rx.close()
+
+
+def test_a_restarted_edge_whose_first_frames_come_late_and_bunched_is_remapped():
+    # The new edge starts slowly: its first 8 frames arrive together 70 ms late, so the arrival maps
+    # them ~7 frames ahead; once its frames come paced, they arrive before their mapped pulses.
+    r = Run()
+    for k in range(100):
+        for c in (0, 1, 2):
+            r.add(frame(c, k, T0 + k * P + 0.002))
+    for k in range(100, 250):
+        t = T0 + k * P + 0.002
+        for c in (0, 2):
+            r.add(frame(c, k, t))
+        if k >= 140:
+            t1 = max(t, T0 + 147 * P + 0.002 + (k - 140) * 0.0001) if k < 148 else t
+            r.add(frame(1, k - 140, t1, restarted=(k == 140)))
+    wrong = [(cf, tf) for c, cf, tf in r.tracked_list() if c == 1 and tf >= 100 and tf != cf + 140]
+    assert r.sync.stats()[1].ahead == 1
+    assert len(wrong) <= 40  # mapped right again within 0.4 s of the restart
+    after = [(cf, tf) for c, cf, tf in r.tracked_list() if c == 1 and tf >= 140 and cf >= 40]
+    assert len(after) >= 60 and all(tf == cf + 140 for cf, tf in after)  # right from 0.4 s on
+    assert abs(r.sync.stats()[1].missed - 40) <= 1

@@ -31,5 +31,5 @@ def test_run_without_the_board_says_to_use_no_trigger(tmp_path):
     err = " ".join(p.stderr.split())
     assert "does not exist" in err and f"flytrack run {path} --no-trigger" in err
     assert not (tmp_path / "rec").exists()  # nothing recorded
-    # The example rig names an actuator; this version does not drive actuators and says so.
-    assert "actuators are not driven" in err and "highspeed (trigger_pulse)" in err
+    # The example rig names an actuator but no rules file: nothing drives it, and it says so.
+    assert "no rules file" in err and "hscam (trigger_pulse)" in err and "not driven" in err

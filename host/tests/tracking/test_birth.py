@@ -167,3 +167,20 @@ def test_budget_defers_births_to_later_frames() -> None:
 def test_budget_must_be_positive() -> None:
     with pytest.raises(ValidationError):
         TrackingParams(birth_max_hypotheses=0)
+
+
+def test_reprojection_threshold_refuses_a_pair_the_seed_gate_lets_through() -> None:
+    """Two cameras, one camera's point moved 11 px in u and v: the pair still passes the seed gate
+    (Sampson distance under 2.5 x the threshold) but its triangulated point reprojects 5.7 px off on
+    average (measured), over birth_max_reproj_px (5): no birth. A looser threshold takes it."""
+    cams = arena_cameras(2, seed=5)
+    arr = CameraArray(cams)
+    X = np.array([0.8, 0.0, 0.15])
+    bundle = _frame(cams, [X])
+    bundle.detections[1]["x_undist"] += 11.0
+    bundle.detections[1]["y_undist"] += 11.0
+    pts = Tracker(cams, TrackingParams(), 0.01)._gather(bundle)
+    free = np.ones(pts.n, dtype=bool)
+    loose = find_births(arr, pts, free, TrackingParams(birth_max_reproj_px=6.0))
+    assert len(loose) == 1 and 5.0 < loose[0].reproj_px < 6.0, [b.reproj_px for b in loose]
+    assert find_births(arr, pts, free, TrackingParams()) == []

@@ -27,17 +27,23 @@ def _track(sc: Scenario, params: TrackingParams | None = None,
     return tr, results, score_frames(sc.truth, est)
 
 
-@pytest.mark.parametrize(("n_cameras", "n_targets", "seed"), [(5, 4, 1), (4, 3, 2), (5, 3, 3)])
+# Measured (C kernel, this code): RMSE 1.051 / 1.212 / 1.018 mm, MOTA 0.9955 / 0.9963 / 0.9961. The
+# bounds sit about 20 % above: RMSE x 1.2, and the MOTA's error share (1 - MOTA) x 1.2. A 4x wrong R
+# (measurement_noise_px 4) gives RMSE 2.17 / 1.98 / 1.68 mm and fails every case.
+@pytest.mark.parametrize(("n_cameras", "n_targets", "seed", "rmse_mm", "mota"),
+                         [(5, 4, 1, 1.051, 0.9955), (4, 3, 2, 1.212, 0.9963), (5, 3, 3, 1.018, 0.9961)])
 @KERNELS
-def test_accuracy_on_synthetic_flights(n_cameras: int, n_targets: int, seed: int, kernel: str) -> None:
+def test_accuracy_on_synthetic_flights(n_cameras: int, n_targets: int, seed: int, rmse_mm: float, mota: float,
+                                       kernel: str) -> None:
     sc = make_scenario(n_cameras=n_cameras, n_targets=n_targets, duration_s=10.0, noise_px=0.5, p_miss=0.05,
                        false_positives_per_camera=0.3, close_pass_m=0.006, seed=seed)
     # The scenario really is hard where it should be: a close pass with merged blobs, false positives.
     assert sc.closest_approach_m <= 0.0061 and sc.n_merged_blobs > 0 and sc.n_false_positives > 500
     tr, _, s = _track(sc, kernel=kernel)
     print(f"\n{n_cameras} cameras, {n_targets} targets: {s.line()}\n  stats {tr.stats}")
-    assert s.rmse_mm < 2.0
-    assert s.mota > 0.95
+    assert s.rmse_mm < 1.2 * rmse_mm
+    assert 1.0 - s.mota < 1.2 * (1.0 - mota)
+    assert s.duplicates == 0 and s.id_switches == 0
     assert s.idf1 > 0.9
     assert s.merges == 0 and s.duplicates == 0  # no track for two animals, no two tracks on one
     assert s.id_switches <= 1
@@ -51,7 +57,8 @@ def test_nan_and_inf_points_are_skipped_and_counted(kernel: str) -> None:
     assert tr.stats["nonfinite_points"] == sc.n_corrupted
     assert tr.stats["points"] + tr.stats["nonfinite_points"] == sc.n_points
     print(f"\nwith {sc.n_corrupted} corrupted points: {s.line()}")
-    assert s.rmse_mm < 2.0 and s.mota > 0.95
+    # Measured RMSE 1.157 mm, MOTA 0.9916: bounds about 20 % above (RMSE, and the MOTA's error share).
+    assert s.rmse_mm < 1.39 and 1.0 - s.mota < 1.2 * (1.0 - 0.9916)
 
 
 @KERNELS
@@ -75,7 +82,7 @@ def test_one_camera_out_for_a_while_then_back(kernel: str) -> None:
     assert all(e.n_cameras <= 4 for r in results[100:300] for e in r.estimates)
     assert all(a.camera_index != 2 for r in results[100:300] for a in r.associations)
     assert all(e.n_cameras == 5 for r in results[302:] for e in r.estimates)
-    assert s.id_switches == 0 and s.rmse_mm < 2.0
+    assert s.id_switches == 0 and s.rmse_mm < 1.34  # measured 1.120 mm
 
 
 @KERNELS
@@ -123,7 +130,7 @@ def test_skipped_trigger_frames_use_the_right_dt(kernel: str) -> None:
                    [sc.truth_axis[b.trigger_frame] for b in kept])
     tr, _, s = _track(sub, kernel=kernel)
     assert tr.stats["skipped_frames"] == len(sc.bundles) - len(kept) - (0 if sc.bundles[-1] in kept else 1)
-    assert s.rmse_mm < 2.0 and s.id_switches == 0
+    assert s.rmse_mm < 1.64 and s.id_switches == 0  # measured 1.365 mm
 
 
 @KERNELS
@@ -167,4 +174,28 @@ def test_flydra_association_with_merge_prevention_does_not_merge(kernel: str) ->
     tr, _, s = _track(sc, TrackingParams(exclusive_points=False), kernel)
     print(f"\nflydra association: {s.line()}, merges prevented {tr.stats['merges_prevented']}")
     assert tr.stats["merges_prevented"] > 0
-    assert s.merges == 0 and s.duplicates == 0 and s.id_switches <= 1 and s.rmse_mm < 2.0
+    assert s.merges == 0 and s.duplicates == 0 and s.id_switches <= 1 and s.rmse_mm < 1.41  # measured 1.175
+
+
+@pytest.mark.c_kernel  # the C path only, for time; test_kernel.py holds the NumPy path to the same results
+def test_support_rules_end_lingering_and_duplicate_tracks(kernel: str = "c") -> None:
+    """11 cameras x 10 targets (the bench's hardest size, 400 frames from frame 600): targets leave
+    mid-air while false positives keep arriving (9 leave in these frames). Measured with the support
+    rules: no duplicate, 32 false positives (about 3.5 frames per exit). Without them (all three off):
+    417 false positives, a track that lost its animal coasts on chance false positives, wanders onto
+    another animal and stays as its duplicate (3 episodes, 248 frames)."""
+    sc = make_scenario(n_cameras=11, n_targets=10, duration_s=10.0, close_pass_m=0.006, seed=1)
+    exits = sum(1 for i in sc.truth[600] if i not in sc.truth[-1])
+    assert exits == 9  # the scenario has what the rules are for
+    _, results, s = _track(sc, kernel=kernel)
+    est = [{e.obj_id: e.state[:3] for e in r.estimates} for r in results]
+    late = score_frames(sc.truth[600:], est[600:])
+    print(f"\nwith the rules: {late.line()}")
+    assert late.duplicates == 0 and late.false_positives <= 38, late.line()
+    off = TrackingParams(death_weak_frames=0, report_max_coast_frames=0, duplicate_distance_m=0.0)
+    _, results, s_off = _track(sc, off, kernel=kernel)
+    est = [{e.obj_id: e.state[:3] for e in r.estimates} for r in results]
+    late_off = score_frames(sc.truth[600:], est[600:])
+    print(f"without: {late_off.line()}")
+    assert late_off.duplicates >= 1 and late_off.false_positives > 5 * late.false_positives, late_off.line()
+    assert s.mota > s_off.mota + 0.03

@@ -15,13 +15,15 @@
 #define FT_DVS_RESET_BIT 0x4000u
 #define FT_DVS_WRAP_BIT 0x8000u
 #define FT_DVS_WRAP_US 0x4000u
+#define FT_DVS_SYNC_BIT 0x80u /* in byte 1: an external-input (sync) event */
 
 #define FT_DVS_EVENT 0 /* an address event */
 #define FT_DVS_RESET 1 /* the device zeroed its timestamp counter */
 #define FT_DVS_WRAP 2  /* the 14-bit counter wrapped */
+#define FT_DVS_SYNC 3  /* an external-input (sync) event at ts: the bridge's frame-pulse input */
 
 typedef struct {
-    uint8_t kind;     /* FT_DVS_EVENT, FT_DVS_RESET, FT_DVS_WRAP */
+    uint8_t kind;     /* FT_DVS_EVENT, FT_DVS_RESET, FT_DVS_WRAP, FT_DVS_SYNC */
     uint8_t x;        /* 0..127 */
     uint8_t y;        /* 0..127 */
     uint8_t polarity; /* 1 = ON (brighter) */
@@ -33,7 +35,8 @@ typedef struct {
     uint8_t x, y, polarity;
 } ft_dvs_event;
 
-/* BAD_FIELD if the reserved bit (byte 1, bit 7) is set or RESET and WRAP are both set. */
+/* BAD_FIELD if RESET and WRAP are both set, or SYNC (byte 1, bit 7) is set on a RESET or WRAP word.
+ */
 static inline ft_err ft_dvs_word_decode(const uint8_t *p, ft_dvs_word *w) {
     uint16_t t = ft_ld_u16(p + 2);
     /* *w is filled also on error */
@@ -41,10 +44,13 @@ static inline ft_err ft_dvs_word_decode(const uint8_t *p, ft_dvs_word *w) {
     w->polarity = (uint8_t)(p[0] & 1u);
     w->y = (uint8_t)(p[1] & 0x7Fu);
     w->ts = (uint16_t)(t & FT_DVS_TS_MASK);
-    w->kind = (t & FT_DVS_RESET_BIT)  ? FT_DVS_RESET
-              : (t & FT_DVS_WRAP_BIT) ? FT_DVS_WRAP
-                                      : FT_DVS_EVENT;
-    if ((p[1] & 0x80u) || ((t & FT_DVS_RESET_BIT) && (t & FT_DVS_WRAP_BIT)))
+    w->kind = (t & FT_DVS_RESET_BIT)     ? FT_DVS_RESET
+              : (t & FT_DVS_WRAP_BIT)    ? FT_DVS_WRAP
+              : (p[1] & FT_DVS_SYNC_BIT) ? FT_DVS_SYNC
+                                         : FT_DVS_EVENT;
+    if ((t & FT_DVS_RESET_BIT) && (t & FT_DVS_WRAP_BIT))
+        return FT_E_BAD_FIELD;
+    if ((p[1] & FT_DVS_SYNC_BIT) && (t & (FT_DVS_RESET_BIT | FT_DVS_WRAP_BIT)))
         return FT_E_BAD_FIELD;
     return FT_OK;
 }
@@ -53,7 +59,7 @@ static inline ft_err ft_dvs_word_decode(const uint8_t *p, ft_dvs_word *w) {
 static inline ft_err ft_dvs_word_encode(uint8_t *p, const ft_dvs_word *w) {
     uint16_t t;
     if (w->x > 127 || w->y > 127 || w->polarity > 1 || w->ts > FT_DVS_TS_MASK ||
-        w->kind > FT_DVS_WRAP)
+        w->kind > FT_DVS_SYNC)
         return FT_E_BAD_FIELD;
     t = w->ts;
     if (w->kind == FT_DVS_RESET)
@@ -61,13 +67,13 @@ static inline ft_err ft_dvs_word_encode(uint8_t *p, const ft_dvs_word *w) {
     else if (w->kind == FT_DVS_WRAP)
         t |= FT_DVS_WRAP_BIT;
     p[0] = (uint8_t)((w->x << 1) | w->polarity);
-    p[1] = w->y;
+    p[1] = (uint8_t)(w->y | (w->kind == FT_DVS_SYNC ? FT_DVS_SYNC_BIT : 0u));
     ft_st_u16(p + 2, t);
     return FT_OK;
 }
 
 /* Checks a whole USB packet: TRUNCATED if its size is not a multiple of 4, else the first bad
- * word's error. *n_events counts the address events in it. */
+ * word's error. *n_events counts the address events in it (not SYNC words). */
 static inline ft_err ft_dvs_packet_check(const uint8_t *buf, size_t len, size_t *n_events) {
     size_t i;
     ft_dvs_word w;
@@ -83,16 +89,22 @@ static inline ft_err ft_dvs_packet_check(const uint8_t *buf, size_t len, size_t 
     return FT_OK;
 }
 
-/* The running decoder: t = offset + ts, offset += 0x4000 per WRAP, 0 after RESET. */
+/* The running decoder: t = offset + ts, offset += 0x4000 per WRAP, 0 after RESET. A SYNC word's
+ * time goes to sync_t_us, and n_sync counts them. */
 typedef struct {
     uint64_t offset;
+    uint64_t sync_t_us;
+    uint32_t n_sync;
 } ft_dvs_decoder;
 
 static inline void ft_dvs_decoder_init(ft_dvs_decoder *d) {
     d->offset = 0;
+    d->sync_t_us = 0;
+    d->n_sync = 0;
 }
 
-/* Applies one decoded word; returns 1 and fills *ev for an address event, else 0. */
+/* Applies one decoded word; returns 1 and fills *ev for an address event, else 0 (a SYNC word: 0,
+ * with d->sync_t_us set and d->n_sync counted). */
 static inline int ft_dvs_apply(ft_dvs_decoder *d, const ft_dvs_word *w, ft_dvs_event *ev) {
     if (w->kind == FT_DVS_RESET) {
         d->offset = 0;
@@ -100,6 +112,11 @@ static inline int ft_dvs_apply(ft_dvs_decoder *d, const ft_dvs_word *w, ft_dvs_e
     }
     if (w->kind == FT_DVS_WRAP) {
         d->offset += FT_DVS_WRAP_US;
+        return 0;
+    }
+    if (w->kind == FT_DVS_SYNC) {
+        d->sync_t_us = d->offset + w->ts;
+        d->n_sync++;
         return 0;
     }
     ev->t_us = d->offset + w->ts;

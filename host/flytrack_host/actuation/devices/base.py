@@ -4,13 +4,15 @@ The tracking thread only puts a job on the device's bounded queue (`OutputWorker
 blocks; a full queue drops the job, counted and recorded as an error). The worker connects, performs
 the jobs one by one and reports each outcome; a failure closes the connection, and the worker
 reconnects on its own every `RECONNECT_S` (also while no job comes), so a device that was absent at
-start or went away mid-run is back as soon as it answers. Failures are logged rate-limited.
+start or went away mid-run is back as soon as it answers. Failures are logged rate-limited per kind
+(the host's `ratelog.RateLimitedLog`: the first at once, then a count every few seconds).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 import queue
 import threading
 import time
@@ -19,7 +21,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.rules import Action
+from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig
 
 log = logging.getLogger("flytrack.actuation")
@@ -27,6 +31,7 @@ log = logging.getLogger("flytrack.actuation")
 RECONNECT_S = 0.5
 LEAD_SAMPLES = 50
 LEAD_MARGIN_S = 0.5e-3
+WORKER_NICE = -5
 
 
 class OutputError(RuntimeError):
@@ -44,7 +49,7 @@ class Job:
     pos: tuple[float, float, float]
     action: Action
     predicted: bool
-    queued_at: float = field(default_factory=time.time)
+    queued_at: float = field(default_factory=hostclock.now)
 
 
 @dataclass
@@ -126,28 +131,6 @@ class Output:
         pass
 
 
-class RateLimitedLog:
-    """Logs the first `burst` messages of a key, then at most one every `every_s` with a count."""
-
-    def __init__(self, sink: Callable[[str], None], burst: int = 5, every_s: float = 10.0):
-        self.sink = sink
-        self.burst = burst
-        self.every_s = every_s
-        self._n: dict[str, int] = {}
-        self._last: dict[str, float] = {}
-        self._held: dict[str, int] = {}
-
-    def __call__(self, key: str, message: str) -> None:
-        n = self._n[key] = self._n.get(key, 0) + 1
-        now = time.monotonic()
-        if n <= self.burst or now - self._last.get(key, -math.inf) >= self.every_s:
-            held = self._held.pop(key, 0)
-            self._last[key] = now
-            self.sink(message + (f" ({held} more like it not shown)" if held else ""))
-        else:
-            self._held[key] = self._held.get(key, 0) + 1
-
-
 @dataclass
 class WorkerStats:
     sent: int = 0
@@ -157,6 +140,7 @@ class WorkerStats:
     connects: int = 0
     connect_failures: int = 0
     last_error: str = ""
+    priority_raised: bool = False
 
 
 class OutputWorker:
@@ -207,6 +191,13 @@ class OutputWorker:
         return True
 
     def _run(self) -> None:
+        # A device thread sleeps almost always and must run at once when a command comes: nice -5 for
+        # this thread (Linux: per thread; when allowed), so a busy machine delays it less.
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
+            self.stats.priority_raised = True
+        except (PermissionError, OSError):
+            pass
         while True:
             try:
                 job = self.q.get(timeout=RECONNECT_S)
@@ -233,7 +224,7 @@ class OutputWorker:
         try:
             done = self.output.perform(job)
         except Exception as exc:
-            out.time_sent = time.time()
+            out.time_sent = hostclock.now()
             out.error = f"{type(exc).__name__}: {exc}"
             self.stats.errors += 1
             self.stats.last_error = out.error

@@ -7,8 +7,7 @@ or put on the bus for the virtual and UDP interfaces).
 
 from __future__ import annotations
 
-import time
-
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 
@@ -39,12 +38,12 @@ class CanOutput(Output):
         if self.bus is None:
             raise OutputError("not connected")
         msg = can.Message(arbitration_id=int(a.can_id or 0), data=bytes(a.data or []), is_extended_id=a.extended)
-        t0 = time.time()
+        t0 = hostclock.now()
         try:
             self.bus.send(msg, timeout=self.cfg.timeout_s)
         except can.CanError as exc:
             raise OutputError(f"CAN send failed: {exc}") from None
-        return Done(t0, time.time())
+        return Done(t0, hostclock.now())
 
     def _close(self) -> None:
         if self.bus is not None:

@@ -4,9 +4,9 @@ behind a thin seam, `HidBackend`: the real one wraps `hid.device`; the tests giv
 
 from __future__ import annotations
 
-import time
 from typing import Protocol
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 
@@ -53,11 +53,11 @@ class HidOutput(Output):
             raise OutputError("not connected")
         a = job.action
         report = bytes([a.report_id or 0]) + bytes(a.data or [])  # hidapi: first byte is the report id
-        t0 = time.time()
+        t0 = hostclock.now()
         n = self.handle.write(report)
         if n < 0:
             raise OutputError("hid write failed (device gone?)")
-        return Done(t0, time.time())
+        return Done(t0, hostclock.now())
 
     def _close(self) -> None:
         if self.handle is not None:

@@ -7,8 +7,7 @@ worker reconnects, rather than the command arriving seconds late.
 
 from __future__ import annotations
 
-import time
-
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 
@@ -43,7 +42,7 @@ class ModbusOutput(Output):
         client = self.client
         if client is None:
             raise OutputError("not connected")
-        t0 = time.time()
+        t0 = hostclock.now()
         try:
             if a.coil is not None:
                 rr = client.write_coil(a.coil, bool(a.value), device_id=self.cfg.unit)
@@ -51,7 +50,7 @@ class ModbusOutput(Output):
                 rr = client.write_register(a.reg, int(a.value or 0), device_id=self.cfg.unit)
         except ModbusException as exc:
             raise OutputError(f"Modbus write failed: {exc}") from None
-        t1 = time.time()
+        t1 = hostclock.now()
         if rr.isError():
             raise OutputError(f"device refused the write: {rr}")
         return Done(t0, t1)

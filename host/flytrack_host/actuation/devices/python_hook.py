@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 
@@ -58,6 +58,6 @@ class PythonHookOutput(Output):
         x, y, z = job.pos
         firing = {"rule": job.rule, "obj_id": job.obj_id, "condition_frame": job.condition_frame,
                   "scheduled_frame": job.scheduled_frame, "x": x, "y": y, "z": z}
-        t0 = time.time()
+        t0 = hostclock.now()
         self.fn(firing, **job.action.params)
-        return Done(t0, time.time())
+        return Done(t0, hostclock.now())

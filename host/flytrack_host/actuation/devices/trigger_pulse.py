@@ -13,13 +13,24 @@ records that frame (from the trigger clock) and that it was late.
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 from flytrack_host.trigger.common import TriggerError
 
 DEFAULT_WIDTH_MS = 1.0
+
+
+def _request_wire_s(dev: Any) -> float:
+    """Time a PULSE request takes on the wire (delimiter + frame, 10 bits a byte) and the firmware's
+    dispatch, from the protocol's own encoder."""
+    from flytrack_host.protocol import trigger_link as tl
+    from flytrack_host.trigger.device import FIRMWARE_SAMPLE_DELAY_S
+
+    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", 115200) or 115200)
+    n = len(b"\0" + tl.encode_message(tl.Pulse(0, 0, 1), 1))
+    return n * 10 / baud + FIRMWARE_SAMPLE_DELAY_S
 
 
 class TriggerPulseOutput(Output):
@@ -45,14 +56,17 @@ class TriggerPulseOutput(Output):
         dev = self._device()
         a = job.action
         if self.cfg.channel != 0:
-            t0 = time.time()
+            t0 = hostclock.now()
             dev.set_output(self.cfg.channel, a.level or 0)
-            return Done(t0, time.time())
+            return Done(t0, hostclock.now())
         width = (a.width_ms or DEFAULT_WIDTH_MS) / 1e3
         try:
             t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width)
             return Done(t0, t1, job.scheduled_frame, True)
         except TriggerError as exc:
+            if "BUSY" in str(exc):
+                raise OutputError("the firmware holds one pulse at a time and one is still waiting for its "
+                                  "frame (or the trigger is stopped): this pulse is dropped") from None
             if "BAD_ARG" not in str(exc) or job.scheduled_frame < 0:
                 raise
         # Too late for that frame: pulse at the earliest frame the firmware can still reach.
@@ -60,7 +74,10 @@ class TriggerPulseOutput(Output):
         clock = self.context.get("clock")
         est = -1
         if clock is not None:
-            f = clock.host_time_to_frame(t1)
+            # The PULSE reached the firmware its wire time after it was written (t0 is taken just
+            # before the write; the ACK's arrival also waits for this host's reader thread); it then
+            # takes the frame after next (the next one's arming point is 100 us into this frame).
+            f = clock.host_time_to_frame(t0 + _request_wire_s(dev))
             if math.isfinite(f):
                 est = int(math.floor(f)) + 2
         return Done(t0, t1, est, False, note=f"late: frame {job.scheduled_frame} had passed; pulsed at the "

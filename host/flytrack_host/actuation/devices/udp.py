@@ -6,8 +6,8 @@ UDP has no acknowledgement: `time_ack` is when `sendto` returned.
 from __future__ import annotations
 
 import socket
-import time
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 
@@ -29,9 +29,9 @@ class UdpOutput(Output):
         text = job.action.payload or "{rule} {obj_id} {frame} {x:.4f} {y:.4f} {z:.4f}"
         x, y, z = job.pos
         data = text.format(rule=job.rule, obj_id=job.obj_id, frame=job.scheduled_frame, x=x, y=y, z=z).encode()
-        t0 = time.time()
+        t0 = hostclock.now()
         self.sock.sendto(data, self.dest)
-        return Done(t0, time.time())
+        return Done(t0, hostclock.now())
 
     def _close(self) -> None:
         if self.sock is not None:

@@ -5,9 +5,9 @@ acknowledgement (a control transfer completes after its status stage)."""
 
 from __future__ import annotations
 
-import time
 from typing import Any, Protocol
 
+from flytrack_host import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 
@@ -59,13 +59,13 @@ class UsbOutput(Output):
         a = job.action
         ms = max(1, int(self.cfg.timeout_s * 1000))
         data = bytes(a.data or [])
-        t0 = time.time()
+        t0 = hostclock.now()
         if a.endpoint is not None:
             self.handle.write(a.endpoint, data, ms)
         else:
             self.handle.ctrl_transfer(int(a.request_type or 0), int(a.request or 0), int(a.w_value or 0),
                                       int(a.w_index or 0), data, ms)
-        return Done(t0, time.time())
+        return Done(t0, hostclock.now())
 
     def _close(self) -> None:
         if self.handle is not None:

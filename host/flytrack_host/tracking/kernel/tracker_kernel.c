@@ -136,6 +136,8 @@ static void project(const double *cams, const ftk_buffers *b, int64_t T) {
         double k1 = cm[FTK_CAM_DIST], k2 = cm[FTK_CAM_DIST + 1], p1 = cm[FTK_CAM_DIST + 2];
         double p2 = cm[FTK_CAM_DIST + 3], k3 = cm[FTK_CAM_DIST + 4];
         double pv[2] = {p1, p2}, ps[2] = {p2, p1};
+        /* flydra's model: the distortion acts on q = A q0 + b (K_dist^-1 K), not on q0 itself. */
+        const double *A = cm + FTK_CAM_DFA;
         for (int64_t t = 0; t < T; t++) {
             const double *X = b->x + 6 * t;
             int64_t ct = c * T + t;
@@ -145,7 +147,8 @@ static void project(const double *cams, const ftk_buffers *b, int64_t T) {
             double z = Xc[2];
             int front = z > 1e-9;
             double zi = 1.0 / (front ? z : 1.0);
-            double q[2] = {Xc[0] * zi, Xc[1] * zi};
+            double q0[2] = {Xc[0] * zi, Xc[1] * zi};
+            double q[2] = {A[0] * q0[0] + A[1] * q0[1] + A[4], A[2] * q0[0] + A[3] * q0[1] + A[5]};
             double qq[2] = {q[0] * q[0], q[1] * q[1]};
             double r2 = qq[0] + qq[1];
             double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
@@ -157,7 +160,7 @@ static void project(const double *cams, const ftk_buffers *b, int64_t T) {
                 qd[i] = q[i] * radial + 2.0 * pv[i] * xy + ps[i] * (r2 + 2.0 * qq[i]);
             b->puv[2 * ct] = qd[0] * fx + qd[1] * skew + cx;
             b->puv[2 * ct + 1] = qd[0] * 0.0 + qd[1] * fy + cy;
-            double Dd[2][2], KD[2][2], G[2][3];
+            double Dd[2][2], KD[2][2], KDA[2][2], G[2][3];
             for (int i = 0; i < 2; i++)
                 for (int j = 0; j < 2; j++) {
                     Dd[i][j] = 2.0 * dradial * (q[i] * q[j]);
@@ -171,12 +174,15 @@ static void project(const double *cams, const ftk_buffers *b, int64_t T) {
                 KD[1][j] = 0.0 * Dd[0][j] + fy * Dd[1][j];
             }
             for (int i = 0; i < 2; i++)
+                for (int j = 0; j < 2; j++)
+                    KDA[i][j] = KD[i][0] * A[j] + KD[i][1] * A[2 + j];
+            for (int i = 0; i < 2; i++)
                 for (int k = 0; k < 3; k++)
-                    G[i][k] = R[3 * i + k] - q[i] * R[6 + k];
+                    G[i][k] = R[3 * i + k] - q0[i] * R[6 + k];
             double *J = b->J + 6 * ct;
             for (int i = 0; i < 2; i++)
                 for (int k = 0; k < 3; k++)
-                    J[3 * i + k] = (KD[i][0] * G[0][k] + KD[i][1] * G[1][k]) * zi;
+                    J[3 * i + k] = (KDA[i][0] * G[0][k] + KDA[i][1] * G[1][k]) * zi;
             b->front[ct] = (uint8_t)front;
         }
     }

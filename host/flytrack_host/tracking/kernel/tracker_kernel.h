@@ -17,7 +17,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define FTK_ABI_VERSION 2
+#define FTK_ABI_VERSION 3
 
 /* A protocol point is 11 little-endian 4-byte words (protocol/SPEC.md); the ones read here. */
 #define FTK_POINT_WORDS 11
@@ -26,12 +26,13 @@
 enum {
     FTK_CAM_R = 0,       /* 3x3 world -> camera rotation, row-major */
     FTK_CAM_T = 9,       /* translation (3) */
-    FTK_CAM_K = 12,      /* fx, skew, cx, fy, cy */
+    FTK_CAM_K = 12,      /* fx, skew, cx, fy, cy of the distortion's K (Camera.Kd) */
     FTK_CAM_DIST = 17,   /* k1, k2, p1, p2, k3 (OpenCV) */
     FTK_CAM_CENTER = 22, /* camera centre in the world (3) */
     FTK_CAM_RAYB = 25,   /* 3x3 R^T K^-1: world ray direction of an undistorted pixel */
     FTK_CAM_P = 34,      /* 3x4 undistorted-pixel projection matrix */
-    FTK_CAM_STRIDE = 46
+    FTK_CAM_DFA = 46,    /* distortion frame q = A q0 + b: a00 a01 a10 a11 b0 b1 (OpenCV: I, 0) */
+    FTK_CAM_STRIDE = 52
 };
 
 typedef struct {

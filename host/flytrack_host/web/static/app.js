@@ -53,7 +53,7 @@ function drawHist(lat) {
   lat.counts.forEach((v, i) => { const h = (H - 30) * v / max; g.fillRect(30 + i * bw, H - 20 - h, Math.max(bw - 1, 1), h); });
   g.fillStyle = "#52606d";
   g.fillText("0", 30, H - 6); g.fillText(`${(n * lat.bin_ms).toFixed(1)} ms`, W - 50, H - 6);
-  g.fillText(`n ${lat.n}`, W - 70, 12);
+  g.fillText(`n ${lat.n}` + (lat.beyond ? `, ${lat.beyond} beyond` : ""), W - 130, 12);
 }
 
 function tile(cam) {
@@ -65,7 +65,7 @@ function tile(cam) {
       <div class="nums"><span>fps <b class="fps"></b></span><span>rx <b class="rx"></b></span>
       <span>lost <b class="lost"></b></span><span>late <b class="late"></b></span>
       <span>latency <b class="latency"></b></span><span>points <b class="npts"></b></span></div>
-      <canvas width="160" height="120"></canvas><div class="thumb"></div>`;
+      <canvas width="160" height="120"></canvas><img class="thumbimg" alt="" hidden><div class="thumb"></div>`;
     $("cameras").appendChild(el);
   }
   el.classList.toggle("dead", !cam.alive);
@@ -73,8 +73,16 @@ function tile(cam) {
   set(".name", cam.name); set(".state", cam.alive ? "alive" : "DEAD");
   set(".fps", cam.fps === null ? "-" : cam.fps.toFixed(1)); set(".rx", cam.rx);
   set(".lost", cam.lost); set(".late", cam.late);
-  set(".latency", cam.latency_ms === null ? "-" : `${cam.latency_ms.toFixed(2)} ms`); set(".npts", cam.n_points);
-  set(".thumb", cam.thumbnail ? "" : "no image from this edge");
+  set(".latency", cam.latency_ms === null ? "-" : `${cam.latency_ms.toFixed(1)} ms`); set(".npts", cam.n_points);
+  const img = el.querySelector(".thumbimg");
+  if (cam.thumbnail) {
+    const src = `thumb/${cam.index}.png?id=${cam.thumbnail.id}`;
+    if (img.getAttribute("src") !== src) img.setAttribute("src", src);
+    img.hidden = false;
+    set(".thumb", `image of camera frame ${cam.thumbnail.camera_frame}, ${cam.thumbnail.age_s} s ago`);
+  } else {
+    set(".thumb", "no image from this edge");
+  }
   const c = el.querySelector("canvas"), g = c.getContext("2d");
   g.fillStyle = "#111"; g.fillRect(0, 0, c.width, c.height);
   const sx = c.width / (cam.width || 640), sy = c.height / (cam.height || 480);
@@ -89,7 +97,7 @@ function render(s) {
   f.updateTimes.push(now); if (f.updateTimes.length > 600) f.updateTimes.shift();
   // The page's delay: from the newest frame's estimate to now, counted when a new frame arrived.
   if (s.last_estimate_time && (!f.prev || s.frame !== f.prev.frame)) {
-    f.delays.push(now - s.last_estimate_time); if (f.delays.length > 600) f.delays.shift();
+    f.delays.push(now - (s.last_estimate_time + (s.wall_offset || 0))); if (f.delays.length > 600) f.delays.shift();
   }
   f.prev = s;
   $("rig").textContent = s.rig || "";
@@ -114,7 +122,8 @@ function render(s) {
   const sv = s.server || {};
   $("server").textContent = `clients ${sv.clients ?? 0} (${JSON.stringify(sv.clients_by_kind || {})}), ` +
     `dropped slow ${sv.clients_dropped_slow ?? 0}, frames published ${sv.frames_published ?? 0}`;
-  $("rules").textContent = (s.rules && s.rules.length) ? s.rules.join("\n") : "none yet";
+  const rules = [...(s.rules_fired || []), ...(s.rules || [])];
+  $("rules").textContent = rules.length ? rules.join("\n") : "none yet";
   $("log").textContent = (s.log || []).join("\n");
 }
 

@@ -115,6 +115,10 @@ static void make_rig(rig *r, int64_t C, int64_t tcap, int64_t ncap, int absurd) 
         memcpy(cm + FTK_CAM_K, K, sizeof K);
         double D[5] = {unif(-0.2, 0), unif(0, 0.05), unif(-1e-3, 1e-3), unif(-1e-3, 1e-3), 0.0};
         memcpy(cm + FTK_CAM_DIST, D, sizeof D);
+        /* Distortion frame (flydra's intrinsic_linear): near identity, principal point shifted. */
+        double DF[6] = {unif(0.98, 1.02), 0.0, 0.0, unif(0.98, 1.02), unif(-0.05, 0.05),
+                        unif(-0.05, 0.05)};
+        memcpy(cm + FTK_CAM_DFA, DF, sizeof DF);
         cm[FTK_CAM_CENTER + 2] = -2.0;
         for (int i = 0; i < 3; i++) { /* R^T K^-1 for zero skew */
             cm[FTK_CAM_RAYB + 3 * i] = R[i] / f;

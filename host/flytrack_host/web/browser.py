@@ -1,4 +1,5 @@
-"""Debian's chromium, headless, driven by selenium through Debian's chromedriver (no network)."""
+"""Debian's chromium, headless, driven by selenium through Debian's chromedriver (no network): the
+live page's tests and `web.bench --browser` load the page in it. Selenium is a test requirement."""
 
 from __future__ import annotations
 

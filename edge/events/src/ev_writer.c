@@ -1,0 +1,354 @@
+/* Event-file writers: AEDAT 4.0 (one event stream, id 0, packets of at most 32768 events,
+ * uncompressed, LZ4 frame or Zstd) and Prophesee EVT 3.0 (TIME_HIGH / TIME_LOW / ADDR_Y, ADDR_X
+ * for single events, VECT_BASE_X + VECT_12 for runs along a row at one time and polarity).
+ *
+ * AEDAT 4.0 is written without a data table (dataTablePosition = -1): a reader then scans the
+ * packets, and a recording cut off at any packet boundary (a killed process) stays readable. */
+#include <errno.h>
+#include <lz4frame.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <zstd.h>
+
+#include "flytrack/events.h"
+
+#define A4_MAX_PACKET 32768
+
+struct ft_ev_writer {
+    FILE *f;
+    char path[160];
+    int format, compression, failed;
+    char err[420];
+    int64_t last_t;
+    /* EVT 3.0 state: the last TIME_HIGH (full count of 4096-us steps), y */
+    int64_t th_full;
+    int y;
+    /* scratch */
+    uint8_t *pkt, *comp;
+    size_t pkt_cap, comp_cap;
+};
+
+static void wfail(ft_ev_writer *w, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void wfail(ft_ev_writer *w, const char *fmt, ...) {
+    char msg[240];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    snprintf(w->err, sizeof w->err, "%s: %s", w->path, msg);
+    w->failed = 1;
+}
+
+static void st32(uint8_t *p, uint32_t v) {
+    p[0] = (uint8_t)v;
+    p[1] = (uint8_t)(v >> 8);
+    p[2] = (uint8_t)(v >> 16);
+    p[3] = (uint8_t)(v >> 24);
+}
+static void st16(uint8_t *p, uint16_t v) {
+    p[0] = (uint8_t)v;
+    p[1] = (uint8_t)(v >> 8);
+}
+static void st64(uint8_t *p, uint64_t v) {
+    st32(p, (uint32_t)v);
+    st32(p + 4, (uint32_t)(v >> 32));
+}
+
+static int put(ft_ev_writer *w, const void *b, size_t n) {
+    if (n && fwrite(b, 1, n, w->f) != n) {
+        wfail(w, "write error: %s", strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+static int grow(ft_ev_writer *w, uint8_t **b, size_t *cap, size_t want) {
+    if (want <= *cap)
+        return 0;
+    uint8_t *nb = realloc(*b, want);
+    if (!nb) {
+        wfail(w, "out of memory");
+        return -1;
+    }
+    *b = nb;
+    *cap = want;
+    return 0;
+}
+
+static const char *comp_name(int c) {
+    static const char *const names[] = {"NONE", "LZ4", "LZ4_HIGH", "ZSTD", "ZSTD_HIGH"};
+    return names[c];
+}
+
+/* IOHeader FlatBuffer laid out as dv writes it: root offset, "IOHE", vtable (3 fields), table
+ * {soffset, i32 compression, u32 -> infoNode, i64 dataTablePosition}, the XML string. */
+static int a4_header(ft_ev_writer *w, int width, int height) {
+    char xml[2048];
+    int xl = snprintf(
+        xml, sizeof xml,
+        "<dv version=\"2.0\">\n"
+        "    <node name=\"outInfo\" path=\"/outInfo/\">\n"
+        "        <node name=\"0\" path=\"/outInfo/0/\">\n"
+        "            <attr key=\"compression\" type=\"string\">%s</attr>\n"
+        "            <attr key=\"originalModuleName\" type=\"string\">flytrack</attr>\n"
+        "            <attr key=\"originalOutputName\" type=\"string\">events</attr>\n"
+        "            <attr key=\"typeDescription\" type=\"string\">Array of events (polarity "
+        "ON/OFF).</attr>\n"
+        "            <attr key=\"typeIdentifier\" type=\"string\">EVTS</attr>\n"
+        "            <node name=\"info\" path=\"/outInfo/0/info/\">\n"
+        "                <attr key=\"sizeX\" type=\"int\">%d</attr>\n"
+        "                <attr key=\"sizeY\" type=\"int\">%d</attr>\n"
+        "                <attr key=\"source\" type=\"string\">FlyTrack</attr>\n"
+        "            </node>\n"
+        "        </node>\n"
+        "    </node>\n"
+        "</dv>\n",
+        comp_name(w->compression), width, height);
+    uint8_t b[2200];
+    memset(b, 0, sizeof b);
+    size_t total = 44 + 4 + (size_t)xl + 1;
+    while (total % 8 != 4) /* keeps dataTablePosition 8-aligned from the buffer's end, as dv */
+        total++;
+    st32(b, 24);              /* root table at 24 */
+    memcpy(b + 4, "IOHE", 4); /* file identifier */
+    st16(b + 14, 10);         /* vtable at 14: 10 bytes */
+    st16(b + 16, 20);         /* table size */
+    st16(b + 18, 4);          /* field 0 compression at +4 */
+    st16(b + 20, 12);         /* field 1 dataTablePosition at +12 */
+    st16(b + 22, 8);          /* field 2 infoNode at +8 */
+    st32(b + 24, 24 - 14);    /* table -> vtable */
+    st32(b + 28, (uint32_t)w->compression);
+    st32(b + 32, 44 - 32); /* -> string at 44 */
+    st64(b + 36, (uint64_t)(int64_t)-1);
+    st32(b + 44, (uint32_t)xl);
+    memcpy(b + 48, xml, (size_t)xl);
+    uint8_t sz[4];
+    st32(sz, (uint32_t)total);
+    if (put(w, "#!AER-DAT4.0\r\n", 14) < 0 || put(w, sz, 4) < 0 || put(w, b, total) < 0)
+        return -1;
+    return 0;
+}
+
+static int a4_packet(ft_ev_writer *w, const ft_event *ev, size_t n) {
+    size_t raw = 32 + 16 * n;
+    if (grow(w, &w->pkt, &w->pkt_cap, raw) < 0)
+        return -1;
+    uint8_t *b = w->pkt;
+    memset(b, 0, 32);
+    st32(b, (uint32_t)(raw - 4)); /* size prefix */
+    st32(b + 4, 16);              /* root table at 4 + 16 */
+    memcpy(b + 8, "EVTS", 4);
+    st16(b + 14, 6); /* vtable: 6 bytes */
+    st16(b + 16, 8); /* table size */
+    st16(b + 18, 4); /* field 0 (elements) at +4 */
+    st32(b + 20, 6); /* table at 20 -> vtable at 14 */
+    st32(b + 24, 4); /* -> vector at 28 */
+    st32(b + 28, (uint32_t)n);
+    for (size_t i = 0; i < n; i++) {
+        uint8_t *e = b + 32 + 16 * i;
+        st64(e, (uint64_t)ev[i].t);
+        st16(e + 8, ev[i].x);
+        st16(e + 10, ev[i].y);
+        e[12] = ev[i].p ? 1 : 0;
+        e[13] = e[14] = e[15] = 0;
+    }
+    const uint8_t *out = b;
+    size_t out_len = raw;
+    if (w->compression == FT_EV_COMP_LZ4 || w->compression == FT_EV_COMP_LZ4_HIGH) {
+        LZ4F_preferences_t prefs;
+        memset(&prefs, 0, sizeof prefs);
+        prefs.compressionLevel = w->compression == FT_EV_COMP_LZ4_HIGH ? 9 : 0;
+        size_t bound = LZ4F_compressFrameBound(raw, &prefs);
+        if (grow(w, &w->comp, &w->comp_cap, bound) < 0)
+            return -1;
+        size_t got = LZ4F_compressFrame(w->comp, bound, b, raw, &prefs);
+        if (LZ4F_isError(got)) {
+            wfail(w, "LZ4 compression failed: %s", LZ4F_getErrorName(got));
+            return -1;
+        }
+        out = w->comp;
+        out_len = got;
+    } else if (w->compression == FT_EV_COMP_ZSTD || w->compression == FT_EV_COMP_ZSTD_HIGH) {
+        size_t bound = ZSTD_compressBound(raw);
+        if (grow(w, &w->comp, &w->comp_cap, bound) < 0)
+            return -1;
+        size_t got =
+            ZSTD_compress(w->comp, bound, b, raw, w->compression == FT_EV_COMP_ZSTD_HIGH ? 9 : 3);
+        if (ZSTD_isError(got)) {
+            wfail(w, "Zstd compression failed: %s", ZSTD_getErrorName(got));
+            return -1;
+        }
+        out = w->comp;
+        out_len = got;
+    }
+    uint8_t h[8];
+    st32(h, 0); /* stream id 0 */
+    st32(h + 4, (uint32_t)out_len);
+    return put(w, h, 8) < 0 || put(w, out, out_len) < 0 ? -1 : 0;
+}
+
+/* EVT 3.0: a TIME_HIGH step forward of at most 2048 x 4096 us at a time, so that a reader sees
+ * every 24-bit wrap as a decrease of the 12-bit field. TIME_LOW follows every TIME_HIGH. */
+static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
+    /* worst case per event: TIME_HIGH steps are amortised; bound the scratch per call */
+    size_t cap_words = 4 * n + 64, k = 0;
+    if (grow(w, &w->pkt, &w->pkt_cap, 2 * cap_words) < 0)
+        return -1;
+    uint8_t *b = w->pkt;
+    for (size_t i = 0; i < n; i++) {
+        int64_t t = ev[i].t, th = t >> 12;
+        if (th != w->th_full || w->y < 0) {
+            while (th - w->th_full > 2048) {
+                w->th_full += 2048;
+                if (k + 1 > cap_words) { /* long gap: flush what is built */
+                    if (put(w, b, 2 * k) < 0)
+                        return -1;
+                    k = 0;
+                }
+                st16(b + 2 * k++, (uint16_t)(0x8000u | (w->th_full & 0xFFF)));
+            }
+            if (k + 4 > cap_words) {
+                if (put(w, b, 2 * k) < 0)
+                    return -1;
+                k = 0;
+            }
+            w->th_full = th;
+            st16(b + 2 * k++, (uint16_t)(0x8000u | (th & 0xFFF)));
+            st16(b + 2 * k++, (uint16_t)(0x6000u | (t & 0xFFF)));
+        } else if ((t & 0xFFF) != (w->last_t & 0xFFF)) {
+            st16(b + 2 * k++, (uint16_t)(0x6000u | (t & 0xFFF)));
+        }
+        if (ev[i].y != w->y) {
+            w->y = ev[i].y;
+            st16(b + 2 * k++, (uint16_t)(w->y & 0x7FF));
+        }
+        /* A run of events with this time, row and polarity at rising x within 12 columns goes out
+         * as VECT_BASE_X + VECT_12 (a reader emits a vector's events in rising x: same order). */
+        size_t run = 1;
+        while (i + run < n && run < 12 && ev[i + run].t == t && ev[i + run].y == ev[i].y &&
+               !ev[i + run].p == !ev[i].p && ev[i + run].x > ev[i + run - 1].x &&
+               ev[i + run].x - ev[i].x < 12)
+            run++;
+        if (run >= 2 && ev[i].x + 12u <= 2048u) {
+            uint32_t mask = 0;
+            for (size_t j = 0; j < run; j++)
+                mask |= 1u << (ev[i + j].x - ev[i].x);
+            st16(b + 2 * k++, (uint16_t)(0x3000u | (ev[i].p ? 0x800u : 0) | (ev[i].x & 0x7FFu)));
+            st16(b + 2 * k++, (uint16_t)(0x4000u | mask));
+            i += run - 1;
+        } else {
+            st16(b + 2 * k++, (uint16_t)(0x2000u | (ev[i].p ? 0x800u : 0) | (ev[i].x & 0x7FFu)));
+        }
+        w->last_t = t;
+        if (k + 8 > cap_words) {
+            if (put(w, b, 2 * k) < 0)
+                return -1;
+            k = 0;
+        }
+    }
+    return put(w, b, 2 * k);
+}
+
+ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int height,
+                                int compression, char *err, size_t err_len) {
+    if (format != FT_EV_AEDAT4 && format != FT_EV_EVT3) {
+        snprintf(err, err_len, "%s: writing %s is not supported (aedat4 and evt3 are)", path,
+                 ft_ev_format_name(format));
+        return NULL;
+    }
+    if (format == FT_EV_AEDAT4 && (compression < 0 || compression > FT_EV_COMP_ZSTD_HIGH)) {
+        snprintf(err, err_len, "%s: unknown AEDAT 4.0 compression %d", path, compression);
+        return NULL;
+    }
+    if (width <= 0 || height <= 0 || width > 2048 || height > 2048) {
+        snprintf(err, err_len, "%s: sensor size %dx%d out of range (1..2048)", path, width, height);
+        return NULL;
+    }
+    ft_ev_writer *w = calloc(1, sizeof *w);
+    if (!w) {
+        snprintf(err, err_len, "%s: out of memory", path);
+        return NULL;
+    }
+    snprintf(w->path, sizeof w->path, "%s", path);
+    w->format = format;
+    w->compression = format == FT_EV_AEDAT4 ? compression : 0;
+    w->last_t = INT64_MIN;
+    w->y = -1;
+    w->f = fopen(path, "wb");
+    if (!w->f) {
+        snprintf(err, err_len, "%s: cannot create: %s", path, strerror(errno));
+        free(w);
+        return NULL;
+    }
+    int rc;
+    if (format == FT_EV_AEDAT4) {
+        rc = a4_header(w, width, height);
+    } else {
+        char h[256];
+        int hl = snprintf(h, sizeof h,
+                          "%% evt 3.0\n%% format EVT3;height=%d;width=%d\n%% geometry %dx%d\n"
+                          "%% integrator_name FlyTrack\n%% end\n",
+                          height, width, width, height);
+        rc = put(w, h, (size_t)hl);
+    }
+    if (rc < 0) {
+        snprintf(err, err_len, "%s", w->err);
+        fclose(w->f);
+        free(w);
+        return NULL;
+    }
+    return w;
+}
+
+int ft_ev_write(ft_ev_writer *w, const ft_event *ev, size_t n) {
+    if (w->failed)
+        return -1;
+    int64_t last = w->last_t;
+    for (size_t i = 0; i < n; i++) {
+        if (ev[i].t < last || ev[i].t < 0) {
+            wfail(w,
+                  "event %zu of this call goes back in time (t=%lld after %lld, or negative): "
+                  "both formats need non-decreasing times",
+                  i, (long long)ev[i].t, (long long)last);
+            w->failed = 0; /* nothing of this call written; the writer stays usable */
+            return -1;
+        }
+        if (w->format == FT_EV_EVT3 && (ev[i].x > 2047 || ev[i].y > 2047)) {
+            wfail(w, "event %zu at (%u, %u): EVT 3.0 addresses are 11-bit", i, ev[i].x, ev[i].y);
+            w->failed = 0;
+            return -1;
+        }
+        last = ev[i].t;
+    }
+    if (w->format == FT_EV_EVT3)
+        return evt3_events(w, ev, n);
+    for (size_t i = 0; i < n; i += A4_MAX_PACKET) {
+        size_t m = n - i < A4_MAX_PACKET ? n - i : A4_MAX_PACKET;
+        if (a4_packet(w, ev + i, m) < 0)
+            return -1;
+    }
+    w->last_t = last;
+    return 0;
+}
+
+const char *ft_ev_writer_error(const ft_ev_writer *w) {
+    return w->err;
+}
+
+int ft_ev_writer_close(ft_ev_writer *w, char *err, size_t err_len) {
+    if (!w)
+        return 0;
+    int rc = w->failed ? -1 : 0;
+    if (fclose(w->f) != 0 && rc == 0) {
+        wfail(w, "close error: %s", strerror(errno));
+        rc = -1;
+    }
+    if (err && err_len)
+        snprintf(err, err_len, "%s", rc < 0 ? w->err : "");
+    free(w->pkt);
+    free(w->comp);
+    free(w);
+    return rc;
+}
