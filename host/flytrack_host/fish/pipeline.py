@@ -93,12 +93,13 @@ def match_side_blobs(top: View, side: View, sil_top: Silhouettes, sil_side: Silh
 
 def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps: float, n_background: int = 0,
           background: Sequence[NDArray[np.uint8]] | None = None, n_fish: int | None = None,
-          zrange: tuple[float, float] = (0.0, 0.4), cfg: TrackerConfig | None = None,
+          zrange: tuple[float, float] = (0.0, 0.4), cfg: TrackerConfig | None = None, model_wait: int = 50,
           progress: Callable[[int], None] | None = None, log: Callable[[str], None] | None = None) -> TrackResult:
     """Track the fish in `frames` (each item: one image per view, top first, then the side view used for
     the models, then any other tracking views). The first `n_background` items are fish-free frames for the
     background (alpha 0.05); `background` gives B_0 directly instead. Models are made in the first frame
-    where `n_fish` fish (default: as many as are in clear view) are in clear view in the top and side."""
+    where `n_fish` fish (default: as many as are in clear view) are in clear view in the top and side; if
+    no frame within `model_wait` frames of the first modelled fish shows them all, in the one showing most."""
     messages: list[str] = []
 
     def note(msg: str) -> None:
@@ -133,30 +134,64 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
     raw, seen, shared = [], [], []
     first = -1
     k = -1
-    for k, imgs in enumerate(it):
-        if len(imgs) != len(views):
-            raise TrackingError(f"frame {k}: {len(imgs)} images for {len(views)} cameras")
-        sils = [bm.segment(im) for bm, im in zip(bms, imgs, strict=True)]
+    def source() -> Iterator[tuple[int, list[NDArray[np.uint8]], list[Silhouettes]]]:
+        for k, imgs in enumerate(it):
+            if len(imgs) != len(views):
+                raise TrackingError(f"frame {k}: {len(imgs)} images for {len(views)} cameras")
+            sils = [bm.segment(im) for bm, im in zip(bms, imgs, strict=True)]
+            if progress:
+                progress(1)
+            yield k, imgs, sils
+
+    def models_in(k: int, sils: list[Silhouettes]) -> list[ModelResult]:
+        got = []
+        for jt, js in match_side_blobs(views[0], views[1], sils[0], sils[1], zrange):
+            try:
+                got.append(generate_model(views[0], views[1], sils[0], sils[1], jt, js, zrange))
+            except ModelError as exc:
+                note(f"frame {k}: top blob {jt}: {exc}")
+        return got
+
+    src = source()
+    queue: list[tuple[int, list[NDArray[np.uint8]], list[Silhouettes]]] = []
+    waiting: list[tuple[int, list[NDArray[np.uint8]], list[Silhouettes], list[ModelResult]]] = []
+    k = -1
+    while True:
+        item: tuple | None
+        if queue:
+            k, imgs, sils = queue.pop(0)
+            item = (k, imgs, sils)
+        else:
+            item = next(src, None)
+            if item is None and not (tracker is None and waiting):
+                break  # (the video ended; while waiting for models it settles for the best frame below)
+            if item is not None:
+                k, imgs, sils = item
         if tracker is None:
-            pairs = match_side_blobs(views[0], views[1], sils[0], sils[1], zrange)
-            if not sils[0].blobs:
-                note(f"frame {k}: no fish in the top view")
-            elif n_fish is None or len(pairs) >= n_fish:
-                got = []
-                for jt, js in pairs[: n_fish or len(pairs)]:
-                    try:
-                        got.append(generate_model(views[0], views[1], sils[0], sils[1], jt, js, zrange))
-                    except ModelError as exc:
-                        note(f"frame {k}: top blob {jt}: {exc}")
-                if got and (n_fish is None or len(got) == n_fish):
-                    models = got
-                    tracker = FishTracker(views, [m.model for m in got], np.array([m.X for m in got]), fps, cfg)
-                    first = k
-                    note(f"frame {k}: {len(got)} fish modelled")
-            if tracker is None:
-                if progress:
-                    progress(1)
+            start: tuple[int, list[NDArray[np.uint8]], list[Silhouettes], list[ModelResult]] | None = None
+            if item is not None:
+                if not sils[0].blobs:
+                    note(f"frame {k}: no fish in the top view")
+                got = models_in(k, sils) if sils[0].blobs else []
+                if got and (n_fish is None or len(got) >= n_fish):
+                    start = (k, imgs, sils, got[: n_fish or len(got)])
+                elif got or waiting:
+                    waiting.append((k, imgs, sils, got))
+            if start is None and waiting and (len(waiting) >= model_wait or item is None):
+                # no frame shows every fish in clear view: take the frame that shows the most
+                i = max(range(len(waiting)), key=lambda j: (len(waiting[j][3]), -j))
+                start = waiting[i]
+                queue = [(kk, ii, ss) for kk, ii, ss, _ in waiting[i + 1:]] + queue
+                note(f"no frame in {waiting[0][0]}..{waiting[-1][0]} shows {n_fish} fish in clear view: "
+                     f"tracking the {len(start[3])} modelled in frame {start[0]}")
+                waiting = []
+            if start is None:
                 continue
+            k, imgs, sils, got = start
+            models = got
+            tracker = FishTracker(views, [m.model for m in got], np.array([m.X for m in got]), fps, cfg)
+            first = k
+            note(f"frame {k}: {len(got)} fish modelled")
             # the model frame itself is tracked as well, starting from the model's state
         res = tracker.step(sils)
         if len(raw) % 10 == 0:  # the multi-exposure image of Figure 9
@@ -169,8 +204,6 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
             for f in g:
                 sh[f] = len(g)
         shared.append(sh)
-        if progress:
-            progress(1)
     if tracker is None:
         raise TrackingError(f"no frame of {k + 1} shows {'the ' + str(n_fish) + ' ' if n_fish else ''}fish in clear "
                             "view in the top and side cameras: no model could be made")

@@ -111,3 +111,16 @@ def test_bad_input_is_one_clear_error(scene: dict, tmp_path: Path) -> None:
     code, text = _run(["fish", "track", str(d / "empty.avi"), str(d / "empty_side.avi"), "--calibration",
                        str(scene["cal"]), "--cameras", "top,side", *QUICK])
     assert code == 2 and "no model could be made" in text
+
+
+def test_fewer_fish_in_clear_view_than_asked_tracks_those_and_says_so(scene: dict) -> None:
+    d = scene["dir"]
+    _write(d / "top.avi", scene["imgs"][0], 250.0)
+    _write(d / "side.avi", scene["imgs"][1], 250.0)
+    code, text = _run(["fish", "track", str(d / "top.avi"), str(d / "side.avi"), "--calibration", str(scene["cal"]),
+                       "--out", str(d / "two.h5"), "--fish", "2", *QUICK])
+    assert code == 0, text
+    flat = " ".join(text.split())  # rich wraps long lines
+    assert "shows 2 fish in clear view" in flat and "tracking the 1 modelled in frame 2" in flat
+    tr = read_tracks(d / "two.h5")
+    assert len(tr["fish"]) == 1 and tr["frame"][0] == 2

@@ -3,7 +3,9 @@
 #include <math.h>
 #include <stdlib.h>
 
-int ffk_abi_version(void) { return FFK_ABI_VERSION; }
+int ffk_abi_version(void) {
+    return FFK_ABI_VERSION;
+}
 
 /* Parabolic refinement of a minimum at y0 with neighbours ym, yp (the same rule as fit.py). */
 static double parabola(double ym, double y0, double yp) {
@@ -38,8 +40,8 @@ static double ring_min(const double *ring, int64_t Nu, const double *p, const do
     return r > 0.0 ? r : 0.0;
 }
 
-int ffk_line_distances(const double *S, int64_t B, int64_t Ns, int64_t Nu, const double *p, const double *v,
-                       int64_t N, double *D) {
+int ffk_line_distances(const double *S, int64_t B, int64_t Ns, int64_t Nu, const double *p,
+                       const double *v, int64_t N, double *D) {
     if (B < 0 || Ns < 1 || Nu < 3 || Nu > 256 || N < 0 || (!S && B > 0) || (!D && B * N > 0)) {
         return -1;
     }
@@ -66,7 +68,8 @@ int ffk_line_distances(const double *S, int64_t B, int64_t Ns, int64_t Nu, const
             c[2] /= (double)Nu;
             double R2 = 0.0;
             for (int64_t k = 0; k < Nu; k++) {
-                double dx = ring[3 * k] - c[0], dy = ring[3 * k + 1] - c[1], dz = ring[3 * k + 2] - c[2];
+                double dx = ring[3 * k] - c[0], dy = ring[3 * k + 1] - c[1],
+                       dz = ring[3 * k + 2] - c[2];
                 double r2 = dx * dx + dy * dy + dz * dz;
                 R2 = r2 > R2 ? r2 : R2;
             }

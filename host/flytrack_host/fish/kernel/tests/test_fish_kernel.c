@@ -1,11 +1,14 @@
-/* The fish kernel under ASan + UBSan: random surfaces and lines, NaN and infinite inputs, bad sizes. */
+/* The fish kernel under ASan + UBSan: random surfaces and lines, NaN and infinite inputs, bad
+ * sizes. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 
 #include "fish_kernel.h"
 
-static double urand(void) { return (double)rand() / (double)RAND_MAX * 2.0 - 1.0; }
+static double urand(void) {
+    return (double)rand() / (double)RAND_MAX * 2.0 - 1.0;
+}
 
 int main(void) {
     srand(7);
@@ -17,7 +20,9 @@ int main(void) {
         double *v = malloc(sizeof(double) * (size_t)(N * 3 + 1));
         double *D = malloc(sizeof(double) * (size_t)(B * N + 1));
         for (int64_t i = 0; i < B * Ns * Nu * 3; i++) {
-            S[i] = trial % 17 == 0 && i % 5 == 0 ? NAN : (trial % 23 == 0 && i % 7 == 0 ? INFINITY : 10.0 * urand());
+            S[i] = trial % 17 == 0 && i % 5 == 0
+                       ? NAN
+                       : (trial % 23 == 0 && i % 7 == 0 ? INFINITY : 10.0 * urand());
         }
         for (int64_t n = 0; n < N; n++) {
             double a = urand(), b = urand(), c = urand(), l = sqrt(a * a + b * b + c * c) + 1e-9;
@@ -51,7 +56,8 @@ int main(void) {
         free(D);
     }
     double x = 0.0;
-    if (ffk_line_distances(&x, 1, 1, 2, &x, &x, 1, &x) != -1 || ffk_line_distances(NULL, 1, 1, 8, &x, &x, 1, &x) != -1) {
+    if (ffk_line_distances(&x, 1, 1, 2, &x, &x, 1, &x) != -1 ||
+        ffk_line_distances(NULL, 1, 1, 8, &x, &x, 1, &x) != -1) {
         fails++;
     }
     printf("fish kernel: %d failures\n", fails);
