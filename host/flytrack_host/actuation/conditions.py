@@ -81,26 +81,9 @@ def turn_rate_deg_s(vel_prev: np.ndarray, vel: np.ndarray, dt: float | np.ndarra
 
 
 def condition_mask(c: Condition, pos: np.ndarray, vel: np.ndarray, turn: np.ndarray | None = None) -> np.ndarray:
-    """True where every given part of the condition holds. NaN states are never true."""
-    ok = np.all(np.isfinite(pos), axis=1) & np.all(np.isfinite(vel), axis=1)
-    if c.inside is not None:
-        ok &= region_mask(c.inside, pos)
-    if c.outside is not None:
-        ok &= ~region_mask(c.outside, pos)
-    if c.speed_m_s is not None:
-        ok &= _in_range(np.linalg.norm(vel, axis=1), c.speed_m_s)
-    if c.altitude_m is not None:
-        ok &= _in_range(pos[:, 2], c.altitude_m)
-    if c.distance_m is not None:
-        d = distance(c.distance_m, pos)
-        ok &= (d >= c.distance_m.min) & (d <= c.distance_m.max)
-    if c.closing_speed_m_s is not None:
-        s = closing_speed(c.closing_speed_m_s, pos, vel)
-        ok &= (s >= c.closing_speed_m_s.min) & (s <= c.closing_speed_m_s.max)
-    if c.turn_rate_deg_s is not None:
-        tr = turn if turn is not None else np.full(len(pos), np.nan)
-        ok &= np.nan_to_num(_in_range(tr, c.turn_rate_deg_s), nan=False) & np.isfinite(tr)
-    return ok
+    """True where every given part of the condition holds. NaN states are never true. (One call of
+    `compile_condition`, which the rule engine keeps per rule.)"""
+    return compile_condition(c)(pos, vel, turn)
 
 
 Mask = Callable[[np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
