@@ -22,7 +22,8 @@ from flytrack_host.recording.synthetic import write_synthetic_recording
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--recordings", type=int, default=8)
-    ap.add_argument("--seconds", type=float, default=10.0, help="length of each synthetic recording")
+    ap.add_argument("--seconds", type=float, default=60.0, help="length of each synthetic recording (a lab's are "
+                    "minutes to hours; per-task overheads weigh more on short ones)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", type=Path, help="write the figures here")
     a = ap.parse_args(argv)
