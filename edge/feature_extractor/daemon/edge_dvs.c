@@ -22,6 +22,7 @@
 #include "config.h"
 #include "edge_dvs.h"
 #include "event_pipeline.h"
+#include "util.h"
 #include "flytrack/udp.h"
 #include "source_events.h"
 
@@ -54,34 +55,13 @@ typedef struct {
     ft_dvs_cluster clusters[FT_DVS_MAX_CLUSTERS];
 } dvs_edge;
 
-static uint64_t mono_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
-}
-
-static void logmsg(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-#include <stdarg.h>
-static void logmsg(const char *fmt, ...) {
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "flytrack-edge: ");
-    vfprintf(stderr, fmt, ap);
-    fputc('\n', stderr);
-    va_end(ap);
-}
-
 static void set_error(dvs_edge *e, uint32_t code, const char *text) {
     e->last_error_code = code;
     snprintf(e->last_error, sizeof e->last_error, "%.64s", text);
 }
 
 static void send_to(dvs_edge *e, const uint8_t *buf, size_t len, const struct sockaddr_in *to) {
-    if (sendto(e->sock, buf, len, 0, (const struct sockaddr *)to, sizeof *to) < 0) {
-        if (e->send_errors++ == 0 || e->cfg->verbose)
-            logmsg("sendto: %s (counted, going on)", strerror(errno));
-    }
-    e->seq++;
+    edge_send(e->sock, buf, len, to, &e->seq, &e->send_errors, e->cfg->verbose);
 }
 
 static void send_status(dvs_edge *e) {
@@ -110,11 +90,11 @@ static void send_status(dvs_edge *e) {
 static void flush_slice(dvs_edge *e) {
     if (!e->n_slice)
         return;
-    uint64_t t0 = mono_ns();
+    uint64_t t0 = edge_mono_ns();
     int64_t ts = e->slice[0].t, te = e->slice[e->n_slice - 1].t;
     size_t nc =
         e->proc.slice(e->proc.ctx, e->slice, e->n_slice, ts, te, e->clusters, FT_DVS_MAX_CLUSTERS);
-    double us = (double)(mono_ns() - t0) / 1000.0;
+    double us = (double)(edge_mono_ns() - t0) / 1000.0;
     ft_dvs_clusters_hdr h;
     memset(&h, 0, sizeof h);
     h.camera_index = (uint16_t)e->cfg->camera_index;
@@ -219,19 +199,19 @@ static int open_socket(dvs_edge *e) {
     a.sin_family = AF_INET;
     a.sin_port = htons((uint16_t)e->cfg->control_port);
     if (inet_pton(AF_INET, e->cfg->bind, &a.sin_addr) != 1) {
-        logmsg("--bind %s is not an IPv4 address", e->cfg->bind);
+        edge_log("--bind %s is not an IPv4 address", e->cfg->bind);
         return -1;
     }
     if (bind(e->sock, (struct sockaddr *)&a, sizeof a) < 0) {
-        logmsg("cannot bind %s:%d for CONTROL: %s", e->cfg->bind, e->cfg->control_port,
-               strerror(errno));
+        edge_log("cannot bind %s:%d for CONTROL: %s", e->cfg->bind, e->cfg->control_port,
+                 strerror(errno));
         return -1;
     }
     memset(&e->host, 0, sizeof e->host);
     e->host.sin_family = AF_INET;
     e->host.sin_port = htons((uint16_t)e->cfg->port);
     if (inet_pton(AF_INET, e->cfg->host, &e->host.sin_addr) != 1) {
-        logmsg("--host %s is not an IPv4 address", e->cfg->host);
+        edge_log("--host %s is not an IPv4 address", e->cfg->host);
         return -1;
     }
     int sz = 4 << 20;
@@ -275,30 +255,30 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
                                       cfg->reopen_ms);
     e.src.invert_polarity = cfg->dvs_invert_polarity;
     if (rc) {
-        logmsg("source %s %s: %s", cfg->source, cfg->input, e.src.error);
+        edge_log("source %s %s: %s", cfg->source, cfg->input, e.src.error);
         close(e.sock);
         return 3;
     }
     e.slice = malloc(SLICE_CAP * sizeof *e.slice);
     if (!e.slice || ft_event_processor_create(&e.proc, e.src.width, e.src.height) != 0) {
-        logmsg("cannot set up the event processor");
+        edge_log("cannot set up the event processor");
         e.src.close(&e.src);
         close(e.sock);
         free(e.slice);
         return 2;
     }
     e.state = cfg->start_stopped ? FT_STATE_IDLE : FT_STATE_RUNNING;
-    logmsg("%s %s: %ux%u sensor, slices of %lld us -> %s:%d, control on port %d", cfg->source,
-           cfg->input, e.src.width, e.src.height, (long long)e.slice_us, cfg->host, cfg->port,
-           cfg->control_port);
-    e.win_start_ns = mono_ns();
+    edge_log("%s %s: %ux%u sensor, slices of %lld us -> %s:%d, control on port %d", cfg->source,
+             cfg->input, e.src.width, e.src.height, (long long)e.slice_us, cfg->host, cfg->port,
+             cfg->control_port);
+    e.win_start_ns = edge_mono_ns();
     send_status(&e);
-    uint64_t last_status = mono_ns(), last_event_ns = mono_ns();
+    uint64_t last_status = edge_mono_ns(), last_event_ns = edge_mono_ns();
     int live = !strcmp(cfg->source, "dvs128");
     int exit_code = 0;
     while (!g_stop) {
         long n = e.src.next(&e.src, in, sizeof in / sizeof in[0], POLL_MS);
-        uint64_t now = mono_ns();
+        uint64_t now = edge_mono_ns();
         if (n > 0) {
             e.events += (uint64_t)n;
             e.win_events += (uint64_t)n;
@@ -306,11 +286,11 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
             if (e.state == FT_STATE_RUNNING)
                 take_events(&e, in, (size_t)n);
         } else if (n == FT_SRC_END) {
-            logmsg("source ended after %llu events", (unsigned long long)e.events);
+            edge_log("source ended after %llu events", (unsigned long long)e.events);
             break;
         } else if (n == FT_SRC_ERROR) {
-            logmsg("source failed after %llu events: %s", (unsigned long long)e.events,
-                   e.src.error);
+            edge_log("source failed after %llu events: %s", (unsigned long long)e.events,
+                     e.src.error);
             flush_slice(&e);
             e.state = FT_STATE_ERROR;
             /* STATUS has 64 characters: the message without the file name it starts with */
@@ -325,12 +305,12 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
         if (e.src.state_changed) { /* a DVS128 unplugged or back */
             e.src.state_changed = 0;
             if (e.src.connected) {
-                logmsg("DVS128 back (reconnect %llu)", (unsigned long long)e.src.reconnects);
+                edge_log("DVS128 back (reconnect %llu)", (unsigned long long)e.src.reconnects);
                 if (e.state == FT_STATE_ERROR)
                     e.state = FT_STATE_RUNNING;
                 set_error(&e, 0, "");
             } else {
-                logmsg("%s", e.src.error);
+                edge_log("%s", e.src.error);
                 flush_slice(&e);
                 e.state = FT_STATE_ERROR;
                 set_error(&e, 41, e.src.error);
@@ -360,9 +340,9 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     if (e.state != FT_STATE_ERROR)
         e.state = FT_STATE_STOPPED;
     send_status(&e); /* the last word: counts and why we stopped */
-    logmsg("%llu events in %llu slices sent, %llu garbage words, %llu reconnects",
-           (unsigned long long)e.events, (unsigned long long)e.slices,
-           (unsigned long long)e.src.lost, (unsigned long long)e.src.reconnects);
+    edge_log("%llu events in %llu slices sent, %llu garbage words, %llu reconnects",
+             (unsigned long long)e.events, (unsigned long long)e.slices,
+             (unsigned long long)e.src.lost, (unsigned long long)e.src.reconnects);
     e.src.close(&e.src);
     if (e.proc.destroy)
         e.proc.destroy(e.proc.ctx);

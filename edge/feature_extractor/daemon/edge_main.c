@@ -18,6 +18,7 @@
 #include <unistd.h>
 
 #include "config.h"
+#include "util.h"
 #include "edge_dvs.h"
 #include "flytrack/features.h"
 #include "flytrack/udp.h"
@@ -55,28 +56,13 @@ typedef struct {
     ft_point pts[FT_FEATURES_MAX_POINTS];
 } edge;
 
-static void logmsg(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static void logmsg(const char *fmt, ...) {
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "flytrack-edge: ");
-    vfprintf(stderr, fmt, ap);
-    fputc('\n', stderr);
-    va_end(ap);
-}
-
 static void set_error(edge *e, uint32_t code, const char *text) {
     e->last_error_code = code;
     snprintf(e->last_error, sizeof e->last_error, "%.64s", text);
 }
 
 static void send_to(edge *e, const uint8_t *buf, size_t len, const struct sockaddr_in *to) {
-    if (sendto(e->sock, buf, len, 0, (const struct sockaddr *)to, sizeof *to) < 0) {
-        if (e->send_errors++ == 0 || e->cfg.verbose)
-            logmsg("sendto %s:%d: %s (counted, going on)", inet_ntoa(to->sin_addr),
-                   ntohs(to->sin_port), strerror(errno));
-    }
-    e->seq++; /* +1 per datagram from this socket, sent or not */
+    edge_send(e->sock, buf, len, to, &e->seq, &e->send_errors, e->cfg.verbose);
 }
 
 static void send_status(edge *e) {
@@ -100,7 +86,7 @@ static void send_status(edge *e) {
     size_t len;
     ft_err r = ft_status_encode(buf, sizeof buf, &m, &len);
     if (r != FT_OK) {
-        logmsg("cannot encode STATUS: %s", ft_err_name(r));
+        edge_log("cannot encode STATUS: %s", ft_err_name(r));
         return;
     }
     send_to(e, buf, len, &e->host);
@@ -134,7 +120,7 @@ static void send_image(edge *e, const ft_frame *f, uint8_t kind, uint32_t id, ui
         size_t len;
         ft_err r = ft_image_encode(buf, sizeof buf, &m, &len);
         if (r != FT_OK) {
-            logmsg("cannot encode IMAGE: %s", ft_err_name(r));
+            edge_log("cannot encode IMAGE: %s", ft_err_name(r));
             return;
         }
         send_to(e, buf, len, &e->host);
@@ -207,8 +193,8 @@ static void send_features(edge *e, const ft_frame *f, const ft_fx_result *r) {
         size_t len;
         ft_err er = ft_features_encode(buf, sizeof buf, &h, e->pts, &len);
         if (er != FT_OK) {
-            logmsg("cannot encode FEATURES of frame %llu: %s", (unsigned long long)f->camera_frame,
-                   ft_err_name(er));
+            edge_log("cannot encode FEATURES of frame %llu: %s",
+                     (unsigned long long)f->camera_frame, ft_err_name(er));
             set_error(e, 10, "FEATURES encode failed");
             return;
         }
@@ -242,7 +228,7 @@ static void handle_control(edge *e, const uint8_t *buf, size_t len,
                  ft_err_name(r));
         /* A flood must not flood the log: the first ten, then every thousandth. */
         if (e->control_errors <= 10 || e->control_errors % 1000 == 0 || e->cfg.verbose)
-            logmsg("%s (ignored; %llu so far)", text, (unsigned long long)e->control_errors);
+            edge_log("%s (ignored; %llu so far)", text, (unsigned long long)e->control_errors);
         set_error(e, 20, text);
         /* The framing was right but a field was not: answer, so the sender is not left waiting. */
         if ((r == FT_E_BAD_FIELD || r == FT_E_NOT_FINITE) &&
@@ -255,8 +241,8 @@ static void handle_control(edge *e, const uint8_t *buf, size_t len,
         return;
     }
     if (e->cfg.verbose)
-        logmsg("CONTROL %u command %u param '%s' value %g", c.request_id, c.command, c.param,
-               c.value);
+        edge_log("CONTROL %u command %u param '%s' value %g", c.request_id, c.command, c.param,
+                 c.value);
     if (c.camera_index != FT_CAMERA_ANY && c.camera_index != e->cfg.camera_index) {
         ack(e, from, c.request_id, c.command, FT_ACK_FAILED, "not this camera");
         return;
@@ -337,10 +323,10 @@ static void poll_control(edge *e) {
                 char text[96];
                 snprintf(text, sizeof text, "CONTROL from %s dropped: not in --control-allow",
                          inet_ntoa(from.sin_addr));
-                logmsg("%s (further ones are only counted)", text);
+                edge_log("%s (further ones are only counted)", text);
                 set_error(e, 21, text);
             } else if (e->cfg.verbose) {
-                logmsg("CONTROL from %s dropped", inet_ntoa(from.sin_addr));
+                edge_log("CONTROL from %s dropped", inet_ntoa(from.sin_addr));
             }
             continue;
         }
@@ -372,16 +358,10 @@ static void stats_tick(edge *e, uint64_t now) {
     }
 }
 
-static uint64_t mono_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
-}
-
 static int open_socket(edge *e) {
     e->sock = socket(AF_INET, SOCK_DGRAM, 0);
     if (e->sock < 0) {
-        logmsg("socket: %s", strerror(errno));
+        edge_log("socket: %s", strerror(errno));
         return -1;
     }
     struct sockaddr_in a;
@@ -389,19 +369,19 @@ static int open_socket(edge *e) {
     a.sin_family = AF_INET;
     a.sin_port = htons((uint16_t)e->cfg.control_port);
     if (inet_pton(AF_INET, e->cfg.bind, &a.sin_addr) != 1) {
-        logmsg("--bind %s is not an IPv4 address", e->cfg.bind);
+        edge_log("--bind %s is not an IPv4 address", e->cfg.bind);
         return -1;
     }
     if (bind(e->sock, (struct sockaddr *)&a, sizeof a) < 0) {
-        logmsg("cannot bind %s:%d for CONTROL: %s", e->cfg.bind, e->cfg.control_port,
-               strerror(errno));
+        edge_log("cannot bind %s:%d for CONTROL: %s", e->cfg.bind, e->cfg.control_port,
+                 strerror(errno));
         return -1;
     }
     memset(&e->host, 0, sizeof e->host);
     e->host.sin_family = AF_INET;
     e->host.sin_port = htons((uint16_t)e->cfg.port);
     if (inet_pton(AF_INET, e->cfg.host, &e->host.sin_addr) != 1) {
-        logmsg("--host %s is not an IPv4 address", e->cfg.host);
+        edge_log("--host %s is not an IPv4 address", e->cfg.host);
         return -1;
     }
     edge_config *c = &e->cfg;
@@ -428,7 +408,7 @@ static int open_source(edge *e) {
     else
         rc = ft_source_open_aravis(&e->src, e->cfg.input, &req);
     if (rc)
-        logmsg("source %s %s: %s", k, e->cfg.input, e->src.error);
+        edge_log("source %s %s: %s", k, e->cfg.input, e->src.error);
     return rc;
 }
 
@@ -453,12 +433,12 @@ static int open_extractor(edge *e) {
     char msg[128];
     int rc = ft_fx_params_check(&p, msg, sizeof msg);
     if (rc) {
-        logmsg("bad extractor parameters: %s", msg);
+        edge_log("bad extractor parameters: %s", msg);
         return -1;
     }
     rc = ft_fx_create(&p, sizeof p, &e->fx);
     if (rc) {
-        logmsg("cannot create the extractor: %s", ft_fx_strerror(rc));
+        edge_log("cannot create the extractor: %s", ft_fx_strerror(rc));
         return -1;
     }
     if (e->cfg.mask[0]) {
@@ -470,7 +450,8 @@ static int open_extractor(edge *e) {
         if (f)
             fclose(f);
         if (!m || got != n || extra) {
-            logmsg("mask %s must be exactly %ux%u = %zu bytes", e->cfg.mask, p.width, p.height, n);
+            edge_log("mask %s must be exactly %ux%u = %zu bytes", e->cfg.mask, p.width, p.height,
+                     n);
             free(m);
             ft_fx_destroy(e->fx);
             e->fx = NULL;
@@ -505,15 +486,15 @@ int main(int argc, char **argv) {
     }
     e.state = e.cfg.start_stopped ? FT_STATE_IDLE : FT_STATE_RUNNING;
     e.region_half = e.cfg.region_half;
-    logmsg("%s %s: %ux%u %s -> %s:%d, control on port %d", e.cfg.source, e.cfg.input, e.src.width,
-           e.src.height,
-           e.src.pixel_format == 0   ? "mono8"
-           : e.src.pixel_format == 1 ? "mono16"
-                                     : "yuyv",
-           e.cfg.host, e.cfg.port, e.cfg.control_port);
-    e.win_start_ns = mono_ns();
+    edge_log("%s %s: %ux%u %s -> %s:%d, control on port %d", e.cfg.source, e.cfg.input, e.src.width,
+             e.src.height,
+             e.src.pixel_format == 0   ? "mono8"
+             : e.src.pixel_format == 1 ? "mono16"
+                                       : "yuyv",
+             e.cfg.host, e.cfg.port, e.cfg.control_port);
+    e.win_start_ns = edge_mono_ns();
     send_status(&e);
-    e.last_status_ns = mono_ns();
+    e.last_status_ns = edge_mono_ns();
     int exit_code = 0;
     uint64_t processed = 0;
     while (!g_stop) {
@@ -522,15 +503,15 @@ int main(int argc, char **argv) {
         if (r == FT_SRC_FRAME) {
             e.frames_seen++;
             if (e.state == FT_STATE_RUNNING) {
-                uint64_t t0 = mono_ns();
+                uint64_t t0 = edge_mono_ns();
                 ft_fx_result res;
                 int prc = ft_fx_process(e.fx, f.data, f.bytes, &res);
-                double us = (double)(mono_ns() - t0) / 1000.0;
+                double us = (double)(edge_mono_ns() - t0) / 1000.0;
                 if (prc) {
                     e.frames_dropped++;
                     set_error(&e, 30, ft_fx_strerror(prc));
-                    logmsg("frame %llu: %s", (unsigned long long)f.camera_frame,
-                           ft_fx_strerror(prc));
+                    edge_log("frame %llu: %s", (unsigned long long)f.camera_frame,
+                             ft_fx_strerror(prc));
                 } else {
                     send_features(&e, &f, &res);
                     if (e.region_half)
@@ -553,18 +534,18 @@ int main(int argc, char **argv) {
             if (e.cfg.max_frames && processed >= e.cfg.max_frames)
                 break;
         } else if (r == FT_SRC_END) {
-            logmsg("source ended after %llu frames", (unsigned long long)e.frames_seen);
+            edge_log("source ended after %llu frames", (unsigned long long)e.frames_seen);
             break;
         } else if (r == FT_SRC_ERROR) {
-            logmsg("source failed after %llu frames: %s", (unsigned long long)e.frames_seen,
-                   e.src.error);
+            edge_log("source failed after %llu frames: %s", (unsigned long long)e.frames_seen,
+                     e.src.error);
             e.state = FT_STATE_ERROR;
             set_error(&e, 40, e.src.error);
             exit_code = 3;
             break;
         }
         poll_control(&e);
-        uint64_t now = mono_ns();
+        uint64_t now = edge_mono_ns();
         stats_tick(&e, now);
         if (now - e.last_status_ns >= (uint64_t)e.cfg.status_interval_ms * 1000000ull) {
             send_status(&e);
@@ -575,8 +556,8 @@ int main(int argc, char **argv) {
         e.state = FT_STATE_STOPPED;
     poll_control(&e);
     if (e.control_rejected)
-        logmsg("dropped %llu CONTROL datagrams from senders not in --control-allow",
-               (unsigned long long)e.control_rejected);
+        edge_log("dropped %llu CONTROL datagrams from senders not in --control-allow",
+                 (unsigned long long)e.control_rejected);
     send_status(&e); /* the last word: why we stopped */
     e.src.close(&e.src);
     ft_fx_destroy(e.fx);
