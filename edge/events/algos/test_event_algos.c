@@ -8,7 +8,6 @@
 
 #include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
-
 static ft_event E(int64_t t, int x, int y) {
     ft_event e = {t, (uint16_t)x, (uint16_t)y, 1, {0, 0, 0}};
     return e;

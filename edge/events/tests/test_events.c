@@ -13,7 +13,6 @@
 
 #include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
-
 typedef struct {
     uint8_t b[1 << 16];
     size_t n;

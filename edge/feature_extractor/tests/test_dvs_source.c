@@ -15,7 +15,6 @@
 
 #include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
-
 static uint64_t rng = 88172645463325252ull;
 static uint32_t rnd(uint32_t n) {
     rng ^= rng << 13;

@@ -22,7 +22,6 @@
 
 #include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
-
 #define WORDS 30000
 static uint8_t stream_bytes[4 * WORDS];
 static size_t stream_len, unplug_at, pos;
@@ -189,8 +188,8 @@ int main(void) {
     CHECK(failed_opens == 3);
     close(rx);
     if (ft_test_failures) {
-        fprintf(stderr, "test_edge_dvs_unplug: %d checks failed (events %llu of %llu)\n", ft_test_failures,
-                (unsigned long long)last_seen, (unsigned long long)events_sent);
+        fprintf(stderr, "test_edge_dvs_unplug: %d checks failed (events %llu of %llu)\n",
+                ft_test_failures, (unsigned long long)last_seen, (unsigned long long)events_sent);
         return 1;
     }
     printf("test_edge_dvs_unplug: %llu events, %llu slices, unplugged and back\n",

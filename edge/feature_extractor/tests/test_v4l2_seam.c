@@ -15,7 +15,6 @@
 
 #include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
-
 #define FW 64
 #define FH 48
 #define NREC 6
