@@ -28,7 +28,7 @@ size_t ev_decode_evt2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             r->have_t_high = 1;
             t_hi = r->t_base + ((int64_t)th << 6);
         } else if (type == EVT2_EXT_TRIGGER) {
-            r->info.n_triggers++;
+            ev_trigger(r, t_hi | (int64_t)((w >> 22) & 0x3Fu));
         } else {
             r->info.n_skipped++; /* OTHERS, CONTINUED, undefined */
         }
@@ -97,7 +97,7 @@ size_t ev_decode_evt3(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             break;
         }
         case EVT3_EXT_TRIGGER:
-            r->info.n_triggers++;
+            ev_trigger(r, hi + tl);
             break;
         default: /* CONTINUED_4, OTHERS, CONTINUED_12, undefined */
             r->info.n_skipped++;

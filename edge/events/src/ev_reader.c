@@ -438,6 +438,16 @@ int ft_ev_poll(ft_ev_reader *r, int timeout_ms) {
     return poll(&pfd, 1, timeout_ms) > 0; /* readable, or the writer hung up (then the end) */
 }
 
+size_t ft_ev_take_triggers(ft_ev_reader *r, int64_t *out, size_t cap) {
+    const uint64_t n = r->info.n_triggers;
+    if (n - r->trig_taken > FT_EV_TRIG_RING) /* overwritten before they were taken */
+        r->trig_taken = n - FT_EV_TRIG_RING;
+    size_t k = 0;
+    while (r->trig_taken < n && k < cap)
+        out[k++] = r->trig_t[r->trig_taken++ % FT_EV_TRIG_RING];
+    return k;
+}
+
 void ft_ev_get_info(const ft_ev_reader *r, ft_ev_info *info) {
     *info = r->info;
     info->offset = ev_pos(r);

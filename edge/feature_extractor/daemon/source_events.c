@@ -48,6 +48,10 @@ static long file_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms
         long long n = ft_ev_read(p->r, p->buf, FILE_BUF);
         ft_ev_info info;
         ft_ev_get_info(p->r, &info);
+        static int64_t tt[FT_EV_TRIG_RING]; /* one source per process */
+        size_t k = ft_ev_take_triggers(p->r, tt, FT_EV_TRIG_RING);
+        for (size_t j = 0; j < k; j++) /* the latest k of info.n_triggers */
+            s->sync_t[(info.n_triggers - k + j) % FT_SRC_SYNC_RING] = tt[j];
         s->triggers = info.n_triggers;
         if (n < 0) { /* the events before the damage were delivered already */
             snprintf(s->error, sizeof s->error, "%.230s", ft_ev_error(p->r));
@@ -82,6 +86,7 @@ static long file_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms
     }
     memcpy(out, p->buf + p->off, n * sizeof *out);
     p->off += n;
+    s->drained = p->off == p->len;
     return (long)n;
 }
 
@@ -229,7 +234,10 @@ static long dvs_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms)
         for (size_t i = 0; i < n; i++)
             out[i].p ^= 1u;
     s->lost = p->st.bad_words;
+    for (uint64_t i = s->triggers; i < p->st.syncs; i++)
+        s->sync_t[i % FT_SRC_SYNC_RING] = p->st.sync_t[i % FT_DVS_STREAM_SYNCS];
     s->triggers = p->st.syncs;
+    s->drained = p->off == p->len;
     return (long)n;
 }
 

@@ -83,6 +83,12 @@ long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap);
  * do (always for files and memory), 0 on timeout. */
 int ft_ev_poll(ft_ev_reader *r, int timeout_ms);
 void ft_ev_get_info(const ft_ev_reader *r, ft_ev_info *info);
+/* Times (us, the events' time base) of the trigger / sync events read so far and not yet taken,
+ * oldest first: up to cap written, returns how many. The reader keeps the latest FT_EV_TRIG_RING;
+ * older ones not taken in time are dropped (they stay counted in n_triggers). A trigger's time
+ * may run ahead of the events ft_ev_read has returned (it is decoded with its chunk). */
+#define FT_EV_TRIG_RING 1024
+size_t ft_ev_take_triggers(ft_ev_reader *r, int64_t *out, size_t cap);
 const char *ft_ev_error(const ft_ev_reader *r);      /* "" when none */
 long long ft_ev_error_offset(const ft_ev_reader *r); /* -1 when none */
 void ft_ev_close(ft_ev_reader *r);
