@@ -49,6 +49,11 @@ struct ft_ev_reader {
     size_t pend_n, pend_i;
     int pend_kind; /* 3: AEDAT 3.1 polarity (8 B), 4: AEDAT 4.0 (16 B) */
     int32_t pend_overflow;
+
+    /* trigger times kept for ft_ev_triggers (keep_triggers set) */
+    int keep_triggers;
+    ft_ev_trigger *trig;
+    size_t trig_n, trig_cap;
 };
 
 static inline uint16_t ev_le16(const uint8_t *p) {
@@ -80,6 +85,9 @@ void ev_fail(ft_ev_reader *r, uint64_t off, const char *fmt, ...)
 static inline uint64_t ev_pos(const ft_ev_reader *r) {
     return r->data_off + r->start;
 }
+
+/* Counts one trigger / sync event and keeps its time when asked to (see ft_ev_keep_triggers). */
+void ev_trigger(ft_ev_reader *r, int64_t t, unsigned value, unsigned channel);
 
 /* Per-format decoders: fill out[n..cap) and return the new n; stop at the end of the available
  * bytes (the caller refills) or on damage (r->failed). cap - n >= 16 on entry. */
