@@ -21,6 +21,7 @@
 
 #include "config.h"
 #include "edge_dvs.h"
+#include "edge_wingbeat.h"
 #include "event_pipeline.h"
 #include "util.h"
 #include "flytrack/udp.h"
@@ -53,6 +54,7 @@ typedef struct {
     double win_us_sum, win_us_max;
     float rate, proc_mean, proc_max;
     ft_dvs_cluster clusters[FT_DVS_MAX_CLUSTERS];
+    edge_wingbeat *wb; /* --wingbeat 1: wing beats instead of clusters */
 } dvs_edge;
 
 static void set_error(dvs_edge *e, uint32_t code, const char *text) {
@@ -86,8 +88,17 @@ static void send_status(dvs_edge *e) {
         send_to(e, buf, len, &e->host);
 }
 
+static void wb_send(void *ctx, const uint8_t *buf, size_t len) {
+    dvs_edge *e = ctx;
+    send_to(e, buf, len, &e->host);
+}
+
 /* Processes and sends the slice held, if any. */
 static void flush_slice(dvs_edge *e) {
+    if (e->wb) {
+        edge_wb_flush(e->wb);
+        return;
+    }
     if (!e->n_slice)
         return;
     uint64_t t0 = edge_mono_ns();
@@ -121,6 +132,19 @@ static void flush_slice(dvs_edge *e) {
 }
 
 static void take_events(dvs_edge *e, const ft_event *ev, size_t n) {
+    if (e->wb) { /* the whole batch to the wing-beat tracker; its time counts as a slice's */
+        uint64_t t0 = edge_mono_ns();
+        const char *news = edge_wb_take(e->wb, ev, n);
+        double us = (double)(edge_mono_ns() - t0) / 1000.0;
+        if (news)
+            set_error(e, news[0] ? 42 : 0, news);
+        e->slices++;
+        e->win_slices++;
+        e->win_us_sum += us;
+        if (us > e->win_us_max)
+            e->win_us_max = us;
+        return;
+    }
     for (size_t i = 0; i < n; i++) {
         if (e->n_slice && (ev[i].t - e->slice[0].t >= e->slice_us || e->n_slice == SLICE_CAP))
             flush_slice(e);
@@ -267,6 +291,14 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
         free(e.slice);
         return 2;
     }
+    if (cfg->wingbeat &&
+        !(e.wb = edge_wb_create(cfg, e.src.width, e.src.height, &e.seq, wb_send, &e))) {
+        e.proc.destroy(e.proc.ctx);
+        e.src.close(&e.src);
+        close(e.sock);
+        free(e.slice);
+        return 2;
+    }
     e.state = cfg->start_stopped ? FT_STATE_IDLE : FT_STATE_RUNNING;
     edge_log("%s %s: %ux%u sensor, slices of %lld us -> %s:%d, control on port %d", cfg->source,
              cfg->input, e.src.width, e.src.height, (long long)e.slice_us, cfg->host, cfg->port,
@@ -343,6 +375,10 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     edge_log("%llu events in %llu slices sent, %llu garbage words, %llu reconnects",
              (unsigned long long)e.events, (unsigned long long)e.slices,
              (unsigned long long)e.src.lost, (unsigned long long)e.src.reconnects);
+    if (e.wb) {
+        edge_wb_log_summary(e.wb);
+        edge_wb_destroy(e.wb);
+    }
     e.src.close(&e.src);
     if (e.proc.destroy)
         e.proc.destroy(e.proc.ctx);
