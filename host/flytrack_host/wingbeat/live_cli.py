@@ -35,7 +35,7 @@ class LiveError(RuntimeError):
 def _status_line(rx: WingbeatReceiver, t0_mono: float) -> Text:
     c = rx.counts
     now = time.monotonic()
-    parts = [f"{now - t0_mono:5.1f} s"]
+    parts = [f"{now - t0_mono:.1f} s"]
     last = rx.last
     if last is None:
         parts.append(f"waiting for an edge on UDP port {rx.port}")
@@ -43,15 +43,15 @@ def _status_line(rx: WingbeatReceiver, t0_mono: float) -> Text:
         why = rx.last_status.last_error if rx.last_status and rx.last_status.last_error else "window filling"
         parts.append(f"edge at {last.t_us / 1e6:.2f} s, looking for the fly ({why})")
     else:
-        parts.append(f"edge at {last.t_us / 1e6:.2f} s")
+        parts.append(f"event time {last.t_us / 1e6:.2f} s")
         for r in last.edges[:2]:
-            parts.append(f"wing {int(r['edge_id'])} {float(r['frequency']):6.1f} Hz "
-                         f"{np.degrees(float(r['amplitude'])):5.1f} deg")
-    parts.append(f"{c.wingbeat} datagrams, {c.malformed} malformed, {c.lost} lost")
+            parts.append(f"wing {int(r['edge_id'])} {float(r['frequency']):5.1f} Hz "
+                         f"{np.degrees(float(r['amplitude'])):4.1f}°")
+    parts.append(f"{c.wingbeat} received, {c.malformed} malformed, {c.lost} lost")
     if c.other:
         parts.append(f"{c.other} of other types ({', '.join(c.other_types)}): is the edge in --wingbeat 1 mode?")
     if rx.last_status is not None:
-        parts.append(f"edge {rx.last_status.fps / 1e3:.0f} k events/s")
+        parts.append(f"edge {rx.last_status.fps / 1e3:.0f} k ev/s")
     if rx.last_mono is not None and now - rx.last_mono > 1.0:
         parts.append(f"[edge silent for {now - rx.last_mono:.0f} s]")
     return Text(" | ".join(parts))
@@ -182,6 +182,10 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
     if csv_path is not None:
         write_csv(csv_path, rx)
         console.print(f"wrote {csv_path}", highlight=False, soft_wrap=True)
+    if c.datagrams == 0:
+        err.print(f"[red]error[/red] no datagram from an edge on UDP port {rx.port}: start flytrack-edge --source "
+                  f"events|dvs128 --wingbeat 1 --host <this host> --port {rx.port}", highlight=False, soft_wrap=True)
+        return 2
     if c.with_fly == 0:
         why_not = rx.last_status.last_error if rx.last_status and rx.last_status.last_error else "no reason given"
         err.print(f"[red]error[/red] the edge never found the fly ({why_not})", highlight=False, soft_wrap=True)
