@@ -20,7 +20,7 @@ from flytrack_host.events.files import EVENT_DTYPE, write_events
 from flytrack_host.protocol import DvsClusters, DvsWingbeat, encode
 from flytrack_host.protocol.udp import WINGEDGE_DTYPE
 from flytrack_host.wingbeat.live import WingbeatReceiver, score_live, write_csv
-from flytrack_host.wingbeat.simulate import FlySimParams, simulate_tethered_fly
+from flytrack_host.wingbeat.simulate import FlySimParams, fly_truth
 
 
 def _free_port() -> int:
@@ -54,7 +54,7 @@ def test_simulator_through_the_edge_daemon_over_udp(tmp_path):
     assert 0.95 * (seconds - 0.1) / 0.005 <= len(t) <= seconds / 0.005 + 2
     assert np.all(np.diff(t)[:-1] == 5000)
     assert all(len(s[k]) == len(t) for k in range(6))
-    _, truth = simulate_tethered_fly(FlySimParams(duration_s=seconds))  # the same seed: the same truth
+    truth = fly_truth(FlySimParams(duration_s=seconds))  # what the command simulated
     scores = score_live(rx, truth)
     for sc in scores:
         print(f"live wing {sc.wing}: {sc.beats} estimates, frequency error {sc.freq_err_pct_mean:.3f} % (max "
