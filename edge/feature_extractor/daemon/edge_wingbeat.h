@@ -5,7 +5,8 @@
  * the leading edge's), records 2-5 the edges (wing 0 leading, wing 0 trailing, wing 1 leading,
  * wing 1 trailing). While the fly is not found yet the datagrams carry no records (the host sees
  * the edge alive and its event time advance), and each initialisation window that found no fly is
- * logged with the reason, which STATUS carries as its last error. */
+ * logged with the reason, which STATUS carries as its last error (code 42; cleared once the fly is
+ * found). STATUS's proc_us_* are then the tracker's time per batch of events read. */
 #ifndef FLYTRACK_EDGE_WINGBEAT_H
 #define FLYTRACK_EDGE_WINGBEAT_H
 

@@ -174,3 +174,29 @@ def test_live_needs_an_event_file_the_edge_reads(tmp_path):
     assert r.exit_code == 2 and "no such event file" in r.output
     r = CliRunner().invoke(app, ["wingbeat"])
     assert r.exit_code == 2 and "--live" in r.output
+
+
+def test_ctrl_c_stops_the_listener_and_writes_what_came(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    port = _free_port()
+    out_csv = tmp_path / "c.csv"
+    p = subprocess.Popen([sys.executable, "-m", "flytrack_host.cli", "wingbeat", "--live", "--port", str(port),
+                          "--csv", str(out_csv)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert "listening for DVS_WINGBEAT" in p.stdout.readline()  # bound: datagrams from now on are taken
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for i in range(1, 41):
+                s.sendto(_wingbeat(i, i * 5000), ("127.0.0.1", port))
+                time.sleep(0.002)
+        time.sleep(0.5)
+        p.send_signal(signal.SIGINT)
+        out, _ = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, out
+    assert "interrupted: 40 DVS_WINGBEAT" in out and "Traceback" not in out
+    assert len(list(csv.DictReader(open(out_csv)))) == 40 * 6
