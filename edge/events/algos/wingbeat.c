@@ -47,6 +47,7 @@ struct ft_wb_tracker {
     /* the fly */
     ft_wb_geometry g;
     double hx, hy;
+    double size2_lo, size2_hi, inner2_lo, inner2_hi; /* squared radii with a margin either side */
     edge_filter e[4];
     /* beats of the current ft_wb_feed call */
     ft_wb_beat *out;
@@ -133,10 +134,17 @@ static int fail(ft_wb_tracker *t, const char *msg) {
 /* Eq. 8: angle from the heading about the body, folded to its side; -1 outside the region. */
 static int event_angle(const ft_wb_tracker *t, double x, double y, double *ang) {
     double dx = x - t->g.body_x, dy = y - t->g.body_y;
-    double a = atan2(-dx * t->hy + dy * t->hx, dx * t->hx + dy * t->hy);
-    double r = hypot(dx, dy);
-    if (r > t->g.size_px || r < t->g.inner_px)
+    /* most events far outside (or inside) the region are told by r^2 alone; near its borders
+     * hypot decides, exactly as the host's NumPy does */
+    double r2 = dx * dx + dy * dy;
+    if (r2 > t->size2_hi || r2 < t->inner2_lo)
         return -1;
+    if (r2 > t->size2_lo || r2 < t->inner2_hi) {
+        double r = hypot(dx, dy);
+        if (r > t->g.size_px || r < t->g.inner_px)
+            return -1;
+    }
+    double a = atan2(-dx * t->hy + dy * t->hx, dx * t->hx + dy * t->hy);
     *ang = fabs(a);
     return a >= 0.0 ? 0 : 1;
 }
@@ -341,6 +349,10 @@ static int initialise(ft_wb_tracker *t) {
     t->g.inner_px = 0.15 * half;
     t->hx = cos(t->g.heading);
     t->hy = sin(t->g.heading);
+    t->size2_lo = t->g.size_px * t->g.size_px * (1 - 1e-9);
+    t->size2_hi = t->g.size_px * t->g.size_px * (1 + 1e-9);
+    t->inner2_lo = t->g.inner_px * t->g.inner_px * (1 - 1e-9);
+    t->inner2_hi = t->g.inner_px * t->g.inner_px * (1 + 1e-9);
     for (int w = 0; w < 2; w++) {
         size_t na = 0;
         double sum = 0, a;
