@@ -84,8 +84,12 @@ def wingbeat_command(
     if live:
         from flytrack_host.wingbeat.live_cli import run_live
 
+        if method not in ("both", "ekf"):
+            err.print("[red]error[/red] --live: the edge runs the EKF (--method is for event files)")
+            raise typer.Exit(code=2)
         rc = run_live(console, err, file=file, simulate=simulate, port=port, seconds=seconds, timeout=timeout,
-                      csv_path=csv_path, plot=plot, edge_bin=edge_bin, harmonics=harmonics, per_update=per_update)
+                      csv_path=csv_path, plot=plot, edge_bin=edge_bin, harmonics=harmonics, per_update=per_update,
+                      start_freq=start_freq)
         if rc:
             raise typer.Exit(code=rc)
         return

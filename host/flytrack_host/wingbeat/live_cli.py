@@ -80,9 +80,14 @@ def _table(rx: WingbeatReceiver) -> Table:
 
 def run_live(console: Console, err: Console, *, file: Path | None, simulate: float | None, port: int | None,
              seconds: float | None, timeout: float, csv_path: Path | None, plot: Path | None,
-             edge_bin: Path | None, harmonics: int, per_update: int) -> int:
+             edge_bin: Path | None, harmonics: int, per_update: int, start_freq: float | None = None) -> int:
     """The live run; returns the exit code (errors: one line on `err`, 2)."""
     from flytrack_host.wingbeat.cli import save_events
+    from flytrack_host.wingbeat.native import MAX_HARMONICS
+
+    if file is not None and harmonics > MAX_HARMONICS:
+        err.print(f"[red]error[/red] --harmonics {harmonics}: the edge's tracker has at most {MAX_HARMONICS}")
+        return 2
 
     truth = None
     proc = None
@@ -116,8 +121,9 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
         err.print(f"[red]error[/red] {exc}", highlight=False, soft_wrap=True)
         return 2
     if file is not None:
-        proc = start_edge(binary, file, rx.port, extra=("--wingbeat-harmonics", str(harmonics),
-                                                        "--wingbeat-events-per-update", str(per_update)))
+        extra = ("--wingbeat-harmonics", str(harmonics), "--wingbeat-events-per-update", str(per_update),
+                 "--wingbeat-start-freq", str(start_freq or 0))
+        proc = start_edge(binary, file, rx.port, extra=extra)
         console.print(f"started {binary.name} on {file} (played at its recorded pace) -> UDP port {rx.port}",
                       highlight=False, soft_wrap=True)
     else:

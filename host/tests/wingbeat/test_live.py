@@ -174,6 +174,12 @@ def test_live_needs_an_event_file_the_edge_reads(tmp_path):
     assert r.exit_code == 2 and "no such event file" in r.output
     r = CliRunner().invoke(app, ["wingbeat"])
     assert r.exit_code == 2 and "--live" in r.output
+    r = CliRunner().invoke(app, ["wingbeat", "--live", "--method", "wra"])
+    assert r.exit_code == 2 and "the edge runs the EKF" in r.output
+    f = tmp_path / "x.aedat4"
+    write_events(f, np.zeros(10, EVENT_DTYPE), width=128, height=128)
+    r = CliRunner().invoke(app, ["wingbeat", "--live", str(f), "--harmonics", "6"])
+    assert r.exit_code == 2 and "at most 4" in r.output
 
 
 def test_ctrl_c_stops_the_listener_and_writes_what_came(tmp_path):
