@@ -25,10 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from flytrack_host.events._lib import Info, lib
-
-#: One event, 16 bytes, the C struct ft_event: t (us), x, y, p (1 = ON).
-EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "u1"],
-                        "offsets": [0, 8, 10, 12], "itemsize": 16})
+from flytrack_host.protocol.dvs import EVENT_DTYPE  # noqa: F401 (the event layout; re-exported here)
 
 FORMATS = ("aedat2", "aedat3", "aedat4", "evt2", "evt3", "dat")  # codes 1..6 in events.h
 COMPRESSIONS = ("none", "lz4", "lz4_high", "zstd", "zstd_high")  # AEDAT 4.0 CompressionType
