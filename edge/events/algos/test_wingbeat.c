@@ -9,14 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-static int failures;
-#define CHECK(c)                                                                                   \
-    do {                                                                                           \
-        if (!(c)) {                                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #c);                  \
-            failures++;                                                                            \
-        }                                                                                          \
-    } while (0)
+#include "check.h" /* CHECK(), ft_test_report: protocol/tests/check.h */
 
 static uint64_t rng = 88172645463325252ull;
 static double uni(void) { /* xorshift64: the same stream on every platform */
@@ -232,10 +225,5 @@ int main(void) {
     test_fly();
     test_no_fly();
     test_bad_input();
-    if (failures) {
-        fprintf(stderr, "%d check(s) failed\n", failures);
-        return 1;
-    }
-    printf("wingbeat: all checks passed\n");
-    return 0;
+    return ft_test_report("wingbeat");
 }
