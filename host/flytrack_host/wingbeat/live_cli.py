@@ -197,13 +197,22 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
         err.print(f"[red]error[/red] the edge never found the fly ({why_not})", highlight=False, soft_wrap=True)
         return 2
     console.print(_table(rx))
-    if truth is not None:
-        for s in score_live(rx, truth):
-            console.print(f"  wing {s.wing} against the simulation ({s.beats} estimates): frequency error "
-                          f"{s.freq_err_pct_mean:.2f} % (max {s.freq_err_pct_max:.2f} %, jitter "
-                          f"{s.freq_jitter_pct:.2f} %), amplitude error {s.amp_err_pct_mean:.2f} % "
-                          f"(max {s.amp_err_pct_max:.2f} %)",
-                          highlight=False, soft_wrap=True)
+    if truth is not None and file is not None:
+        # Side by side: the live path (the edge's C tracker, sampled every report) and the file path (the
+        # host's Python EKF per beat) on the same event file, both against the simulation.
+        from flytrack_host.wingbeat.analysis import score_wings, track_wings
+        from flytrack_host.wingbeat.cli import load_events
+        from flytrack_host.wingbeat.ekf import EkfParams
+
+        offline = track_wings(load_events(file), "ekf", start_freq_hz=start_freq,
+                              ekf=EkfParams(harmonics=harmonics, events_per_update=per_update))
+        for label, scores in (("live, edge C EKF", score_live(rx, truth)),
+                              ("file, host Python EKF", score_wings(offline, truth.freq_at, truth.amplitude_at))):
+            for s in scores:
+                console.print(f"  {label}: wing {s.wing} against the simulation ({s.beats} estimates): frequency "
+                              f"error {s.freq_err_pct_mean:.2f} % (max {s.freq_err_pct_max:.2f} %, jitter "
+                              f"{s.freq_jitter_pct:.2f} %), amplitude error {s.amp_err_pct_mean:.2f} % "
+                              f"(max {s.amp_err_pct_max:.2f} %)", highlight=False, soft_wrap=True)
     if plot is not None:
         plot_live(rx, plot, truth=truth)
         console.print(f"wrote {plot}", highlight=False, soft_wrap=True)

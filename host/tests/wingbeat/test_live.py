@@ -47,6 +47,9 @@ def test_simulator_through_the_edge_daemon_over_udp(tmp_path):
     assert r.exit_code == 0, r.output
     assert "the edge finished the file" in r.output and "0 malformed" in r.output and "fly found" in r.output
     assert png.stat().st_size > 10_000
+    # the command prints the live scores and the file path's on the same file, side by side
+    assert "live, edge C EKF: wing 1 against the simulation" in r.output
+    assert "file, host Python EKF: wing 1 against the simulation" in r.output
     rx = _receiver_from_csv(out_csv)
     s = rx.series()
     # one datagram every 5 ms of event time, all six records once the fly is found (after the 0.1 s window)
