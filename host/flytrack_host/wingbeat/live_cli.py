@@ -24,7 +24,6 @@ from flytrack_host.wingbeat.live import (
     plot_live,
     score_live,
     start_edge,
-    write_csv,
 )
 
 
@@ -116,7 +115,7 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
             return 2
     try:
         rx = WingbeatReceiver(port if port is not None else (0 if file is not None else DEFAULT_PORT),
-                              bind="127.0.0.1" if file is not None else "0.0.0.0")
+                              bind="127.0.0.1" if file is not None else "0.0.0.0", csv_path=csv_path)
     except OSError as exc:
         err.print(f"[red]error[/red] {exc}", highlight=False, soft_wrap=True)
         return 2
@@ -186,8 +185,7 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
             if "wing-beat" in line:
                 console.print(f"  edge: {line.removeprefix('flytrack-edge: ')}", highlight=False, soft_wrap=True)
     if csv_path is not None:
-        write_csv(csv_path, rx)
-        console.print(f"wrote {csv_path}", highlight=False, soft_wrap=True)
+        console.print(f"wrote {csv_path} (every record of every datagram)", highlight=False, soft_wrap=True)
     if c.datagrams == 0:
         err.print(f"[red]error[/red] no datagram from an edge on UDP port {rx.port}: start flytrack-edge --source "
                   f"events|dvs128 --wingbeat 1 --host <this host> --port {rx.port}", highlight=False, soft_wrap=True)
