@@ -5,6 +5,8 @@
  * words of a DVS128), fps is events per second over the last second, proc_us_* the processing time
  * per slice; width/height are the sensor's; state is ERROR while a DVS128 is unplugged (RUNNING
  * again once it is back). CONTROL: START, STOP, SET_PARAM slice_us; other commands answer FAILED.
+ * With --wingbeat 1 the events go to the wing-beat tracker instead and DVS_WINGBEAT datagrams go
+ * out (edge_wingbeat.h).
  */
 #define _POSIX_C_SOURCE 200809L
 #include <arpa/inet.h>

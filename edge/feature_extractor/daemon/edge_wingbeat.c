@@ -50,6 +50,10 @@ edge_wingbeat *edge_wb_create(const edge_config *cfg, uint32_t width, uint32_t h
     w->seq = seq;
     w->send = send;
     w->ctx = ctx;
+    edge_log(
+        "wing-beat mode: %ux%u sensor, fly found in the first %u us, EKF with %u harmonics, %u "
+        "events per update; a DVS_WINGBEAT every %lld us of event time",
+        width, height, p.init_us, p.harmonics, p.events_per_update, (long long)w->report_us);
     return w;
 }
 
