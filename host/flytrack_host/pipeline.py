@@ -646,8 +646,10 @@ class HostPipeline:
             self.frames_tracked += 1
             self.n_objects = len(result.estimates)
             self.n_estimates += len(result.estimates)
-            if self.live is not None:
-                self.live.send(result, bundle.timestamp)
+            # The sinks first: they only hand the frame on (the actuation rules queue device commands),
+            # while the live datagram's sendto releases the GIL, and another thread (a local live
+            # consumer woken by that very datagram, the recorder) may then hold it for up to a switch
+            # interval: measured 0.7-0.8 ms P50 added to estimate -> device command when live went first.
             for sink in self.sinks:
                 try:
                     sink.on_frame(result, bundle.timestamp, t_est)
@@ -655,6 +657,8 @@ class HostPipeline:
                     self.sink_errors += 1
                     if self.sink_errors <= 10:
                         self.log(f"output {type(sink).__name__} failed on frame {bundle.trigger_frame}: {exc!r}")
+            if self.live is not None:
+                self.live.send(result, bundle.timestamp)
         lat_row = self.latency.row(bundle.trigger_frame, bundle.timestamp, sb.first_arrival, sb.last_arrival,
                                    t_est, len(sb.frames), len(bundle.missing_cameras))
         if self.recorder is not None:

@@ -31,7 +31,7 @@ import numpy as np
 
 from flytrack_host import hostclock
 from flytrack_host.actuation.devices import Output, make_output
-from flytrack_host.actuation.devices.base import Job, Outcome, OutputWorker
+from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, Handoff, Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
 from flytrack_host.actuation.prediction import reachable_frame
@@ -71,9 +71,17 @@ class ActuationEngine:
         self.shadow_fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
         self.fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
         self.fired: dict[str, int] = {r.name: 0 for r in rules.rules}
+        # Per action, the host times of each stage (trigger, estimate, queued, taken by the worker, sent,
+        # acknowledged): where the time from a frame's trigger to the device's acknowledgement goes.
+        self.stages: deque[tuple[str, str, int, float, float, float, float, float, float]] = deque(
+            maxlen=MAX_KEPT_FIRES)
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
+        self.handoffs = 0  # frames that fired with an idle device: the tracking thread waited for the send
+        self.handoff_timeouts = 0
+        self.handoff_s_total = 0.0
+        self.handoff_s_max = 0.0
         self._pipe: Any = None
         self.warn = RateLimitedLog(lambda m: self._log(m))
         self.workers = {n: OutputWorker(o, self._done, self.warn) for n, o in self.outputs.items()}
@@ -135,19 +143,40 @@ class ActuationEngine:
         self._last_frame = frame
         ids, states = estimates_arrays(result)
         self.frames += 1
-        for ev, sh, outs in zip(self.evals, self.shadow, self.rule_outputs, strict=True):
+        handoff: Handoff | None = None
+        targets = []
+        for ev, outs in zip(self.evals, self.rule_outputs, strict=True):
             target = max((reachable_frame(frame, frame_time, now, o.lead_s + o.arm_frames * self.period_s,
                                           self.period_s) for o in outs),
                          default=reachable_frame(frame, frame_time, now, 0.0, self.period_s))
+            targets.append(target)
             fires = ev.step(frame, target, ids, states)
-            self.shadow_fires.extend(fires if sh is None else sh.step(frame, target, ids, states))
+            if not ev.rule.predict:
+                self.shadow_fires.extend(fires)  # its own shadow
             for f in fires:
-                self._dispatch(f, ev, frame_time, estimate_time)
+                handoff = self._dispatch(f, ev, frame_time, estimate_time, handoff)
+        if handoff is not None:
+            # Let the device threads put their commands on the wire now (this thread's GIL released),
+            # rather than after this thread's next stretch of work: bounded, and only on a frame that fired.
+            t1 = time.perf_counter()
+            if not handoff.wait(HANDOFF_MAX_S):
+                self.handoff_timeouts += 1
+            w = time.perf_counter() - t1
+            self.handoffs += 1
+            self.handoff_s_total += w
+            self.handoff_s_max = max(self.handoff_s_max, w)
+        # The shadow (no prediction) only feeds the summary: judged after the commands have left.
+        for sh, target in zip(self.shadow, targets, strict=True):
+            if sh is not None:
+                self.shadow_fires.extend(sh.step(frame, target, ids, states))
         dt = time.perf_counter() - t0
         self.eval_s_total += dt
         self.eval_s_max = max(self.eval_s_max, dt)
 
-    def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float) -> None:
+    def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float,
+                  handoff: Handoff | None) -> Handoff | None:
+        """Queues the firing's actions; a command for an idle, connected device joins `handoff` (made
+        here when needed), which the tracking thread then waits for, bounded."""
         self.fires.append(f)
         self.fired[f.rule] += 1
         pos = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
@@ -159,14 +188,23 @@ class ActuationEngine:
                 out = Outcome(job, a.output if a else "", self.outputs[a.output].kind if a else "",
                               scheduled_frame=f.scheduled_frame, error="dry run")
                 self.firings.add(out, dry_run=True)
-            return
+            return handoff
         for a in rule.actions:
             job = Job(f.rule, f.obj_id, f.condition_frame, f.scheduled_frame, frame_time, estimate_time, pos,
                       a, f.predicted)
-            self.workers[a.output].submit(job)
+            worker = self.workers[a.output]
+            if worker.ready:
+                handoff = handoff or Handoff()
+                handoff.add()
+                job.handoff = handoff
+            worker.submit(job)
+        return handoff
 
     def _done(self, o: Outcome) -> None:
         self.firings.add(o)
+        j = o.job
+        self.stages.append((j.rule, o.output, j.condition_frame, j.frame_time, j.estimate_time, j.queued_at,
+                            o.time_started, o.time_sent, o.time_ack))
         late = o.error.startswith("late")
         if late:
             self.warn(f"{o.output}:late", f"output {o.output}: {o.error}")
@@ -207,6 +245,9 @@ class ActuationEngine:
             "frames": self.frames,
             "eval_us_mean": self.eval_s_total / self.frames * 1e6 if self.frames else math.nan,
             "eval_us_max": self.eval_s_max * 1e6,
+            "handoff": {"frames": self.handoffs, "timeouts": self.handoff_timeouts,
+                        "us_mean": self.handoff_s_total / self.handoffs * 1e6 if self.handoffs else math.nan,
+                        "us_max": self.handoff_s_max * 1e6},
             "rules": out_rules,
             "outputs": {n: {**w.stats.__dict__, "connected": w.output.connected,
                             "lead_ms": w.output.lead_s * 1e3} for n, w in self.workers.items()},

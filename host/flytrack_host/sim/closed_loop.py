@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.actuation.engine import ActuationEngine
-from flytrack_host.actuation.firings import percentiles_ms
+from flytrack_host.actuation.firings import percentiles_ms, stage_latencies
 from flytrack_host.actuation.history import RuleEvaluator
 from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
@@ -141,6 +141,9 @@ class ClosedLoopLab:
                 # Where it went: the host's trigger -> estimate, then estimate -> the devices' acknowledgement.
                 "latency_parts_ms_p50": {"trigger_to_estimate": percentiles_ms(est).get("p50", math.nan),
                                          "estimate_to_ack": percentiles_ms(ack).get("p50", math.nan)},
+                # Each stage per output: trigger -> estimate -> queued -> taken by the device thread -> sent
+                # -> acknowledged (ms, P50/P99).
+                "latency_stages_ms": stage_latencies(engine.stages, name),
                 "pulse_ack_ms_p50": pp.get("p50", math.nan),
                 "pulse_ack_ms_p99": pp.get("p99", math.nan),
                 "expected_frames": exp,
@@ -165,6 +168,7 @@ class ClosedLoopLab:
             "can_frames": len(self.can.frames),
             "eval_us_mean": summary["eval_us_mean"],
             "eval_us_max": summary["eval_us_max"],
+            "handoff": summary["handoff"],
             "outputs": summary["outputs"],
         }
 

@@ -43,7 +43,9 @@ class CanOutput(Output):
             self.bus.send(msg, timeout=self.cfg.timeout_s)
         except can.CanError as exc:
             raise OutputError(f"CAN send failed: {exc}") from None
-        return Done(t0, hostclock.now())
+        t1 = hostclock.now()
+        self.written()
+        return Done(t0, t1)
 
     def _close(self) -> None:
         if self.bus is not None:

@@ -54,6 +54,7 @@ class HidOutput(Output):
         a = job.action
         report = bytes([a.report_id or 0]) + bytes(a.data or [])  # hidapi: first byte is the report id
         t0 = hostclock.now()
+        self.written()  # the transfer may take long: the tracking thread does not wait for it
         n = self.handle.write(report)
         if n < 0:
             raise OutputError("hid write failed (device gone?)")

@@ -59,5 +59,6 @@ class PythonHookOutput(Output):
         firing = {"rule": job.rule, "obj_id": job.obj_id, "condition_frame": job.condition_frame,
                   "scheduled_frame": job.scheduled_frame, "x": x, "y": y, "z": z}
         t0 = hostclock.now()
+        self.written()  # custom code may take long: the tracking thread does not wait for it
         self.fn(firing, **job.action.params)
         return Done(t0, hostclock.now())

@@ -36,8 +36,22 @@ def _request_wire_s(dev: Any) -> float:
 class TriggerPulseOutput(Output):
     kind = "trigger_pulse"
     arm_frames = 1
-    # PULSE + ACK at 115200 baud (~22 bytes with framing, ~1.9 ms) and a clock query it may wait behind.
-    initial_lead_s = 0.006
+    # Until measured: a PULSE on the wire at 115200 baud (~12 bytes with framing, ~1 ms), the firmware's
+    # dispatch, and a clock query it may wait behind (the link carries one request at a time).
+    initial_lead_s = 0.003
+
+    def _lead_sample(self, job: Job, done: Done) -> float:
+        """A PULSE reaches its frame when the firmware has read it, not when its ACK is back: the time
+        from queueing to the request's write, plus its time on the wire and the firmware's dispatch (the
+        ACK's way back, ~1 ms at 115200 baud, and the reader thread's wait for the GIL are not needed).
+        A PULSE that is too late anyway is refused and pulsed at once, recorded as late."""
+        if not math.isfinite(self.time_written):
+            return super()._lead_sample(job, done)
+        try:
+            wire = _request_wire_s(self._device())
+        except OutputError:
+            return math.nan
+        return self.time_written - job.queued_at + wire
 
     def _device(self) -> Any:
         get = self.context.get("trigger")
@@ -61,7 +75,7 @@ class TriggerPulseOutput(Output):
             return Done(t0, hostclock.now())
         width = (a.width_ms or DEFAULT_WIDTH_MS) / 1e3
         try:
-            t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width)
+            t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width, on_written=self.written)
             return Done(t0, t1, job.scheduled_frame, True)
         except TriggerError as exc:
             if "BUSY" in str(exc):
@@ -70,7 +84,7 @@ class TriggerPulseOutput(Output):
             if "BAD_ARG" not in str(exc) or job.scheduled_frame < 0:
                 raise
         # Too late for that frame: pulse at the earliest frame the firmware can still reach.
-        t0, t1 = dev.pulse_timed(0, None, width)
+        t0, t1 = dev.pulse_timed(0, None, width, on_written=self.written)
         clock = self.context.get("clock")
         est = -1
         if clock is not None:
