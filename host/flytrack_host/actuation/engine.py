@@ -144,6 +144,7 @@ class ActuationEngine:
         ids, states = estimates_arrays(result)
         self.frames += 1
         handoff: Handoff | None = None
+        jobs: list[tuple[OutputWorker, Job]] = []
         targets = []
         for ev, outs in zip(self.evals, self.rule_outputs, strict=True):
             target = max((reachable_frame(frame, frame_time, now, o.lead_s + o.arm_frames * self.period_s,
@@ -154,7 +155,13 @@ class ActuationEngine:
             if not ev.rule.predict:
                 self.shadow_fires.extend(fires)  # its own shadow
             for f in fires:
-                handoff = self._dispatch(f, ev, frame_time, estimate_time, handoff)
+                handoff = self._dispatch(f, ev, frame_time, estimate_time, handoff, jobs)
+        # Queued together (no device thread runs before the last is queued), the devices that act at once
+        # (a coil, a CAN frame) before those a command reaches a frame ahead (the PULSE: its lead counts
+        # this wait).
+        jobs.sort(key=lambda wj: wj[0].output.arm_frames)
+        for worker, job in jobs:
+            worker.submit(job)
         if handoff is not None:
             # Let the device threads put their commands on the wire now (this thread's GIL released),
             # rather than after this thread's next stretch of work: bounded, and only on a frame that fired.
@@ -174,9 +181,9 @@ class ActuationEngine:
         self.eval_s_max = max(self.eval_s_max, dt)
 
     def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float,
-                  handoff: Handoff | None) -> Handoff | None:
-        """Queues the firing's actions; a command for an idle, connected device joins `handoff` (made
-        here when needed), which the tracking thread then waits for, bounded."""
+                  handoff: Handoff | None, jobs: list[tuple[OutputWorker, Job]]) -> Handoff | None:
+        """Adds the firing's actions to `jobs` (queued by the caller); a command for an idle, connected
+        device joins `handoff` (made here when needed), which the tracking thread then waits for, bounded."""
         self.fires.append(f)
         self.fired[f.rule] += 1
         pos = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
@@ -193,11 +200,11 @@ class ActuationEngine:
             job = Job(f.rule, f.obj_id, f.condition_frame, f.scheduled_frame, frame_time, estimate_time, pos,
                       a, f.predicted)
             worker = self.workers[a.output]
-            if worker.ready:
+            if worker.ready and all(w is not worker for w, _ in jobs):  # its first command of this frame
                 handoff = handoff or Handoff()
                 handoff.add()
                 job.handoff = handoff
-            worker.submit(job)
+            jobs.append((worker, job))
         return handoff
 
     def _done(self, o: Outcome) -> None:

@@ -23,9 +23,12 @@ def reachable_frame(frame: int, frame_time: float, now: float, lead_s: float, pe
     return frame + max(1, k)
 
 
-def predict_states(states: np.ndarray, dt: float) -> np.ndarray:
+def predict_states(states: np.ndarray, dt: float, vel: np.ndarray | None = None) -> np.ndarray:
     """Constant-velocity prediction of (N, 6) [x y z vx vy vz] states `dt` seconds ahead (the
-    tracker's own motion model)."""
+    tracker's own motion model). `vel` (N, 3): the velocity to move the positions with (the rule
+    evaluator passes each object's last position step, which follows a change of speed sooner than
+    the filter's velocity state); the predicted states keep the tracker's velocity either way, for
+    the conditions on speed."""
     out = np.array(states, dtype=np.float64, copy=True).reshape(-1, 6)
-    out[:, :3] += out[:, 3:6] * dt
+    out[:, :3] += (out[:, 3:6] if vel is None else np.asarray(vel, dtype=np.float64).reshape(-1, 3)) * dt
     return out

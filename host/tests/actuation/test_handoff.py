@@ -97,10 +97,10 @@ def test_modbus_ack_is_the_kernel_stamp_of_the_response(act) -> None:  # noqa: A
         assert len(peer.coil_writes(3)) == 3
         for _, _, _, _, _, queued, started, sent, ack in eng.stages:
             assert queued <= started <= sent <= ack
-        # The response's arrival as the kernel stamped it: after the request left, and the stamp the
-        # worker kept is the one the firing recorded.
-        assert math.isfinite(out.reply_at) and out.time_written <= out.reply_at
-        assert eng.stages[-1][-1] == out.reply_at
+        # The response's arrival as the kernel stamped it (after the request was sent: sent <= ack above)
+        # is the acknowledgement the firing recorded. It can come before the device thread, back from
+        # its send, has the GIL again to stamp `time_written`: why the reply is stamped by the kernel.
+        assert math.isfinite(out.reply_at) and eng.stages[-1][-1] == out.reply_at
         t = eng.firings.table()
         assert np.all(t["time_ack"] >= t["time_sent"]) and not any(t["error"])
     finally:
