@@ -144,14 +144,16 @@ class RuleEvaluator:
         position follows the cameras within a frame; over 23 entries of 6 recorded demo runs the
         frame error went from -2..+1 to 0 (see prediction.py)."""
         vel = np.array(states[:, 3:6], dtype=np.float64, copy=True)
+        prev = np.full((len(id_list), 3), np.nan)
         for i, oid in enumerate(id_list):
             ob = self.objs.get(oid)
             if ob is not None and ob.last_pos is not None and ob.pos_frame == frame - 1:
-                step = (states[i, :3] - ob.last_pos) / self.period_s
-                # A step far from the filter's velocity is a jump of the estimate (a new association),
-                # not flight: the filter's velocity then.
-                if np.all(np.isfinite(step)) and np.linalg.norm(step - vel[i]) <= STEP_VELOCITY_TOLERANCE_M_S:
-                    vel[i] = step
+                prev[i] = ob.last_pos
+        step = (states[:, :3] - prev) / self.period_s
+        # A step far from the filter's velocity is a jump of the estimate (a new association), not
+        # flight: the filter's velocity then (and where there is no previous frame: NaN fails the test).
+        ok = np.sum((step - vel) ** 2, axis=1) <= STEP_VELOCITY_TOLERANCE_M_S**2
+        vel[ok] = step[ok]
         return vel
 
     def _gate(self, frame: int, at: int) -> str | None:
