@@ -33,6 +33,12 @@ from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
 
 MATCH_WINDOW_S = 0.3  # a firing further than this from every true entry is a false fire
+LATENCY_DEFINITION = (
+    "latency_ms_p50/p99: per firing, from the trigger time of the frame whose estimate fired (the host's trigger "
+    "clock model) to the last acknowledgement of the devices that act at once (Modbus response, CAN send); the "
+    "PULSE is armed ahead for a later frame, its ACK time is pulse_ack_ms_p50/p99 and its landing frame_error_max. "
+    "What each device's acknowledgement is: outputs.NAME.acknowledged_means. latency_stages_ms splits it per "
+    "output: trigger -> estimate -> queued -> taken by the device thread -> sent -> acknowledged.")
 
 
 def expected_firings(rule: Any, gt: Any) -> list[tuple[int, int]]:
@@ -163,6 +169,7 @@ class ClosedLoopLab:
             out_rules[name] = d
         return {
             "rules_file": str(self.rules_src),
+            "latency_definition": LATENCY_DEFINITION,
             "rules": out_rules,
             "modbus_coil_writes": len(self.modbus.writes),
             "can_frames": len(self.can.frames),

@@ -118,6 +118,7 @@ class Output:
     """One device. Subclasses implement `_connect`, `_perform` and `_close`."""
 
     kind = "?"
+    ack_means = "?"  # what `time_ack` is for this device (said in the demo JSON and the README)
     arm_frames = 0  # frames ahead the device must have the command (the trigger firmware: 1)
 
     initial_lead_s = 0.0  # until measured: time from queueing a command to its acknowledgement

@@ -13,6 +13,7 @@ from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 class CanOutput(Output):
     kind = "can"
+    ack_means = "Bus.send returned: the frame was handed to the bus (CAN acknowledges on the wire, unreported)"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]

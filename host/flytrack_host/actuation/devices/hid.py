@@ -39,6 +39,7 @@ class HidapiBackend:
 
 class HidOutput(Output):
     kind = "hid"
+    ack_means = "the output report write returned"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]

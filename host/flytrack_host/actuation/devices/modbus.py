@@ -83,6 +83,7 @@ def _stamped_tcp_client(output: ModbusOutput, **kw: Any) -> Any:
 
 class ModbusOutput(Output):
     kind = "modbus"
+    ack_means = "the server's response to the write (FC05/FC06), kernel receive stamp over TCP"
     initial_lead_s = 0.002
 
     def __init__(self, *args: object, **kw: object):

@@ -45,6 +45,7 @@ def load_hook(address: str, base_dir: Path | None = None) -> Callable[..., Any]:
 
 class PythonHookOutput(Output):
     kind = "python"
+    ack_means = "the function returned"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]

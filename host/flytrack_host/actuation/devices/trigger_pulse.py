@@ -35,6 +35,8 @@ def _request_wire_s(dev: Any) -> float:
 
 class TriggerPulseOutput(Output):
     kind = "trigger_pulse"
+    ack_means = ("the firmware's ACK of the PULSE request: armed for its trigger frame, where the pin fires "
+                 "(exactly, FRAME_EXACT), after the ACK")
     arm_frames = 1
     # Until measured: a PULSE on the wire at 115200 baud (~12 bytes with framing, ~1 ms), the firmware's
     # dispatch, and a clock query it may wait behind (the link carries one request at a time).

@@ -13,6 +13,7 @@ from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 class UdpOutput(Output):
     kind = "udp"
+    ack_means = "sendto returned (UDP has no acknowledgement)"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]

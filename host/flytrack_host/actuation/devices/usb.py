@@ -44,6 +44,7 @@ class PyusbBackend:
 
 class UsbOutput(Output):
     kind = "usb"
+    ack_means = "the control or bulk transfer completed"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]
