@@ -34,7 +34,7 @@ from flytrack_host.actuation.devices import Output, make_output
 from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, Handoff, Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
-from flytrack_host.actuation.prediction import reachable_frame
+from flytrack_host.actuation.prediction import StepVelocities, reachable_frame
 from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
 from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig, RigConfig
@@ -66,6 +66,8 @@ class ActuationEngine:
         self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) if r.predict else None
                        for r in rules.rules]
         self.rule_outputs = [[self.outputs[a.output] for a in r.actions] for r in rules.rules]
+        self.step_vel = StepVelocities(self.period_s)  # the velocities to predict with, per frame
+        self._predicting = any(r.predict for r in rules.rules)
         self.firings = FiringLog(record=self._record)
         # The latest firings (the recording keeps them all), and counts per rule.
         self.shadow_fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
@@ -140,8 +142,10 @@ class ActuationEngine:
             for ev in (*self.evals, *self.shadow):
                 if ev is not None:
                     ev.reset()
+            self.step_vel.reset()
         self._last_frame = frame
         ids, states = estimates_arrays(result)
+        step_vel = self.step_vel(frame, ids, states) if self._predicting else None  # once for all rules
         self.frames += 1
         handoff: Handoff | None = None
         jobs: list[tuple[OutputWorker, Job]] = []
@@ -151,7 +155,7 @@ class ActuationEngine:
                                           self.period_s) for o in outs),
                          default=reachable_frame(frame, frame_time, now, 0.0, self.period_s))
             targets.append(target)
-            fires = ev.step(frame, target, ids, states)
+            fires = ev.step(frame, target, ids, states, step_vel)
             if not ev.rule.predict:
                 self.shadow_fires.extend(fires)  # its own shadow
             for f in fires:

@@ -17,11 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flytrack_host.actuation.conditions import compile_condition, turn_rate_deg_s
-from flytrack_host.actuation.prediction import predict_states
+from flytrack_host.actuation.prediction import StepVelocities, predict_states
 from flytrack_host.actuation.rules import Rule
 
 _EPS = 1e-9
-STEP_VELOCITY_TOLERANCE_M_S = 1.0  # the last position step predicts only this close to the filter's velocity
 
 
 @dataclass
@@ -42,8 +41,6 @@ class _Obj:
     fired: bool = False
     last_vel: np.ndarray | None = None
     last_frame: int = -1
-    last_pos: np.ndarray | None = None  # the estimate's position at `pos_frame` (prediction velocity)
-    pos_frame: int = -1
 
 
 @dataclass
@@ -61,9 +58,11 @@ class RuleEvaluator:
         self._mask = compile_condition(self.rule.when)
         self._hold = self.rule.when.hold_ms / 1e3
         self._after = self.rule.when.after_false_ms / 1e3
+        self._step_vel = StepVelocities(self.period_s)  # when the caller gives none (see `step`)
 
     def reset(self) -> None:
         """Forget every object and the last firing (trigger frames start again from 0)."""
+        self._step_vel.reset()
         self.objs.clear()
         self.last_fire_frame = None
         self.recent.clear()
@@ -76,15 +75,18 @@ class RuleEvaluator:
             return ids == ids.min()
         return ids == int(o)
 
-    def step(self, frame: int, target_frame: int, ids: np.ndarray, states: np.ndarray) -> list[Fire]:
+    def step(self, frame: int, target_frame: int, ids: np.ndarray, states: np.ndarray,
+             step_vel: np.ndarray | None = None) -> list[Fire]:
         """One frame's estimates (ids (N,), states (N, 6)); the action would reach `target_frame`.
-        Returns the firings (already through the gates)."""
+        `step_vel`: the objects' velocities to predict with (`StepVelocities` of this frame: the engine
+        computes them once for all its rules); None: this evaluator's own. Returns the firings (already
+        through the gates)."""
         self.frames += 1
         r = self.rule
         id_list = ids.tolist()
         if r.predict:
             ahead = min((target_frame - frame) * self.period_s, r.max_predict_ms / 1e3)
-            vel = self._step_velocities(frame, id_list, states)
+            vel = self._step_vel(frame, ids, states) if step_vel is None else step_vel
             judged = predict_states(states, ahead, vel) if ahead > 0 else states
             at = target_frame
         else:
@@ -118,8 +120,6 @@ class RuleEvaluator:
                 ob.state, ob.since = m, at
             if self._needs_turn:
                 ob.last_vel, ob.last_frame = states[i, 3:6].copy(), frame
-            if r.predict:
-                ob.last_pos, ob.pos_frame = states[i, :3].copy(), frame
             if not m or ob.fired or ob.prev_false < 1:
                 continue
             if (at - ob.since) * self.period_s + _EPS < hold or ob.prev_false * self.period_s + _EPS < after:
@@ -135,26 +135,6 @@ class RuleEvaluator:
         for gone in set(self.objs) - seen:  # the track died: a new one starts without history
             del self.objs[gone]
         return fires
-
-    def _step_velocities(self, frame: int, id_list: list[int], states: np.ndarray) -> np.ndarray:
-        """Per object, the velocity to predict with: its estimate's last step (position now minus at
-        the previous frame, over one period) when it was tracked on the previous frame, else the
-        tracker's velocity. The filter's velocity lags a change of speed by several frames (seed 0's
-        decelerating entry: -0.101 m/s against a true -0.073, its pulse 2 frames early) while its
-        position follows the cameras within a frame; over 23 entries of 6 recorded demo runs the
-        frame error went from -2..+1 to 0 (see prediction.py)."""
-        vel = np.array(states[:, 3:6], dtype=np.float64, copy=True)
-        prev = np.full((len(id_list), 3), np.nan)
-        for i, oid in enumerate(id_list):
-            ob = self.objs.get(oid)
-            if ob is not None and ob.last_pos is not None and ob.pos_frame == frame - 1:
-                prev[i] = ob.last_pos
-        step = (states[:, :3] - prev) / self.period_s
-        # A step far from the filter's velocity is a jump of the estimate (a new association), not
-        # flight: the filter's velocity then (and where there is no previous frame: NaN fails the test).
-        ok = np.sum((step - vel) ** 2, axis=1) <= STEP_VELOCITY_TOLERANCE_M_S**2
-        vel[ok] = step[ok]
-        return vel
 
     def _gate(self, frame: int, at: int) -> str | None:
         r = self.rule
