@@ -116,6 +116,8 @@ class ModbusOutput(Output):
             raise OutputError("not connected")
         self.reply_at = math.nan
         t0 = hostclock.now()
+        if self.cfg.transport != "tcp":
+            self.written()  # RTU: a serial round trip of several ms; the tracking thread does not wait for it
         try:
             if a.coil is not None:
                 rr = client.write_coil(a.coil, bool(a.value), device_id=self.cfg.unit)
