@@ -26,13 +26,12 @@ def _udp_engine(act, rx: socket.socket):  # noqa: ANN001, ANN202
     return eng
 
 
-def test_command_is_on_the_wire_when_on_frame_returns(act, monkeypatch) -> None:  # noqa: ANN001
-    # A generous bound here (the machine may be loaded): the wait ends when the datagram has left.
-    monkeypatch.setattr("flytrack_host.actuation.engine.HANDOFF_MAX_S", 5.0)
+def test_command_is_on_the_wire_when_on_frame_returns(act) -> None:  # noqa: ANN001
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     try:
         eng = _udp_engine(act, rx)
+        eng.handoff_max_s = 5.0  # a generous bound here (the machine may be loaded): it ends when the datagram left
         f = 0
         returned = []
         for x in [0.0] * 30 + [1.5] * 3:

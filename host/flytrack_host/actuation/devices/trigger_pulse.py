@@ -33,6 +33,14 @@ def _request_wire_s(dev: Any) -> float:
     return n * 10 / baud + FIRMWARE_SAMPLE_DELAY_S
 
 
+def _ack_wire_s(dev: Any) -> float:
+    """Time the firmware's ACK takes on the wire (delimiter + frame, 10 bits a byte)."""
+    from flytrack_host.protocol import trigger_link as tl
+
+    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", 115200) or 115200)
+    return len(b"\0" + tl.encode_message(tl.Ack(int(tl.MsgId.PULSE)), 1)) * 10 / baud
+
+
 class TriggerPulseOutput(Output):
     kind = "trigger_pulse"
     ack_means = ("the firmware's ACK of the PULSE request: armed for its trigger frame, where the pin fires "
@@ -43,17 +51,16 @@ class TriggerPulseOutput(Output):
     initial_lead_s = 0.003
 
     def _lead_sample(self, job: Job, done: Done) -> float:
-        """A PULSE reaches its frame when the firmware has read it, not when its ACK is back: the time
-        from queueing to the request's write, plus its time on the wire and the firmware's dispatch (the
-        ACK's way back, ~1 ms at 115200 baud, and the reader thread's wait for the GIL are not needed).
+        """A PULSE reaches its frame when the firmware has read it, not when its ACK is back: the
+        firmware answers as soon as it has armed the pulse, so it had the PULSE at the latest when its
+        ACK started back, the ACK's arrival less its time on the wire (~0.6 ms at 115200 baud). That
+        keeps whatever delayed the request (a clock query ahead of it, a lagging simulator) in the lead.
         A PULSE that is too late anyway is refused and pulsed at once, recorded as late."""
-        if not math.isfinite(self.time_written):
-            return super()._lead_sample(job, done)
         try:
-            wire = _request_wire_s(self._device())
+            back = _ack_wire_s(self._device())
         except OutputError:
             return math.nan
-        return self.time_written - job.queued_at + wire
+        return done.time_ack - job.queued_at - back
 
     def _device(self) -> Any:
         get = self.context.get("trigger")
