@@ -8,7 +8,10 @@ the rules and hands the resulting actions to per-device worker threads.
 
 `on_frame` runs on the tracking thread: per rule one vectorised condition over the frame's objects
 and a few dict updates per object, then `put_nowait` of each action (`make bench-actuation` prints
-its cost per frame against the number of objects). Nothing here waits for a device.
+its cost per frame against the number of objects). Nothing here waits for a device's answer: on a
+frame that fired, it only waits (at most `HANDOFF_MAX_S`) for the idle devices' threads to put their
+commands on the wire (`devices.base.Handoff`), so they do not wait for this thread's next stretch of
+work to get Python's GIL.
 
 The frame each firing aims for is the first frame its slowest output can still reach (the measured
 trigger-to-estimate latency, the device's latency and its arming lead; `prediction.reachable_frame`),
