@@ -51,23 +51,34 @@ class StepVelocities:
 
     def reset(self) -> None:
         self._frame = -2
-        self._ids = np.zeros(0, dtype=np.int64)  # the previous frame's ids, sorted, and their positions
+        self._ids: list[int] = []  # the previous frame's ids, in its order, and their positions
         self._pos = np.zeros((0, 3))
         self._vel = np.zeros((0, 3))
 
     def __call__(self, frame: int, ids: np.ndarray, states: np.ndarray) -> np.ndarray:
         """(N, 3) velocities for this frame's ids (N,) and states (N, 6); remembers this frame."""
-        ids = np.asarray(ids, dtype=np.int64)
+        id_list = np.asarray(ids, dtype=np.int64).tolist()
         states = np.asarray(states, dtype=np.float64).reshape(-1, 6)
-        vel = np.array(states[:, 3:6], copy=True)
-        if frame == self._frame and len(self._vel) == len(ids):
+        if frame == self._frame and id_list == self._ids:
             return self._vel.copy()  # the same frame again (a second caller)
-        if self._frame == frame - 1 and len(self._ids) and len(ids):
-            j = np.minimum(np.searchsorted(self._ids, ids), len(self._ids) - 1)
-            step = (states[:, :3] - self._pos[j]) / self.period_s
-            ok = (self._ids[j] == ids) & (np.sum((step - vel) ** 2, axis=1) <= STEP_VELOCITY_TOLERANCE_M_S**2)
-            vel[ok] = step[ok]
-        order = np.argsort(ids, kind="stable")
-        self._ids, self._pos = ids[order], states[order, :3].copy()
-        self._frame, self._vel = frame, vel.copy()
-        return vel
+        vel = states[:, 3:6]
+        pos = states[:, :3]
+        if self._frame == frame - 1 and id_list and self._ids:
+            if id_list == self._ids:  # the same objects in the same order: the common case
+                prev = self._pos
+            else:
+                where = {oid: i for i, oid in enumerate(self._ids)}
+                prev = np.full((len(id_list), 3), np.nan)
+                for i, oid in enumerate(id_list):
+                    j = where.get(oid)
+                    if j is not None:
+                        prev[i] = self._pos[j]
+            step = (pos - prev) / self.period_s
+            # NaN (no previous position) fails the comparison: the filter's velocity then.
+            ok = np.sum((step - vel) ** 2, axis=1) <= STEP_VELOCITY_TOLERANCE_M_S**2
+            vel = np.where(ok[:, None], step, vel)
+        else:
+            vel = vel.copy()
+        self._ids, self._pos = id_list, pos.copy()
+        self._frame, self._vel = frame, vel
+        return vel.copy()
