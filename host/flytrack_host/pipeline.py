@@ -52,7 +52,6 @@ from flytrack_host.recording.schema import (
     FLAG_TRUNCATED,
     KALMAN,
     TRIGGER_CLOCK,
-    cov_upper,
 )
 from flytrack_host.recording.writer import Recorder
 from flytrack_host.rig import RigConfig
@@ -163,19 +162,27 @@ def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int,
     return rows
 
 
+_COV_IU = np.triu_indices(6)  # COV_NAMES order (recording.schema.cov_upper)
+
+
 def result_rows(result: FrameResult, timestamp: float) -> tuple[np.ndarray, np.ndarray]:
-    k = np.zeros(len(result.estimates), dtype=KALMAN)
-    for i, e in enumerate(result.estimates):
-        s = np.asarray(e.state, dtype=np.float64)
-        row = k[i]
-        row["obj_id"] = e.obj_id
-        row["trigger_frame"] = result.trigger_frame
-        row["timestamp"] = timestamp
+    """KALMAN and ASSOCIATION rows of a frame, column by column (the tracking thread makes them for
+    every frame: one row at a time cost ~0.1 ms a frame more with 3 objects)."""
+    est = result.estimates
+    n = len(est)
+    k = np.zeros(n, dtype=KALMAN)
+    if n:
+        states = np.array([np.asarray(e.state, dtype=np.float64)[:6] for e in est]).reshape(n, 6)
+        covs = np.array([np.asarray(e.covariance, dtype=np.float64)[:6, :6] for e in est]).reshape(n, 6, 6)
+        k["obj_id"] = [e.obj_id for e in est]
+        k["trigger_frame"] = result.trigger_frame
+        k["timestamp"] = timestamp
         for j, name in enumerate(("x", "y", "z", "xvel", "yvel", "zvel")):
-            row[name] = s[j]
-        for name, v in zip(COV_NAMES, cov_upper(e.covariance), strict=True):
-            row[name] = v
-        row["n_cameras"] = e.n_cameras
+            k[name] = states[:, j]
+        upper = covs[:, _COV_IU[0], _COV_IU[1]]
+        for j, name in enumerate(COV_NAMES):
+            k[name] = upper[:, j]
+        k["n_cameras"] = [e.n_cameras for e in est]
     a = np.zeros(len(result.associations), dtype=ASSOCIATION)
     for i, asc in enumerate(result.associations):
         a[i] = (asc.obj_id, result.trigger_frame, asc.camera_index, asc.point_index)

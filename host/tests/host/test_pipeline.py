@@ -238,3 +238,23 @@ def test_sinks_run_before_the_live_datagram(helpers, tmp_path):
     assert summary["sink_errors"] == 0 and summary["frames_tracked"] == 20
     assert [f for f, _, _ in sink.frames] == list(range(20))
     assert seen_at_sink == list(range(19))  # each frame's datagram went out after its sinks
+
+
+def test_result_rows_hold_each_estimate_exactly():
+    # Column by column: every row equals the estimate's state, upper covariance (COV_NAMES order) and counts.
+    from flytrack_host.pipeline import result_rows
+    from flytrack_host.recording.schema import COV_NAMES, KALMAN, cov_upper
+    from flytrack_host.tracking.types import Association, Estimate, FrameResult
+
+    rng = np.random.default_rng(1)
+    for n in (0, 1, 3, 30):
+        est = [Estimate(int(i * 7), rng.normal(size=6), (lambda a: a @ a.T)(rng.normal(size=(6, 6))), 2 + i % 4)
+               for i in range(n)]
+        res = FrameResult(17, 0.0, est, [Association(e.obj_id, 1, 0) for e in est])
+        k, a = result_rows(res, 123.25)
+        assert k.dtype == KALMAN and len(k) == n and len(a) == n
+        for row, e in zip(k, est, strict=True):
+            assert (row["obj_id"], row["trigger_frame"], row["timestamp"], row["n_cameras"]) == (
+                e.obj_id, 17, 123.25, e.n_cameras)
+            assert [row[c] for c in ("x", "y", "z", "xvel", "yvel", "zvel")] == e.state[:6].tolist()
+            assert [row[c] for c in COV_NAMES] == cov_upper(e.covariance).tolist()
