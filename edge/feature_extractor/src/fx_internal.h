@@ -47,11 +47,12 @@ struct ft_fx {
     /* The same bounds per whole row: the scan's very first check. */
     uint8_t *rhi8, *rlo8;
     uint16_t *rhi16, *rlo16;
-    uint8_t *mask; /* 1 = use, always allocated (all ones without a user mask) */
-    uint8_t *luma; /* YUYV: the luma plane of the current frame */
-    uint32_t cap;  /* candidates (and so runs) per frame at most */
-    float *cand_d; /* per candidate, raster order: its difference to the background */
-    ft_run *runs;  /* per run, raster order */
+    uint8_t *mask;   /* 1 = use, always allocated (all ones without a user mask) */
+    uint8_t *luma;   /* YUYV: the luma plane of the current frame */
+    uint32_t cap;    /* candidates (and so runs) per frame at most */
+    uint32_t *queue; /* the scan's blocks to look at pixel by pixel: y << 8 | block (h x nblk) */
+    float *cand_d;   /* per candidate, raster order: its difference to the background */
+    ft_run *runs;    /* per run, raster order */
     uint32_t *run_parent, *run_region;
     ft_region *regions;
     ft_rank *ranks;

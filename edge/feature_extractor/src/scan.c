@@ -316,29 +316,34 @@ static inline void prefetch_block(const float *m, size_t n, const void *hr, cons
     }
 }
 
-/* One row's candidates: every pixel against its thresholds (plain), or the blocks that fail their
- * bounds (a bit per block, computed for up to 64 blocks without a branch), then their pixels. */
+/* Two passes. The first reads the frame alone: each row against its bounds, and in a row that
+ * fails, its blocks against theirs (a bit per block, up to 64 blocks without a branch); a block
+ * that fails is queued and its thresholds and background means are prefetched. The second compares
+ * the queued blocks' pixels with their thresholds and keeps their candidates: by then their data
+ * have come in, all misses having overlapped during the first pass. The queue is in raster order,
+ * and so are the candidates. (plain: every pixel of every row against its thresholds.) */
 #define DEFINE_SCAN(NAME, T, HI, LO, BHI, BLO, RHI, RLO, OUT, MASK, ADD)                           \
     uint32_t NAME(ft_fx *fx, const T *img, size_t stride_px, uint32_t *n_cand, int *overflow) {    \
         const size_t w = fx->w, nblk = fx->nblk, nfull = w / FT_BLOCK;                             \
         scan_state s = {fx, 0, 0, 0};                                                              \
-        const int plain = fx->scalar_scan;                                                         \
-        for (uint32_t y = 0; y < fx->h; y++) {                                                     \
-            const T *r = img + y * stride_px;                                                      \
-            const T *hr = fx->HI + y * w, *lr = fx->LO + y * w;                                    \
-            const T *bh = fx->BHI + y * nblk, *bl = fx->BLO + y * nblk;                            \
-            const float *m = fx->mean + y * w;                                                     \
-            if (plain) {                                                                           \
+        if (fx->scalar_scan) {                                                                     \
+            for (uint32_t y = 0; y < fx->h; y++) {                                                 \
+                const T *r = img + y * stride_px, *hr = fx->HI + y * w, *lr = fx->LO + y * w;      \
                 for (size_t x0 = 0; x0 < w; x0 += FT_BLOCK) {                                      \
                     const size_t n = w - x0 < FT_BLOCK ? w - x0 : FT_BLOCK;                        \
                     uint64_t mk = MASK##_scalar(r + x0, hr + x0, lr + x0, n);                      \
-                    if (mk && !ADD##_mask(&s, r, m, y, (uint32_t)x0, mk))                          \
+                    if (mk && !ADD##_mask(&s, r, fx->mean + y * w, y, (uint32_t)x0, mk))           \
                         goto done;                                                                 \
                 }                                                                                  \
-                continue;                                                                          \
             }                                                                                      \
+            goto done;                                                                             \
+        }                                                                                          \
+        uint32_t nq = 0;                                                                           \
+        for (uint32_t y = 0; y < fx->h; y++) {                                                     \
+            const T *r = img + y * stride_px;                                                      \
             if (!OUT(r, w, fx->RHI[y], fx->RLO[y]))                                                \
                 continue; /* the common case: a row smooth enough for one pair of bounds */        \
+            const T *bh = fx->BHI + y * nblk, *bl = fx->BLO + y * nblk;                            \
             for (size_t b0 = 0; b0 < nblk; b0 += 64) {                                             \
                 const size_t b1 = nblk - b0 < 64 ? nblk : b0 + 64;                                 \
                 uint64_t fails = 0;                                                                \
@@ -349,17 +354,23 @@ static inline void prefetch_block(const float *m, size_t n, const void *hr, cons
                     fails |= (uint64_t)f << (b - b0);                                              \
                 }                                                                                  \
                 for (; fails; fails &= fails - 1) {                                                \
-                    const size_t b = b0 + (size_t)__builtin_ctzll(fails), x0 = b * FT_BLOCK;       \
-                    const size_t n = w - x0 < FT_BLOCK ? w - x0 : FT_BLOCK;                        \
-                    prefetch_block(m + x0, n, 0, 0, 0); /* loaded while the mask is computed */    \
-                    uint64_t mk = n == FT_BLOCK ? MASK(r + x0, hr + x0, lr + x0)                   \
-                                                : MASK##_scalar(r + x0, hr + x0, lr + x0, n);      \
-                    if (mk && y + 1 < fx->h) /* a target likely goes on in the next row */         \
-                        prefetch_block(m + w + x0, n, hr + w + x0, lr + w + x0, sizeof(T));        \
-                    if (mk && !ADD##_mask(&s, r, m, y, (uint32_t)x0, mk))                          \
-                        goto done;                                                                 \
+                    const size_t b = b0 + (size_t)__builtin_ctzll(fails),                          \
+                                 i = y * w + b * FT_BLOCK;                                         \
+                    const size_t n = w - b * FT_BLOCK < FT_BLOCK ? w - b * FT_BLOCK : FT_BLOCK;    \
+                    prefetch_block(fx->mean + i, n, fx->HI + i, fx->LO + i, sizeof(T));            \
+                    fx->queue[nq++] = y << 8 | (uint32_t)b;                                        \
                 }                                                                                  \
             }                                                                                      \
+        }                                                                                          \
+        for (uint32_t k = 0; k < nq; k++) {                                                        \
+            const uint32_t y = fx->queue[k] >> 8;                                                  \
+            const size_t x0 = (fx->queue[k] & 0xffu) * FT_BLOCK, i = y * w + x0;                   \
+            const size_t n = w - x0 < FT_BLOCK ? w - x0 : FT_BLOCK;                                \
+            const T *r = img + y * stride_px;                                                      \
+            uint64_t mk = n == FT_BLOCK ? MASK(r + x0, fx->HI + i, fx->LO + i)                     \
+                                        : MASK##_scalar(r + x0, fx->HI + i, fx->LO + i, n);        \
+            if (mk && !ADD##_mask(&s, r, fx->mean + y * w, y, (uint32_t)x0, mk))                   \
+                goto done;                                                                         \
         }                                                                                          \
     done:                                                                                          \
         *n_cand = s.n;                                                                             \
