@@ -287,7 +287,7 @@ DEFINE_UPDATE(update16, uint16_t)
             for (size_t b = 0; b < nblk; b++) {                                                    \
                 size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK < w ? x0 + FT_BLOCK : w;              \
                 T mh = hi[y * w + x0], ml = lo[y * w + x0];                                        \
-                for (size_t x = x0 + 1; x < x1; x++) {                                             \
+                for (size_t x = x0; x < x1; x++) { /* from x0: whole vectors, no scalar tail */    \
                     T vh = hi[y * w + x], vl = lo[y * w + x];                                      \
                     mh = vh < mh ? vh : mh;                                                        \
                     ml = vl > ml ? vl : ml;                                                        \
@@ -304,26 +304,44 @@ DEFINE_UPDATE(update16, uint16_t)
 DEFINE_BLOCK_BOUNDS(block_bounds8, uint8_t)
 DEFINE_BLOCK_BOUNDS(block_bounds16, uint16_t)
 
+/* Thresholds and bounds of rows y0 .. y1 - 1. */
+static void refresh_rows(ft_fx *fx, thr_cfg c, size_t y0, size_t y1) {
+    const size_t o = y0 * fx->w, n = (y1 - y0) * fx->w, ob = y0 * fx->nblk;
+    if (fx->hi16) {
+        ft_fx_thresh16(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi16 + o, fx->lo16 + o, c);
+        block_bounds16(fx->w, y1 - y0, fx->nblk, fx->hi16 + o, fx->lo16 + o, fx->bhi16 + ob,
+                       fx->blo16 + ob, fx->rhi16 + y0, fx->rlo16 + y0);
+    } else {
+        ft_fx_thresh8(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi8 + o, fx->lo8 + o, c);
+        block_bounds8(fx->w, y1 - y0, fx->nblk, fx->hi8 + o, fx->lo8 + o, fx->bhi8 + ob,
+                      fx->blo8 + ob, fx->rhi8 + y0, fx->rlo8 + y0);
+    }
+}
+
+/* Rows per band of the background update: about 2048 pixels, whose 16 kB of floats stay in the L1
+ * cache from the running average to the thresholds and bounds (one pass over memory, not three). */
+static size_t band_rows(const ft_fx *fx) {
+    return fx->w >= 2048 ? 1 : 2048 / fx->w;
+}
+
 static void refresh_thresholds(ft_fx *fx) {
     thr_cfg c = thr_config(fx);
-    if (fx->hi16) {
-        ft_fx_thresh16(fx->npix, fx->mean, fx->sumsq, fx->mask, fx->hi16, fx->lo16, c);
-        block_bounds16(fx->w, fx->h, fx->nblk, fx->hi16, fx->lo16, fx->bhi16, fx->blo16, fx->rhi16,
-                       fx->rlo16);
-    } else {
-        ft_fx_thresh8(fx->npix, fx->mean, fx->sumsq, fx->mask, fx->hi8, fx->lo8, c);
-        block_bounds8(fx->w, fx->h, fx->nblk, fx->hi8, fx->lo8, fx->bhi8, fx->blo8, fx->rhi8,
-                      fx->rlo8);
-    }
+    for (size_t y0 = 0, nb = band_rows(fx); y0 < fx->h; y0 += nb)
+        refresh_rows(fx, c, y0, y0 + nb < fx->h ? y0 + nb : fx->h);
 }
 
 static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, int init) {
     thr_cfg c = thr_config(fx);
-    if (fx->p.pixel_format == FT_FX_MONO16)
-        update16(fx->w, fx->h, img, stride_bytes / 2, fx->mean, fx->sumsq, init, c);
-    else
-        update8(fx->w, fx->h, img, stride_bytes, fx->mean, fx->sumsq, init, c);
-    refresh_thresholds(fx);
+    for (size_t y0 = 0, nb = band_rows(fx); y0 < fx->h; y0 += nb) {
+        const size_t y1 = y0 + nb < fx->h ? y0 + nb : fx->h, o = y0 * fx->w;
+        const uint8_t *band = (const uint8_t *)img + y0 * stride_bytes;
+        if (fx->p.pixel_format == FT_FX_MONO16)
+            update16(fx->w, y1 - y0, (const uint16_t *)band, stride_bytes / 2, fx->mean + o,
+                     fx->sumsq + o, init, c);
+        else
+            update8(fx->w, y1 - y0, band, stride_bytes, fx->mean + o, fx->sumsq + o, init, c);
+        refresh_rows(fx, c, y0, y1);
+    }
     fx->have_bg = 1;
 }
 
