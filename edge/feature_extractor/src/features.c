@@ -478,20 +478,31 @@ static uint32_t measure(ft_fx *fx, uint32_t nr, uint32_t *total) {
         const double cut = g->cut;
         const double dy = (double)q->y - (double)g->peak_y;
         const uint32_t len = q->x1 - q->x0;
+        /* Without a branch (whether a pixel is kept is a coin toss at a region's edge): a pixel
+         * below the cut adds zero weight, which leaves every sum as it was, bit for bit (the sums
+         * start at +0 and never become -0). */
+        double m0 = g->m0, mx = g->mx, my = g->my, mxx = g->mxx, myy = g->myy, mxy = g->mxy;
+        uint32_t kept = 0;
         for (uint32_t j = 0; j < len; j++) {
             double d = cd[q->c0 + j];
-            if (d < cut)
-                continue;
+            int keep = d >= cut;
             double dx = (double)(q->x0 + j) - (double)g->peak_x;
-            double wt = sub ? d - cut : d;
-            g->n_kept++;
-            g->m0 += wt;
-            g->mx += wt * dx;
-            g->my += wt * dy;
-            g->mxx += wt * dx * dx;
-            g->myy += wt * dy * dy;
-            g->mxy += wt * dx * dy;
+            double wt = keep ? (sub ? d - cut : d) : 0.0;
+            kept += (uint32_t)keep;
+            m0 += wt;
+            mx += wt * dx;
+            my += wt * dy;
+            mxx += wt * dx * dx;
+            myy += wt * dy * dy;
+            mxy += wt * dx * dy;
         }
+        g->n_kept += kept;
+        g->m0 = m0;
+        g->mx = mx;
+        g->my = my;
+        g->mxx = mxx;
+        g->myy = myy;
+        g->mxy = mxy;
     }
     uint32_t nk = 0;
     for (uint32_t r = 0; r < nreg; r++) {

@@ -119,11 +119,22 @@ const char *ft_fx_debug_scan_path(void) {
             return out;                                                                            \
         }                                                                                          \
         const T *e = r + n, *q = (const T *)(((uintptr_t)r + VB) & ~(uintptr_t)(VB - 1));          \
-        vec mx = ld(r), mn = mx;                                                                   \
-        for (; q + nl <= e; q += nl) {                                                             \
+        vec mx = ld(r), mn = mx, mx2 = mx, mn2 = mx;                                               \
+        for (; q + 2 * nl <= e; q += 2 * nl) { /* two pairs of accumulators: two loads a step */   \
+            vec v = ld(__builtin_assume_aligned(q, VB)),                                           \
+                u = ld(__builtin_assume_aligned(q + nl, VB));                                      \
+            mx = MAX(mx, v);                                                                       \
+            mn = MIN(mn, v);                                                                       \
+            mx2 = MAX(mx2, u);                                                                     \
+            mn2 = MIN(mn2, u);                                                                     \
+        }                                                                                          \
+        mx = MAX(mx, mx2);                                                                         \
+        mn = MIN(mn, mn2);                                                                         \
+        if (q + nl <= e) {                                                                         \
             vec v = ld(__builtin_assume_aligned(q, VB));                                           \
             mx = MAX(mx, v);                                                                       \
             mn = MIN(mn, v);                                                                       \
+            q += nl;                                                                               \
         }                                                                                          \
         if (q < e) {                                                                               \
             vec v = ld(e - nl);                                                                    \
