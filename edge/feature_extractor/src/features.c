@@ -409,8 +409,8 @@ static void shape(const ft_region *g, double *orientation, double *eccentricity)
 static void link_runs(ft_fx *fx, uint32_t nr) {
     const ft_run *runs = fx->runs;
     uint32_t *parent = fx->run_parent;
-    uint32_t prev0 = 0, prev1 = 0,
-             cur0 = 0; /* previous row's runs [prev0, prev1), this row's from */
+    /* The previous row's runs are [prev0, prev1); this row's start at cur0. */
+    uint32_t prev0 = 0, prev1 = 0, cur0 = 0;
     for (uint32_t k = 0; k < nr; k++) {
         const ft_run *q = &runs[k];
         parent[k] = k;
