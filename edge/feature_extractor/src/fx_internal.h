@@ -9,6 +9,7 @@
 #include <stdint.h>
 
 #define FT_BLOCK 64u /* pixels per block of the scan's bounds pass: one 64-bit candidate mask */
+#define FT_BAND 4u   /* packed rows the scan tests at once before testing them one by one */
 
 /* A run: candidates y, x0 .. x1 - 1 of one row, found in raster order; their differences are
  * cand_d[c0 .. c0 + x1 - x0 - 1]. Regions are unions of 8-connected runs. */

@@ -3,7 +3,8 @@
  * It rules pixels out coarse to fine, reading the frame alone while it can:
  *  1. the whole row's brightest and darkest pixels against the row's bounds (the lowest hi and the
  *     highest lo over the row): a vector max/min over the row and one compare at its end, about the
- *     cost of reading the row;
+ *     cost of reading the row (packed rows go FT_BAND at a time first, against their loosest
+ * bounds);
  *  2. if that fails (a candidate, or a background that varies a lot along the row), each block of
  *     FT_BLOCK pixels against its own bounds in the same way;
  *  3. in a block that still cannot be ruled out, every pixel against its own hi and lo, as a 64-bit
@@ -327,12 +328,14 @@ static inline void prefetch_block(const float *m, size_t n, const void *hr, cons
     }
 }
 
-/* Two passes. The first reads the frame alone: each row against its bounds, and in a row that
- * fails, its blocks against theirs (a bit per block, up to 64 blocks without a branch); a block
- * that fails is queued and its thresholds and background means are prefetched. The second compares
- * the queued blocks' pixels with their thresholds and keeps their candidates: by then their data
- * have come in, all misses having overlapped during the first pass. The queue is in raster order,
- * and so are the candidates. (plain: every pixel of every row against its thresholds.) */
+/* Two passes. The first reads the frame alone: each band of FT_BAND packed rows against the
+ * loosest of their bounds (one span: fewer partial vectors and compares than row by row), a band
+ * that fails row by row, and in a row that fails, its blocks against theirs (a bit per block, up to
+ * 64 blocks without a branch); a block that fails is queued and its thresholds and background means
+ * are prefetched. The second compares the queued blocks' pixels with their thresholds and keeps
+ * their candidates: by then their data have come in, all misses having overlapped during the first
+ * pass. The queue is in raster order, and so are the candidates. (plain: every pixel of every row
+ * against its thresholds.) */
 #define DEFINE_SCAN(NAME, T, HI, LO, BHI, BLO, RHI, RLO, OUT, MASK, ADD)                           \
     uint32_t NAME(ft_fx *fx, const T *img, size_t stride_px, uint32_t *n_cand, int *overflow) {    \
         const size_t w = fx->w, nblk = fx->nblk, nfull = w / FT_BLOCK;                             \
@@ -349,11 +352,24 @@ static inline void prefetch_block(const float *m, size_t n, const void *hr, cons
             }                                                                                      \
             goto done;                                                                             \
         }                                                                                          \
-        uint32_t nq = 0;                                                                           \
+        uint32_t nq = 0, band_end = 0;                                                             \
         for (uint32_t y = 0; y < fx->h; y++) {                                                     \
             const T *r = img + y * stride_px;                                                      \
+            if (stride_px == w && y >= band_end) { /* packed rows: FT_BAND of them at once */      \
+                const uint32_t nb = fx->h - y < FT_BAND ? fx->h - y : FT_BAND;                     \
+                T bh = fx->RHI[y], bl = fx->RLO[y];                                                \
+                for (uint32_t k = 1; k < nb; k++) {                                                \
+                    bh = fx->RHI[y + k] < bh ? fx->RHI[y + k] : bh;                                \
+                    bl = fx->RLO[y + k] > bl ? fx->RLO[y + k] : bl;                                \
+                }                                                                                  \
+                band_end = y + nb;                                                                 \
+                if (!OUT(r, w * nb, bh, bl)) {                                                     \
+                    y = band_end - 1;                                                              \
+                    continue; /* the common case: rows smooth enough for one pair of bounds */     \
+                }                                                                                  \
+            }                                                                                      \
             if (!OUT(r, w, fx->RHI[y], fx->RLO[y]))                                                \
-                continue; /* the common case: a row smooth enough for one pair of bounds */        \
+                continue;                                                                          \
             const T *bh = fx->BHI + y * nblk, *bl = fx->BLO + y * nblk;                            \
             for (size_t b0 = 0; b0 < nblk; b0 += 64) {                                             \
                 const size_t b1 = nblk - b0 < 64 ? nblk : b0 + 64;                                 \

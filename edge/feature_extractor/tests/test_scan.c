@@ -46,8 +46,9 @@ typedef struct {
 } ref_point;
 
 /* Points of one frame (8-bit or 16-bit values in v[]) against the background bg[] taken from one
- * frame (so the variance is 0 and the threshold is diff_threshold), polarity both, subtract_cut 1,
- * no mask. Returns the number of points (all regions with min_area kept pixels), strongest first.
+ * frame (so the variance is 0 and the threshold is diff_threshold), polarity both or bright,
+ * subtract_cut 1, no mask. Returns the number of points (all regions with min_area kept pixels),
+ * strongest first.
  */
 static int reference(const uint32_t *v, const uint32_t *bg, int w, int h, uint32_t maxv,
                      const ft_fx_params *p, ref_point *out, int *label, int *stack) {
@@ -61,6 +62,8 @@ static int reference(const uint32_t *v, const uint32_t *bg, int w, int h, uint32
         up = up < (float)maxv ? up : (float)maxv;
         dn = dn > 0.0f ? dn : 0.0f;
         uint32_t hi = (uint32_t)floorf(up), lo = (uint32_t)ceilf(dn);
+        if (p->polarity == FT_FX_POLARITY_BRIGHT)
+            lo = 0; /* never darker (candidates are brighter: |d| = d) */
         label[i] = (v[i] > hi || v[i] < lo) ? -1 : 0; /* -1: candidate, not yet labelled */
     }
     int np = 0;
@@ -144,12 +147,17 @@ static int reference(const uint32_t *v, const uint32_t *bg, int w, int h, uint32
 
 /* ---- frames -------------------------------------------------------------------------------- */
 
-/* A smooth background. */
+/* A smooth background, or (striped) one whose level jumps from row to row, so that the bounds of
+ * rows next to each other differ (a band or block test that took the wrong bound would then miss
+ * the weak targets, which barely pass their thresholds). */
+static int striped, bright_only;
 static void make_background(int w, int h, uint32_t maxv, uint32_t *bg) {
     const double scale = maxv / 255.0, ph = urand() * 6.28;
-    for (int y = 0; y < h; y++)
+    for (int y = 0; y < h; y++) {
+        double level = striped ? 40 + 160 * urand() : 90 + 10 * cos(0.07 * y);
         for (int x = 0; x < w; x++)
-            bg[y * w + x] = (uint32_t)(scale * (90 + 25 * sin(0.05 * x + ph) + 10 * cos(0.07 * y)));
+            bg[y * w + x] = (uint32_t)(scale * (level + 25 * sin(0.05 * x + ph)));
+    }
 }
 
 /* The background with noise, and targets where the scan has edges. */
@@ -189,25 +197,29 @@ static void make_frame(int w, int h, uint32_t maxv, const uint32_t *bg, uint32_t
             }
             if (rnd() % 300 == 0) /* single-pixel speckle */
                 val += scale * (rnd() & 1 ? 70 : -70);
+            if (striped && rnd() % 97 == 0) /* weak: just past the threshold (30) or just short */
+                val += scale * (rnd() & 1 ? 1 : -1) * (27 + (int)(rnd() % 8));
             val = floor(val + 0.5);
             fr[y * w + x] = (uint32_t)(val < 0 ? 0 : val > maxv ? maxv : val);
         }
 }
 
-static void *pack(const uint32_t *v, int w, int h, int fmt, size_t *bytes) {
-    size_t n = (size_t)w * h;
-    *bytes = fmt == FT_FX_MONO8 ? n : 2 * n;
-    uint8_t *b = malloc(*bytes);
-    for (size_t i = 0; i < n; i++) {
-        if (fmt == FT_FX_MONO8)
-            b[i] = (uint8_t)v[i];
-        else if (fmt == FT_FX_MONO16)
-            ((uint16_t *)b)[i] = (uint16_t)v[i];
-        else {
-            b[2 * i] = (uint8_t)v[i];
-            b[2 * i + 1] = (uint8_t)rnd(); /* chroma must not matter */
+/* Rows pad pixels apart beyond the width (stride = (w + pad) pixels); the padding holds garbage. */
+static void *pack(const uint32_t *v, int w, int h, int fmt, int pad, size_t *bytes) {
+    const size_t bpp = fmt == FT_FX_MONO8 ? 1 : 2, stride = (size_t)(w + pad) * bpp;
+    *bytes = stride * (size_t)(h - 1) + (size_t)w * bpp;
+    uint8_t *b = malloc(stride * (size_t)h);
+    for (size_t i = 0; i < stride * (size_t)h; i++)
+        b[i] = (uint8_t)rnd();
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            uint8_t *px = b + (size_t)y * stride + (size_t)x * bpp;
+            uint32_t val = v[y * w + x];
+            if (fmt == FT_FX_MONO16)
+                memcpy(px, &(uint16_t){(uint16_t)val}, 2);
+            else
+                px[0] = (uint8_t)val; /* YUYV: the chroma byte after it stays garbage */
         }
-    }
     return b;
 }
 
@@ -219,7 +231,7 @@ static int same_result(const ft_fx_result *a, const ft_fx_result *b) {
 }
 
 /* One geometry and format: the vector scan, the plain scan and the reference on the same frames. */
-static void run_case(int w, int h, int fmt, int frames, uint32_t max_candidates) {
+static void run_case(int w, int h, int fmt, int pad, int frames, uint32_t max_candidates) {
     const uint32_t maxv = fmt == FT_FX_MONO16 ? 4095 : 255;
     size_t n = (size_t)w * h, bytes;
     uint32_t *bg = malloc(n * 4), *fr = malloc(n * 4);
@@ -227,7 +239,9 @@ static void run_case(int w, int h, int fmt, int frames, uint32_t max_candidates)
     ref_point *ref = malloc(n * sizeof(ref_point));
     ft_fx_params p;
     ft_fx_params_default(&p, (uint32_t)w, (uint32_t)h, fmt);
+    p.stride = pad ? (uint32_t)((w + pad) * (fmt == FT_FX_MONO8 ? 1 : 2)) : 0;
     p.bg_update_interval = 0; /* the background stays the first frame: the reference's */
+    p.polarity = bright_only ? FT_FX_POLARITY_BRIGHT : FT_FX_POLARITY_BOTH;
     p.diff_threshold = fmt == FT_FX_MONO16 ? 30.0 * 16 : 30.0;
     p.despeckle_threshold = 0;
     p.max_points = FT_FX_MAX_POINTS;
@@ -237,14 +251,14 @@ static void run_case(int w, int h, int fmt, int frames, uint32_t max_candidates)
           "create %dx%d", w, h);
     ft_fx_debug_scalar_scan(plain, 1);
     make_background(w, h, maxv, bg);
-    void *b = pack(bg, w, h, fmt, &bytes);
+    void *b = pack(bg, w, h, fmt, pad, &bytes);
     ft_fx_result rv, rp;
     ft_fx_process(vec, b, bytes, &rv);
     ft_fx_process(plain, b, bytes, &rp);
     free(b);
     for (int f = 0; f < frames; f++) {
         make_frame(w, h, maxv, bg, fr); /* new targets on the same background */
-        b = pack(fr, w, h, fmt, &bytes);
+        b = pack(fr, w, h, fmt, pad, &bytes);
         CHECK(ft_fx_process(vec, b, bytes, &rv) == FT_FX_OK, "process");
         CHECK(ft_fx_process(plain, b, bytes, &rp) == FT_FX_OK, "process");
         CHECK(same_result(&rv, &rp),
@@ -294,8 +308,15 @@ int main(void) {
             int w = sizes[s][0], h = sizes[s][1];
             if (fmt == FT_FX_YUYV && w % 2)
                 w++;
-            run_case(w, h, fmt, 6, 0);
-            run_case(w, h, fmt, 2, 1 + rnd() % 200); /* candidate cap reached mid-frame */
+            striped = 0;
+            run_case(w, h, fmt, 0, 6, 0);
+            striped = 1;
+            run_case(w, h, fmt, 0, 4, 0);
+            bright_only = 1; /* one bound only: a wrong band or block bound is not masked */
+            run_case(w, h, fmt, 0, 4, 0);
+            striped = bright_only = 0;
+            run_case(w, h, fmt, 1 + (int)(rnd() % 40), 2, 0); /* rows with padding between them */
+            run_case(w, h, fmt, 0, 2, 1 + rnd() % 200);       /* candidate cap reached mid-frame */
             cases++;
         }
     if (failures) {
