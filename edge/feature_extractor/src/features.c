@@ -150,6 +150,7 @@ void ft_fx_destroy(ft_fx *fx) {
     free(fx->cand_d);
     free(fx->runs);
     free(fx->queue);
+    free(fx->qmask);
     free(fx->run_parent);
     free(fx->run_region);
     free(fx->regions);
@@ -198,7 +199,8 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
     fx->nblk = (fx->w + FT_BLOCK - 1) / FT_BLOCK;
     size_t nb = fx->nblk * fx->h;
     fx->queue = malloc(nb * sizeof(uint32_t)); /* nblk <= 256: y << 8 | block */
-    ok = ok && fx->queue;
+    fx->qmask = malloc(nb * sizeof(uint64_t));
+    ok = ok && fx->queue && fx->qmask;
     if (p->pixel_format == FT_FX_MONO16) {
         fx->hi16 = malloc(fx->npix * sizeof(uint16_t));
         fx->lo16 = malloc(fx->npix * sizeof(uint16_t));

@@ -52,6 +52,7 @@ struct ft_fx {
     uint8_t *luma;   /* YUYV: the luma plane of the current frame */
     uint32_t cap;    /* candidates (and so runs) per frame at most */
     uint32_t *queue; /* the scan's blocks to look at pixel by pixel: y << 8 | block (h x nblk) */
+    uint64_t *qmask; /* the queued blocks' candidate masks */
     float *cand_d;   /* per candidate, raster order: its difference to the background */
     ft_run *runs;    /* per run, raster order */
     uint32_t *run_parent, *run_region;

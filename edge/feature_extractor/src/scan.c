@@ -310,22 +310,26 @@ DEFINE_ADD_RUN(add_run16, uint16_t)
 /* ---------------------------------------------------------------------------------------------- */
 /* The scan */
 
-/* The background means of a block's n pixels (and their thresholds when hr is given): these are
- * in memory only where candidates are, so they are fetched ahead of their use. */
-static inline void prefetch_block(const float *m, size_t n, const void *hr, const void *lr,
-                                  size_t tsize) {
-    for (size_t o = 0; o < n; o += 16)
-        __builtin_prefetch(m + o);
-    __builtin_prefetch(m + n - 1);
-    if (hr) {
-        const char *h = hr, *l = lr;
-        for (size_t o = 0; o < n * tsize; o += 64) {
-            __builtin_prefetch(h + o);
-            __builtin_prefetch(l + o);
-        }
-        __builtin_prefetch(h + n * tsize - 1);
-        __builtin_prefetch(l + n * tsize - 1);
+/* The thresholds of a queued block and the background means of its candidates are read only
+ * where there are candidates, so they may well be in memory: they are fetched ahead of their use.
+ */
+static inline void prefetch_thresholds(const void *hr, const void *lr, size_t bytes) {
+    const char *h = hr, *l = lr;
+    for (size_t o = 0; o < bytes; o += 64) {
+        __builtin_prefetch(h + o);
+        __builtin_prefetch(l + o);
     }
+    __builtin_prefetch(h + bytes - 1);
+    __builtin_prefetch(l + bytes - 1);
+}
+
+/* The background means of the candidates in mask (16 pixels of floats: one or two cache lines). */
+static inline void prefetch_means(const float *m, uint64_t mask) {
+    for (unsigned g = 0; g < 4; g++)
+        if ((mask >> (16 * g)) & 0xffffu) {
+            __builtin_prefetch(m + 16 * g);
+            __builtin_prefetch(m + 16 * g + 15);
+        }
 }
 
 /* Two passes. The first reads the frame alone: each band of FT_BAND packed rows against the
@@ -384,19 +388,24 @@ static inline void prefetch_block(const float *m, size_t n, const void *hr, cons
                     const size_t b = b0 + (size_t)__builtin_ctzll(fails),                          \
                                  i = y * w + b * FT_BLOCK;                                         \
                     const size_t n = w - b * FT_BLOCK < FT_BLOCK ? w - b * FT_BLOCK : FT_BLOCK;    \
-                    prefetch_block(fx->mean + i, n, fx->HI + i, fx->LO + i, sizeof(T));            \
+                    prefetch_thresholds(fx->HI + i, fx->LO + i, n * sizeof(T));                    \
                     fx->queue[nq++] = y << 8 | (uint32_t)b;                                        \
                 }                                                                                  \
             }                                                                                      \
         }                                                                                          \
-        for (uint32_t k = 0; k < nq; k++) {                                                        \
+        for (uint32_t k = 0; k < nq; k++) { /* the masks; the means of their candidates fetched */ \
             const uint32_t y = fx->queue[k] >> 8;                                                  \
             const size_t x0 = (fx->queue[k] & 0xffu) * FT_BLOCK, i = y * w + x0;                   \
             const size_t n = w - x0 < FT_BLOCK ? w - x0 : FT_BLOCK;                                \
             const T *r = img + y * stride_px;                                                      \
-            uint64_t mk = n == FT_BLOCK ? MASK(r + x0, fx->HI + i, fx->LO + i)                     \
-                                        : MASK##_scalar(r + x0, fx->HI + i, fx->LO + i, n);        \
-            if (mk && !ADD##_mask(&s, r, fx->mean + y * w, y, (uint32_t)x0, mk))                   \
+            fx->qmask[k] = n == FT_BLOCK ? MASK(r + x0, fx->HI + i, fx->LO + i)                    \
+                                         : MASK##_scalar(r + x0, fx->HI + i, fx->LO + i, n);       \
+            prefetch_means(fx->mean + i, fx->qmask[k]);                                            \
+        }                                                                                          \
+        for (uint32_t k = 0; k < nq; k++) { /* then the candidates, in raster order */             \
+            const uint32_t y = fx->queue[k] >> 8, x0 = (fx->queue[k] & 0xffu) * FT_BLOCK;          \
+            if (fx->qmask[k] &&                                                                    \
+                !ADD##_mask(&s, img + y * stride_px, fx->mean + y * w, y, x0, fx->qmask[k]))       \
                 goto done;                                                                         \
         }                                                                                          \
     done:                                                                                          \
