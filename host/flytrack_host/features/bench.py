@@ -293,8 +293,9 @@ def main() -> None:
         raise SystemExit("--ring-mb must be > 0")
     fig = run(args.quick, args.ring_mb)
     la = fig["load_avg_1min"]
+    nr = fig["results"][0]["c_hot"]["rounds"]
     print("mean / P99 us per frame over whole background-update intervals (the updates included), each frame "
-          f"position's best of 5 rounds; one core; same centroids checked (max diff shown); load average "
+          f"position's best of {nr} rounds; one core; same centroids checked (max diff shown); load average "
           f"{la[0]:.1f} -> {la[1]:.1f}")
     print("hot: frame read just before (in cache); ring: frames from memory, round a ring of "
           f"{fig['results'][0]['ring_mb']:.0f}+ MB; C vs OpenCV on the ring (same cache state)")
