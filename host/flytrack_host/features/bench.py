@@ -37,13 +37,14 @@ import ctypes
 import json
 import os
 import platform
+import sys
 import time
 
 import cv2
 import numpy as np
 
 from flytrack_host.features import ExtractorParams, FeatureExtractor
-from flytrack_host.native import load_library
+from flytrack_host.native import NativeLibraryError, load_library
 
 CASES = [(640, 480, 0), (640, 480, 1), (640, 480, 10), (2048, 2048, 0), (2048, 2048, 1), (2048, 2048, 10)]
 CENTROID_TOL_PX = 1e-3
@@ -291,7 +292,11 @@ def main() -> None:
     args = ap.parse_args()
     if args.ring_mb <= 0:
         raise SystemExit("--ring-mb must be > 0")
-    fig = run(args.quick, args.ring_mb)
+    try:
+        fig = run(args.quick, args.ring_mb)
+    except NativeLibraryError as exc:  # a library not built: one line, exit 2
+        print(f"bench-edge: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     la = fig["load_avg_1min"]
     nr = fig["results"][0]["c_hot"]["rounds"]
     print("mean / P99 us per frame over whole background-update intervals (the updates included), each frame "
