@@ -1,17 +1,16 @@
 /* The per-frame candidate scan: the hot loop of libflytrack_features.
  *
  * It rules pixels out coarse to fine, reading the frame alone while it can:
- *  1. the whole row's brightest and darkest pixels against the row's bounds (the lowest hi and the
- *     highest lo over the row): a vector max/min over the row and one compare at its end, about the
- *     cost of reading the row (packed rows go FT_BAND at a time first, against their loosest
- * bounds);
- *  2. if that fails (a candidate, or a background that varies a lot along the row), each block of
+ *  1. the brightest and darkest pixels of a band of FT_BAND packed rows, then of a row, against the
+ *     band's or the row's bounds (the lowest hi and the highest lo over them): a vector max/min and
+ *     one compare at the end, about the cost of reading the rows;
+ *  2. if a row fails (a candidate, or a background that varies a lot along the row), each block of
  *     FT_BLOCK pixels against its own bounds in the same way;
  *  3. in a block that still cannot be ruled out, every pixel against its own hi and lo, as a 64-bit
  *     mask of candidates.
- * The masks are turned into runs of candidates (one row, consecutive x) as they are found, and each
- * candidate's difference to the background is stored: regions are then labelled run by run and
- * measured from these arrays (features.c), never from the frame again.
+ * The masks are turned into runs of candidates (one row, consecutive x), and each candidate's
+ * difference to the background is stored: regions are then labelled run by run and measured from
+ * these arrays (features.c), never from the frame again.
  *
  * Vector code: AVX-512BW or AVX2 intrinsics when built for them (-march=native), else GCC vector
  * extensions (SSE2 on a portable x86 build, NEON on the ARM edge computers). scalar_scan selects
@@ -332,14 +331,13 @@ static inline void prefetch_means(const float *m, uint64_t mask) {
         }
 }
 
-/* Two passes. The first reads the frame alone: each band of FT_BAND packed rows against the
- * loosest of their bounds (one span: fewer partial vectors and compares than row by row), a band
- * that fails row by row, and in a row that fails, its blocks against theirs (a bit per block, up to
- * 64 blocks without a branch); a block that fails is queued and its thresholds and background means
- * are prefetched. The second compares the queued blocks' pixels with their thresholds and keeps
- * their candidates: by then their data have come in, all misses having overlapped during the first
- * pass. The queue is in raster order, and so are the candidates. (plain: every pixel of every row
- * against its thresholds.) */
+/* Two passes. The first reads the frame alone: bands, rows, and in a row that fails, its blocks
+ * against their bounds (a bit per block, up to 64 blocks without a branch); a block that fails is
+ * queued and its thresholds are prefetched. The second computes the queued blocks' candidate masks
+ * (their thresholds have come in meanwhile, the misses overlapping), prefetches the background
+ * means of their candidates, then keeps the candidates with their differences. The queue is in
+ * raster order, and so are the candidates. (plain: every pixel of every row against its
+ * thresholds.) */
 #define DEFINE_SCAN(NAME, T, HI, LO, BHI, BLO, RHI, RLO, OUT, MASK, ADD)                           \
     uint32_t NAME(ft_fx *fx, const T *img, size_t stride_px, uint32_t *n_cand, int *overflow) {    \
         const size_t w = fx->w, nblk = fx->nblk, nfull = w / FT_BLOCK;                             \
