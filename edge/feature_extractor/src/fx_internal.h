@@ -72,6 +72,10 @@ uint32_t ft_fx_scan8(ft_fx *fx, const uint8_t *img, size_t stride, uint32_t *n_c
 uint32_t ft_fx_scan16(ft_fx *fx, const uint16_t *img, size_t stride_px, uint32_t *n_cand,
                       int *overflow);
 
+/* The scan's nr runs united into regions and measured (regions.c): fills fx->points, strongest
+ * first, and returns how many (at most max_points); *total gets the regions kept before the cap. */
+uint32_t ft_fx_measure(ft_fx *fx, uint32_t nr, uint32_t *total);
+
 /* Tests only: 1 makes ft_fx_process use the plain per-pixel scan, 0 the vector scan (default).
  * Both must give bit-identical results. */
 void ft_fx_debug_scalar_scan(ft_fx *fx, int on);
