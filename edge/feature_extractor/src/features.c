@@ -5,8 +5,8 @@
  * (scan.c) reads the frame alone against each row's and each block's tightest bounds (vector
  * max/min); only blocks it cannot rule out are compared pixel by pixel with hi and lo, and their
  * candidates are kept as runs (one row, consecutive x) with their differences. Regions are labelled
- * run by run and measured from those arrays (here). The float background (mean, mean of squares)
- * and the thresholds are recomputed only every bg_update_interval frames.
+ * run by run and measured from those arrays (regions.c). The float background (mean, mean of
+ * squares) and the thresholds are recomputed only every bg_update_interval frames.
  *
  * Float arithmetic is plain IEEE single precision in a fixed order (the library is built with
  * -ffp-contract=off), so a NumPy float32 reference reproduces the thresholds bit for bit.

@@ -10,7 +10,7 @@
  *     mask of candidates.
  * The masks are turned into runs of candidates (one row, consecutive x), and each candidate's
  * difference to the background is stored: regions are then labelled run by run and measured from
- * these arrays (features.c), never from the frame again.
+ * these arrays (regions.c), never from the frame again.
  *
  * Vector code: AVX-512BW or AVX2 intrinsics when built for them (-march=native), else GCC vector
  * extensions (SSE2 on a portable x86 build, NEON on the ARM edge computers). scalar_scan selects
