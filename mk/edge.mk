@@ -12,5 +12,25 @@ test-edge: cbuild
 bench-edge: cbuild
 	@$(PY) -m flytrack_host.features.bench $(if $(BENCH_JSON),--json $(BENCH_JSON))
 
+# The extractor's portable vector path as the ARM edge computers build it: cross-compiled for aarch64
+# (GCC vector extensions -> NEON) with -Wall -Wextra -Werror, test_scan and test_features run under
+# qemu-aarch64 (packages gcc-aarch64-linux-gnu, libc6-dev-arm64-cross, qemu-user). Not in `make test`.
+ARM_CC ?= aarch64-linux-gnu-gcc
+ARM_OUT = $(BUILD)/edge/arm64
+FX_DIR = edge/feature_extractor
+ARM_FLAGS = -O3 -ffp-contract=off -fno-math-errno -Wall -Wextra -Werror -I$(FX_DIR)/include -I$(FX_DIR)/src
+.PHONY: test-edge-arm
+test-edge-arm:
+	@command -v $(ARM_CC) >/dev/null && command -v qemu-aarch64 >/dev/null \
+	  || { echo "test-edge-arm: needs $(ARM_CC) and qemu-aarch64 (scripts/apt-packages.txt)" >&2; exit 2; }
+	@mkdir -p $(ARM_OUT)
+	@$(ARM_CC) $(ARM_FLAGS) -ffinite-math-only -fno-signed-zeros -c $(FX_DIR)/src/thresholds.c -o $(ARM_OUT)/thresholds.o
+	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/scan.c -o $(ARM_OUT)/scan.o
+	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/features.c -o $(ARM_OUT)/features.o
+	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/regions.c -o $(ARM_OUT)/regions.o
+	@for t in test_scan test_features; do \
+	  $(ARM_CC) $(ARM_FLAGS) -static $(FX_DIR)/tests/$$t.c $(ARM_OUT)/features.o $(ARM_OUT)/scan.o $(ARM_OUT)/regions.o \
+	    $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
+
 BENCH_TARGETS += bench-edge
-PART_TARGETS += test-edge bench-edge
+PART_TARGETS += test-edge bench-edge test-edge-arm

@@ -1,77 +1,27 @@
 /* libflytrack_features: see include/flytrack/features.h for the algorithm and the API.
  *
  * Speed plan: a pixel is a candidate against two precomputed per-pixel integer thresholds (hi:
- * brighter than the background by more than the allowed deviation; lo: darker). The hot loop reads
- * the frame alone, block by block, against each block's tightest bounds (max/min reductions the
- * compiler vectorises, -O3); only blocks it cannot rule out are compared pixel by pixel with hi and
- * lo. Only candidate pixels are labelled and measured. The float
- * background (mean, mean of squares) and the thresholds are recomputed only every
- * bg_update_interval frames.
+ * brighter than the background by more than the allowed deviation; lo: darker). The hot loop
+ * (scan.c) reads the frame alone against each row's and each block's tightest bounds (vector
+ * max/min); only blocks it cannot rule out are compared pixel by pixel with hi and lo, and their
+ * candidates are kept as runs (one row, consecutive x) with their differences. Regions are labelled
+ * run by run and measured from those arrays (regions.c). The float background (mean, mean of
+ * squares) and the thresholds are recomputed only every bg_update_interval frames.
  *
  * Float arithmetic is plain IEEE single precision in a fixed order (the library is built with
  * -ffp-contract=off), so a NumPy float32 reference reproduces the thresholds bit for bit.
  */
 #include "flytrack/features.h"
+#include "fx_internal.h"
 #include "thresholds.h"
 
 #include <math.h>
-#if defined(__AVX2__) || defined(__AVX512BW__)
-#include <immintrin.h>
-#endif
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #define DEFAULT_MAX_CANDIDATES 65536u
-#define FT_BLOCK 64u /* pixels per block of the scan's first, frame-only pass */
 #define MAX_DIM 16384u
-#define FT_PI 3.14159265358979323846
-
-typedef struct {
-    float beta;
-    uint32_t peak_cand; /* candidate index of the peak */
-    uint32_t n_cand, n_kept;
-    double m0, mx, my, mxx, myy, mxy; /* moments about the peak pixel */
-} region;
-
-typedef struct {
-    float beta;
-    uint32_t peak_idx;
-    uint32_t rid;
-} rank;
-
-struct ft_fx {
-    ft_fx_params p;
-    uint32_t w, h;
-    size_t npix, stride, frame_bytes;
-    uint32_t maxval;
-    float *mean, *sumsq;
-    uint8_t *hi8, *lo8;
-    uint16_t *hi16, *lo16;
-    /* Per block of FT_BLOCK pixels of a row: the lowest hi and the highest lo in it. A block whose
-     * pixels all lie within [blo, bhi] holds no candidate, which the scan checks reading the frame
-     * alone (see scan). */
-    size_t nblk; /* blocks per row */
-    uint8_t *bhi8, *blo8;
-    uint16_t *bhi16, *blo16;
-    /* The same bounds per whole row: the scan's very first check. */
-    uint8_t *rhi8, *rlo8;
-    uint16_t *rhi16, *rlo16;
-    uint8_t *mask;   /* 1 = use, always allocated (all ones without a user mask) */
-    uint8_t *luma;   /* YUYV: the luma plane of the current frame */
-    uint32_t *label; /* per pixel: 0, or candidate index + 1 during a frame (reset after) */
-    uint32_t cap;
-    uint32_t *cand_idx;
-    float *cand_d;
-    uint32_t *parent, *cand_region;
-    region *regions;
-    rank *ranks;
-    ft_fx_point *points;
-    uint64_t frame_index;
-    uint64_t since_update;
-    int need_bg;
-    int have_bg;
-};
 
 /* ---------------------------------------------------------------------------------------------- */
 /* Parameters */
@@ -196,11 +146,12 @@ void ft_fx_destroy(ft_fx *fx) {
     free(fx->rlo16);
     free(fx->mask);
     free(fx->luma);
-    free(fx->label);
-    free(fx->cand_idx);
     free(fx->cand_d);
-    free(fx->parent);
-    free(fx->cand_region);
+    free(fx->runs);
+    free(fx->queue);
+    free(fx->qmask);
+    free(fx->run_parent);
+    free(fx->run_region);
     free(fx->regions);
     free(fx->ranks);
     free(fx->points);
@@ -235,18 +186,20 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
     fx->mean = malloc(fx->npix * sizeof(float));
     fx->sumsq = malloc(fx->npix * sizeof(float));
     fx->mask = malloc(fx->npix);
-    fx->label = calloc(fx->npix, sizeof(uint32_t));
-    fx->cand_idx = malloc(fx->cap * sizeof(uint32_t));
     fx->cand_d = malloc(fx->cap * sizeof(float));
-    fx->parent = malloc(fx->cap * sizeof(uint32_t));
-    fx->cand_region = malloc(fx->cap * sizeof(uint32_t));
-    fx->regions = malloc(fx->cap * sizeof(region));
-    fx->ranks = malloc(fx->cap * sizeof(rank));
+    fx->runs = malloc(fx->cap * sizeof(ft_run)); /* a run holds at least one candidate */
+    fx->run_parent = malloc(fx->cap * sizeof(uint32_t));
+    fx->run_region = malloc(fx->cap * sizeof(uint32_t));
+    fx->regions = malloc(fx->cap * sizeof(ft_region));
+    fx->ranks = malloc(fx->cap * sizeof(ft_rank));
     fx->points = malloc(fx->cap * sizeof(ft_fx_point));
-    int ok = fx->mean && fx->sumsq && fx->mask && fx->label && fx->cand_idx && fx->cand_d &&
-             fx->parent && fx->cand_region && fx->regions && fx->ranks && fx->points;
+    int ok = fx->mean && fx->sumsq && fx->mask && fx->cand_d && fx->runs && fx->run_parent &&
+             fx->run_region && fx->regions && fx->ranks && fx->points;
     fx->nblk = (fx->w + FT_BLOCK - 1) / FT_BLOCK;
     size_t nb = fx->nblk * fx->h;
+    fx->queue = malloc(nb * sizeof(uint32_t)); /* nblk <= 256: y << 8 | block */
+    fx->qmask = malloc(nb * sizeof(uint64_t));
+    ok = ok && fx->queue && fx->qmask;
     if (p->pixel_format == FT_FX_MONO16) {
         fx->hi16 = malloc(fx->npix * sizeof(uint16_t));
         fx->lo16 = malloc(fx->npix * sizeof(uint16_t));
@@ -335,7 +288,7 @@ DEFINE_UPDATE(update16, uint16_t)
             for (size_t b = 0; b < nblk; b++) {                                                    \
                 size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK < w ? x0 + FT_BLOCK : w;              \
                 T mh = hi[y * w + x0], ml = lo[y * w + x0];                                        \
-                for (size_t x = x0 + 1; x < x1; x++) {                                             \
+                for (size_t x = x0; x < x1; x++) { /* from x0: whole vectors, no scalar tail */    \
                     T vh = hi[y * w + x], vl = lo[y * w + x];                                      \
                     mh = vh < mh ? vh : mh;                                                        \
                     ml = vl > ml ? vl : ml;                                                        \
@@ -352,165 +305,46 @@ DEFINE_UPDATE(update16, uint16_t)
 DEFINE_BLOCK_BOUNDS(block_bounds8, uint8_t)
 DEFINE_BLOCK_BOUNDS(block_bounds16, uint16_t)
 
+/* Thresholds and bounds of rows y0 .. y1 - 1. */
+static void refresh_rows(ft_fx *fx, thr_cfg c, size_t y0, size_t y1) {
+    const size_t o = y0 * fx->w, n = (y1 - y0) * fx->w, ob = y0 * fx->nblk;
+    if (fx->hi16) {
+        ft_fx_thresh16(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi16 + o, fx->lo16 + o, c);
+        block_bounds16(fx->w, y1 - y0, fx->nblk, fx->hi16 + o, fx->lo16 + o, fx->bhi16 + ob,
+                       fx->blo16 + ob, fx->rhi16 + y0, fx->rlo16 + y0);
+    } else {
+        ft_fx_thresh8(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi8 + o, fx->lo8 + o, c);
+        block_bounds8(fx->w, y1 - y0, fx->nblk, fx->hi8 + o, fx->lo8 + o, fx->bhi8 + ob,
+                      fx->blo8 + ob, fx->rhi8 + y0, fx->rlo8 + y0);
+    }
+}
+
+/* Rows per band of the background update: about 2048 pixels, whose 16 kB of floats stay in the L1
+ * cache from the running average to the thresholds and bounds (one pass over memory, not three). */
+static size_t band_rows(const ft_fx *fx) {
+    return fx->w >= 2048 ? 1 : 2048 / fx->w;
+}
+
 static void refresh_thresholds(ft_fx *fx) {
     thr_cfg c = thr_config(fx);
-    if (fx->hi16) {
-        ft_fx_thresh16(fx->npix, fx->mean, fx->sumsq, fx->mask, fx->hi16, fx->lo16, c);
-        block_bounds16(fx->w, fx->h, fx->nblk, fx->hi16, fx->lo16, fx->bhi16, fx->blo16, fx->rhi16,
-                       fx->rlo16);
-    } else {
-        ft_fx_thresh8(fx->npix, fx->mean, fx->sumsq, fx->mask, fx->hi8, fx->lo8, c);
-        block_bounds8(fx->w, fx->h, fx->nblk, fx->hi8, fx->lo8, fx->bhi8, fx->blo8, fx->rhi8,
-                      fx->rlo8);
-    }
+    for (size_t y0 = 0, nb = band_rows(fx); y0 < fx->h; y0 += nb)
+        refresh_rows(fx, c, y0, y0 + nb < fx->h ? y0 + nb : fx->h);
 }
 
 static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, int init) {
     thr_cfg c = thr_config(fx);
-    if (fx->p.pixel_format == FT_FX_MONO16)
-        update16(fx->w, fx->h, img, stride_bytes / 2, fx->mean, fx->sumsq, init, c);
-    else
-        update8(fx->w, fx->h, img, stride_bytes, fx->mean, fx->sumsq, init, c);
-    refresh_thresholds(fx);
+    for (size_t y0 = 0, nb = band_rows(fx); y0 < fx->h; y0 += nb) {
+        const size_t y1 = y0 + nb < fx->h ? y0 + nb : fx->h, o = y0 * fx->w;
+        const uint8_t *band = (const uint8_t *)img + y0 * stride_bytes;
+        if (fx->p.pixel_format == FT_FX_MONO16)
+            update16(fx->w, y1 - y0, (const uint16_t *)band, stride_bytes / 2, fx->mean + o,
+                     fx->sumsq + o, init, c);
+        else
+            update8(fx->w, y1 - y0, band, stride_bytes, fx->mean + o, fx->sumsq + o, init, c);
+        refresh_rows(fx, c, y0, y1);
+    }
     fx->have_bg = 1;
 }
-
-/* ---------------------------------------------------------------------------------------------- */
-/* Candidate scan: the hot loop */
-
-/* The scan rules pixels out coarse to fine, reading the frame alone until it cannot:
- *  1. the whole row's brightest and darkest pixels against the row's bounds (the lowest hi and the
- *     highest lo over the row): a max/min reduction, about the cost of reading the row;
- *  2. if that fails (a candidate, or a background that varies a lot along the row), each full block
- *     of FT_BLOCK pixels against its own bounds, all blocks of the row in one pass;
- *  3. in a block that still cannot be ruled out, every pixel against its own hi and lo.
- * The thresholds sit at least diff_threshold from a background that is usually smooth, so most rows
- * end at step 1. Candidates are still found in raster order: the result is the plain per-pixel
- * rule's. */
-#define DEFINE_BLOCK_OUT(NAME, T)                                                                  \
-    static inline int NAME(const T *restrict r, T bh, T bl) {                                      \
-        T out = 0; /* an OR of compare results: vector compares, one reduction at the end */       \
-        for (size_t x = 0; x < FT_BLOCK; x++)                                                      \
-            out |= (T)((r[x] > bh) | (r[x] < bl));                                                 \
-        return out != 0;                                                                           \
-    }                                                                                              \
-    /* The whole row's full blocks at once: lane-wise ORs into acc, one reduction per row. */      \
-    static inline int NAME##_row(const T *restrict r, const T *restrict bh, const T *restrict bl,  \
-                                 size_t nfull) {                                                   \
-        T acc[FT_BLOCK] = {0};                                                                     \
-        for (size_t b = 0; b < nfull; b++) {                                                       \
-            const T *restrict rb = r + b * FT_BLOCK;                                               \
-            const T h = bh[b], l = bl[b];                                                          \
-            for (size_t x = 0; x < FT_BLOCK; x++) { /* max(r, h) - h, max(r, l) - r: 0 = inside */ \
-                T v = rb[x], a = v > h ? v : h, c = v > l ? v : l;                                 \
-                acc[x] |= (T)((T)(a - h) | (T)(c - v));                                            \
-            }                                                                                      \
-        }                                                                                          \
-        T out = 0;                                                                                 \
-        for (size_t x = 0; x < FT_BLOCK; x++)                                                      \
-            out |= acc[x];                                                                         \
-        return out != 0;                                                                           \
-    }                                                                                              \
-    /* The whole row against its own bounds: a max/min reduction, about the cost of reading it. */ \
-    static inline int NAME##_whole(const T *restrict r, size_t w, T rh, T rl) {                    \
-        T mx = 0, mn = (T) ~(T)0;                                                                  \
-        for (size_t x = 0; x < w; x++) {                                                           \
-            mx = r[x] > mx ? r[x] : mx;                                                            \
-            mn = r[x] < mn ? r[x] : mn;                                                            \
-        }                                                                                          \
-        return (mx > rh) | (mn < rl);                                                              \
-    }
-DEFINE_BLOCK_OUT(block_out8, uint8_t)
-DEFINE_BLOCK_OUT(block_out16, uint16_t)
-
-/* Bit x set: pixel x of the block is a candidate (r > hi or r < lo). The compiler does not turn the
- * plain loop into vector compares with a mask, so 8-bit frames use AVX-512BW or AVX2 when built
- * for them (-march=native); the loop is the portable fallback and the reference. */
-#define DEFINE_BLOCK_MASK_SCALAR(NAME, T)                                                          \
-    static inline uint64_t NAME(const T *restrict r, const T *restrict hr, const T *restrict lr) { \
-        uint64_t m = 0;                                                                            \
-        for (size_t x = 0; x < FT_BLOCK; x++)                                                      \
-            m |= (uint64_t)((r[x] > hr[x]) | (r[x] < lr[x])) << x;                                 \
-        return m;                                                                                  \
-    }
-DEFINE_BLOCK_MASK_SCALAR(block_out16_mask, uint16_t)
-#if defined(__AVX512BW__)
-static inline uint64_t block_out8_mask(const uint8_t *r, const uint8_t *hr, const uint8_t *lr) {
-    __m512i v = _mm512_loadu_si512(r);
-    return _mm512_cmpgt_epu8_mask(v, _mm512_loadu_si512(hr)) |
-           _mm512_cmplt_epu8_mask(v, _mm512_loadu_si512(lr));
-}
-#elif defined(__AVX2__)
-/* Unsigned r > h <=> max(r, h) != h; r < l <=> min(r, l) != l. */
-static inline uint32_t out32_avx2(const uint8_t *r, const uint8_t *hr, const uint8_t *lr) {
-    __m256i v = _mm256_loadu_si256((const __m256i *)r);
-    __m256i h = _mm256_loadu_si256((const __m256i *)hr);
-    __m256i l = _mm256_loadu_si256((const __m256i *)lr);
-    __m256i in = _mm256_and_si256(_mm256_cmpeq_epi8(_mm256_max_epu8(v, h), h),
-                                  _mm256_cmpeq_epi8(_mm256_min_epu8(v, l), l));
-    return ~(uint32_t)_mm256_movemask_epi8(in);
-}
-static inline uint64_t block_out8_mask(const uint8_t *r, const uint8_t *hr, const uint8_t *lr) {
-    return (uint64_t)out32_avx2(r, hr, lr) | (uint64_t)out32_avx2(r + 32, hr + 32, lr + 32) << 32;
-}
-#else
-DEFINE_BLOCK_MASK_SCALAR(block_out8_mask, uint8_t)
-#endif
-
-#define DEFINE_SCAN(NAME, T, HI, LO, BHI, BLO, RHI, RLO, BLOCK_OUT)                                \
-    static uint32_t NAME(ft_fx *fx, const T *restrict img, size_t stride_px, int *overflow) {      \
-        const size_t w = fx->w, nblk = fx->nblk;                                                   \
-        const T *restrict hi = fx->HI;                                                             \
-        const T *restrict lo = fx->LO;                                                             \
-        const float *restrict mean = fx->mean;                                                     \
-        const int pol = fx->p.polarity;                                                            \
-        uint32_t n = 0;                                                                            \
-        for (size_t y = 0; y < fx->h; y++) {                                                       \
-            const T *restrict r = img + y * stride_px;                                             \
-            const T *restrict hr = hi + y * w;                                                     \
-            const T *restrict lr = lo + y * w;                                                     \
-            const T *restrict bh = fx->BHI + y * nblk;                                             \
-            const T *restrict bl = fx->BLO + y * nblk;                                             \
-            if (!BLOCK_OUT##_whole(r, w, fx->RHI[y], fx->RLO[y]))                                  \
-                continue; /* the common case: a row smooth enough for one pair of bounds */        \
-            const size_t nfull = w / FT_BLOCK;                                                     \
-            /* Then its full blocks in one pass, reduced once; if they are clean, only a short     \
-             * last block, if any, is left to look at. */                                          \
-            size_t b0 = nfull && !BLOCK_OUT##_row(r, bh, bl, nfull) ? nfull : 0;                   \
-            for (size_t b = b0; b < nblk; b++) {                                                   \
-                size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK;                                      \
-                uint64_t m = 0; /* bit x - x0: pixel x is a candidate */                           \
-                if (x1 <= w) {                                                                     \
-                    if (!BLOCK_OUT(r + x0, bh[b], bl[b]))                                          \
-                        continue;                                                                  \
-                    m = BLOCK_OUT##_mask(r + x0, hr + x0, lr + x0);                                \
-                } else {                                                                           \
-                    for (size_t x = x0; x < w; x++) /* the short last block */                     \
-                        m |= (uint64_t)((r[x] > hr[x]) | (r[x] < lr[x])) << (x - x0);              \
-                }                                                                                  \
-                for (; m; m &= m - 1) { /* candidates in raster order */                           \
-                    size_t x = x0 + (size_t)__builtin_ctzll(m);                                    \
-                    if (n == fx->cap) {                                                            \
-                        *overflow = 1;                                                             \
-                        return n;                                                                  \
-                    }                                                                              \
-                    size_t idx = y * w + x;                                                        \
-                    float d = (float)r[x] - mean[idx];                                             \
-                    if (pol == FT_FX_POLARITY_BOTH)                                                \
-                        d = fabsf(d);                                                              \
-                    else if (pol == FT_FX_POLARITY_DARK)                                           \
-                        d = -d;                                                                    \
-                    fx->cand_idx[n] = (uint32_t)idx;                                               \
-                    fx->cand_d[n] = d;                                                             \
-                    fx->label[idx] = n + 1;                                                        \
-                    n++;                                                                           \
-                }                                                                                  \
-            }                                                                                      \
-        }                                                                                          \
-        return n;                                                                                  \
-    }
-DEFINE_SCAN(scan8, uint8_t, hi8, lo8, bhi8, blo8, rhi8, rlo8, block_out8)
-DEFINE_SCAN(scan16, uint16_t, hi16, lo16, bhi16, blo16, rhi16, rlo16, block_out16)
 
 static void luma_from_yuyv(size_t w, size_t h, const uint8_t *restrict img, size_t stride,
                            uint8_t *restrict out) {
@@ -520,158 +354,6 @@ static void luma_from_yuyv(size_t w, size_t h, const uint8_t *restrict img, size
         for (size_t x = 0; x < w; x++)
             o[x] = r[2 * x];
     }
-}
-
-/* ---------------------------------------------------------------------------------------------- */
-/* Regions: union-find over candidates (8-connectivity), then moments */
-
-static uint32_t uf_find(uint32_t *parent, uint32_t k) {
-    while (parent[k] != k) {
-        parent[k] = parent[parent[k]]; /* path halving */
-        k = parent[k];
-    }
-    return k;
-}
-
-/* Links so that the root is the smallest index: a region's first candidate in raster order. */
-static void uf_union(uint32_t *parent, uint32_t a, uint32_t b) {
-    a = uf_find(parent, a);
-    b = uf_find(parent, b);
-    if (a < b)
-        parent[b] = a;
-    else if (b < a)
-        parent[a] = b;
-}
-
-static int rank_cmp(const void *pa, const void *pb) {
-    const rank *a = pa, *b = pb;
-    if (a->beta != b->beta)
-        return a->beta > b->beta ? -1 : 1;
-    return a->peak_idx < b->peak_idx ? -1 : (a->peak_idx > b->peak_idx ? 1 : 0);
-}
-
-static void shape(const region *g, double *orientation, double *eccentricity) {
-    double mx = g->mx / g->m0, my = g->my / g->m0;
-    double u20 = g->mxx / g->m0 - mx * mx;
-    double u02 = g->myy / g->m0 - my * my;
-    double u11 = g->mxy / g->m0 - mx * my;
-    double half_tr = 0.5 * (u20 + u02);
-    double half_diff = 0.5 * (u20 - u02);
-    double disc = sqrt(half_diff * half_diff + u11 * u11);
-    double l1 = half_tr + disc, l2 = half_tr - disc;
-    if (l1 <= 1e-12 || disc <= 1e-9 * half_tr) { /* a single pixel or a round blob */
-        *orientation = NAN;
-        *eccentricity = 1.0;
-        return;
-    }
-    double th = 0.5 * atan2(2.0 * u11, u20 - u02);
-    if (th <= -FT_PI / 2)
-        th += FT_PI;
-    *orientation = th;
-    *eccentricity = l2 > 1e-12 * l1 ? sqrt(l1 / l2) : NAN; /* a line: the ratio is unbounded */
-}
-
-static uint32_t measure(ft_fx *fx, uint32_t n, uint32_t *total) {
-    const uint32_t w = fx->w;
-    uint32_t *parent = fx->parent;
-    for (uint32_t k = 0; k < n; k++) {
-        uint32_t idx = fx->cand_idx[k];
-        uint32_t x = idx % w, y = idx / w;
-        parent[k] = k;
-        /* Earlier neighbours in raster order: W, NW, N, NE. */
-        if (x > 0 && fx->label[idx - 1])
-            uf_union(parent, k, fx->label[idx - 1] - 1);
-        if (y > 0) {
-            const uint32_t *up = fx->label + idx - w;
-            if (x > 0 && up[-1])
-                uf_union(parent, k, up[-1] - 1);
-            if (up[0])
-                uf_union(parent, k, up[0] - 1);
-            if (x + 1 < w && up[1])
-                uf_union(parent, k, up[1] - 1);
-        }
-    }
-    uint32_t nreg = 0;
-    for (uint32_t k = 0; k < n; k++) {
-        uint32_t r = uf_find(parent, k);
-        float d = fx->cand_d[k];
-        if (r == k) { /* roots are visited first: the smallest index of each set */
-            region *g = &fx->regions[nreg];
-            memset(g, 0, sizeof *g);
-            g->beta = d;
-            g->peak_cand = k;
-            fx->cand_region[k] = nreg++;
-        } else {
-            fx->cand_region[k] = fx->cand_region[r];
-        }
-        region *g = &fx->regions[fx->cand_region[k]];
-        g->n_cand++;
-        if (d > g->beta) { /* strict: on a tie the first in raster order is the peak */
-            g->beta = d;
-            g->peak_cand = k;
-        }
-    }
-    const int sub = fx->p.subtract_cut;
-    for (uint32_t k = 0; k < n; k++) {
-        region *g = &fx->regions[fx->cand_region[k]];
-        double cut = fx->p.clear_fraction * (double)g->beta;
-        /* The cut never lies below the detection threshold either: with weights d - cut they then
-         * fall continuously to zero at the region's edge, which keeps the centre unbiased. */
-        if (cut < fx->p.despeckle_threshold)
-            cut = fx->p.despeckle_threshold;
-        if (cut < fx->p.diff_threshold)
-            cut = fx->p.diff_threshold;
-        double d = fx->cand_d[k];
-        if (d < cut)
-            continue;
-        uint32_t idx = fx->cand_idx[k], pk = fx->cand_idx[g->peak_cand];
-        double dx = (double)(idx % w) - (double)(pk % w);
-        double dy = (double)(idx / w) - (double)(pk / w);
-        double wt = sub ? d - cut : d;
-        g->n_kept++;
-        g->m0 += wt;
-        g->mx += wt * dx;
-        g->my += wt * dy;
-        g->mxx += wt * dx * dx;
-        g->myy += wt * dy * dy;
-        g->mxy += wt * dx * dy;
-    }
-    uint32_t nr = 0;
-    for (uint32_t r = 0; r < nreg; r++) {
-        if (fx->regions[r].n_kept < fx->p.min_area)
-            continue; /* speckle */
-        fx->ranks[nr].beta = fx->regions[r].beta;
-        fx->ranks[nr].peak_idx = fx->cand_idx[fx->regions[r].peak_cand];
-        fx->ranks[nr].rid = r;
-        nr++;
-    }
-    qsort(fx->ranks, nr, sizeof(rank), rank_cmp);
-    *total = nr;
-    uint32_t np = nr < fx->p.max_points ? nr : fx->p.max_points;
-    for (uint32_t i = 0; i < np; i++) {
-        const region *g = &fx->regions[fx->ranks[i].rid];
-        ft_fx_point *pt = &fx->points[i];
-        uint32_t pk = fx->cand_idx[g->peak_cand];
-        pt->peak_x = pk % w;
-        pt->peak_y = pk / w;
-        if (g->m0 > 0.0) {
-            pt->x_dist = pt->peak_x + g->mx / g->m0;
-            pt->y_dist = pt->peak_y + g->my / g->m0;
-            shape(g, &pt->orientation, &pt->eccentricity);
-        } else { /* every kept pixel sits exactly at the cut: the peak is the centre */
-            pt->x_dist = pt->peak_x;
-            pt->y_dist = pt->peak_y;
-            pt->orientation = NAN;
-            pt->eccentricity = 1.0;
-        }
-        ft_fx_undistort(&fx->p, pt->x_dist, pt->y_dist, &pt->x_undist, &pt->y_undist);
-        pt->area = g->n_kept;
-        pt->peak_diff = g->beta;
-        pt->mean_val = fx->mean[pk];
-        pt->sumsq_val = fx->sumsq[pk];
-        pt->n_candidates = g->n_cand;
-    }
-    return np;
 }
 
 /* ---------------------------------------------------------------------------------------------- */
@@ -701,13 +383,13 @@ int ft_fx_process(ft_fx *fx, const void *frame, size_t nbytes, ft_fx_result *res
         return FT_FX_OK;
     }
     int overflow = 0;
-    uint32_t n = fx->p.pixel_format == FT_FX_MONO16 ? scan16(fx, img, stride / 2, &overflow)
-                                                    : scan8(fx, img, stride, &overflow);
+    uint32_t n = 0;
+    uint32_t nr = fx->p.pixel_format == FT_FX_MONO16
+                      ? ft_fx_scan16(fx, img, stride / 2, &n, &overflow)
+                      : ft_fx_scan8(fx, img, stride, &n, &overflow);
     uint32_t total = 0, np = 0;
-    if (n)
-        np = measure(fx, n, &total);
-    for (uint32_t k = 0; k < n; k++) /* leave the label image all zero for the next frame */
-        fx->label[fx->cand_idx[k]] = 0;
+    if (nr)
+        np = ft_fx_measure(fx, nr, &total);
     for (uint32_t i = 0; i < np; i++) {
         const ft_fx_point *pt = &fx->points[i];
         size_t off = (size_t)pt->peak_y * stride;

@@ -1,0 +1,85 @@
+/* Internal to libflytrack_features: the extractor's state, shared by features.c (model, regions,
+ * API) and scan.c (the per-frame candidate scan). */
+#ifndef FLYTRACK_FX_INTERNAL_H
+#define FLYTRACK_FX_INTERNAL_H
+
+#include "flytrack/features.h"
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define FT_BLOCK 64u /* pixels per block of the scan's bounds pass: one 64-bit candidate mask */
+#define FT_BAND 4u   /* packed rows the scan tests at once before testing them one by one */
+
+/* A run: candidates y, x0 .. x1 - 1 of one row, found in raster order; their differences are
+ * cand_d[c0 .. c0 + x1 - x0 - 1]. Regions are unions of 8-connected runs. */
+typedef struct {
+    uint32_t y, x0, x1, c0;
+} ft_run;
+
+typedef struct {
+    float beta;
+    uint32_t peak_x, peak_y;
+    uint32_t n_cand, n_kept;
+    double cut;
+    double m0, mx, my, mxx, myy, mxy; /* moments about the peak pixel */
+} ft_region;
+
+typedef struct {
+    float beta;
+    uint32_t peak_idx;
+    uint32_t rid;
+} ft_rank;
+
+struct ft_fx {
+    ft_fx_params p;
+    uint32_t w, h;
+    size_t npix, stride, frame_bytes;
+    uint32_t maxval;
+    float *mean, *sumsq;
+    uint8_t *hi8, *lo8;
+    uint16_t *hi16, *lo16;
+    /* Per block of FT_BLOCK pixels of a row: the lowest hi and the highest lo in it. A block whose
+     * pixels all lie within [blo, bhi] holds no candidate, which the scan checks reading the frame
+     * alone (see scan.c). */
+    size_t nblk; /* blocks per row */
+    uint8_t *bhi8, *blo8;
+    uint16_t *bhi16, *blo16;
+    /* The same bounds per whole row: the scan's very first check. */
+    uint8_t *rhi8, *rlo8;
+    uint16_t *rhi16, *rlo16;
+    uint8_t *mask;   /* 1 = use, always allocated (all ones without a user mask) */
+    uint8_t *luma;   /* YUYV: the luma plane of the current frame */
+    uint32_t cap;    /* candidates (and so runs) per frame at most */
+    uint32_t *queue; /* the scan's blocks to look at pixel by pixel: y << 8 | block (h x nblk) */
+    uint64_t *qmask; /* the queued blocks' candidate masks */
+    float *cand_d;   /* per candidate, raster order: its difference to the background */
+    ft_run *runs;    /* per run, raster order */
+    uint32_t *run_parent, *run_region;
+    ft_region *regions;
+    ft_rank *ranks;
+    ft_fx_point *points;
+    uint64_t frame_index;
+    uint64_t since_update;
+    int need_bg;
+    int have_bg;
+    int scalar_scan; /* 1: the plain per-pixel scan (the reference the vector scan is tested on) */
+};
+
+/* The candidate scan of one frame: fills cand_d and runs, returns the number of runs; *n_cand gets
+ * the candidates, *overflow 1 when cap was reached (the candidates found so far are kept). */
+uint32_t ft_fx_scan8(ft_fx *fx, const uint8_t *img, size_t stride, uint32_t *n_cand, int *overflow);
+uint32_t ft_fx_scan16(ft_fx *fx, const uint16_t *img, size_t stride_px, uint32_t *n_cand,
+                      int *overflow);
+
+/* The scan's nr runs united into regions and measured (regions.c): fills fx->points, strongest
+ * first, and returns how many (at most max_points); *total gets the regions kept before the cap. */
+uint32_t ft_fx_measure(ft_fx *fx, uint32_t nr, uint32_t *total);
+
+/* Tests only: 1 makes ft_fx_process use the plain per-pixel scan, 0 the vector scan (default).
+ * Both must give bit-identical results. */
+void ft_fx_debug_scalar_scan(ft_fx *fx, int on);
+/* Tests only: the vector path this build uses ("avx512bw", "avx2" or "generic"). */
+const char *ft_fx_debug_scan_path(void);
+
+#endif
