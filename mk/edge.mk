@@ -21,8 +21,9 @@ FX_DIR = edge/feature_extractor
 ARM_FLAGS = -O3 -ffp-contract=off -fno-math-errno -Wall -Wextra -Werror -I$(FX_DIR)/include -I$(FX_DIR)/src
 .PHONY: test-edge-arm
 test-edge-arm:
+	@FLYTRACK_EXTRA_APT=scripts/apt-packages-arm.txt scripts/setup.sh
 	@command -v $(ARM_CC) >/dev/null && command -v qemu-aarch64 >/dev/null \
-	  || { echo "test-edge-arm: needs $(ARM_CC) and qemu-aarch64 (scripts/apt-packages.txt)" >&2; exit 2; }
+	  || { echo "test-edge-arm: needs $(ARM_CC) and qemu-aarch64 (scripts/apt-packages-arm.txt)" >&2; exit 2; }
 	@mkdir -p $(ARM_OUT)
 	@$(ARM_CC) $(ARM_FLAGS) -ffinite-math-only -fno-signed-zeros -c $(FX_DIR)/src/thresholds.c -o $(ARM_OUT)/thresholds.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/scan.c -o $(ARM_OUT)/scan.o

@@ -5,7 +5,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-want=$(grep -v '^\s*#' scripts/apt-packages.txt | grep -v '^\s*$' | tr '\n' ' ')
+# FLYTRACK_EXTRA_APT: more package lists, for targets outside `make test` (e.g. scripts/apt-packages-arm.txt).
+want=$(cat scripts/apt-packages.txt ${FLYTRACK_EXTRA_APT:-} | grep -v '^\s*#' | grep -v '^\s*$' | tr '\n' ' ')
 missing=()
 for p in $want; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
