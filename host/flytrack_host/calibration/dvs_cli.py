@@ -72,6 +72,8 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
         if w <= 0 or h <= 0:
             raise InputError(f"{path}: the file does not give the sensor size; pass --size WIDTHxHEIGHT.")
         ex = LedExtractor(w, h, params)
+        if sync_csv is not None:  # all pulse times known up front
+            ex.feed(_empty(), sync_csv[1])
         total = max(1, os.path.getsize(path))
         task = progress.add_task(name, total=total) if progress is not None else None
         try:
@@ -88,9 +90,7 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
         if progress is not None and task is not None:
             progress.update(task, completed=total)
         n_trig = r.info.n_triggers
-    if sync_csv is not None:
-        ex.feed(_empty(), sync_csv[1])
-    elif ex.stats["events"] and not len(ex._sync_all):
+    if sync_csv is None and ex.stats["events"] and not len(ex._sync_all):
         how = (f"{n_trig} trigger events, none a rising edge" if n_trig else "no sync (external trigger) events")
         raise InputError(f"{path}: {how}, so its event times cannot be tied to trigger frames. Wire the trigger "
                          "output to the camera's sync input while recording, or give --sync FRAMES.csv "
@@ -181,6 +181,10 @@ def dvs_points_cmd(
     names = camera or [p.stem for p in events]
     if len(set(names)) != len(names):
         raise InputError(f"two event files give the same camera name ({', '.join(names)}): name them with --camera.")
+    taken = [n for n in names if base is not None and n in base.camera_names]
+    if taken:
+        raise InputError(f"camera name(s) {', '.join(taken)} already in the points file {with_points}; name the DVS "
+                         "camera(s) otherwise with --camera.")
     results = []
     with Progress(TextColumn("[bold]{task.description}[/bold]"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeRemainingColumn(), console=err, transient=True) as prog:
