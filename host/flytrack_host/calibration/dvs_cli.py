@@ -134,7 +134,7 @@ def to_observations(results: list[DvsPointsResult], base: Observations | None = 
 def _freq_text(freqs: list[tuple[float, float]]) -> str:
     if not freqs:
         return "no repeating activity at all (too few events?)"
-    return ", ".join(f"{f:.0f} Hz ({100 * s:.0f} % of same-polarity repeats)" for f, s in freqs)
+    return ", ".join(f"{f:.0f} Hz ({100 * s:.0f} %)" for f, s in freqs) + " of a pixel's same-polarity repeats"
 
 
 @app.command("dvs-points")

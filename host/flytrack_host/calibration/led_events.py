@@ -79,7 +79,11 @@ def _runs(key: NDArray[np.int64], t: NDArray[np.int64], p: NDArray[np.uint8],
     """Events ordered by pixel (time order kept within a pixel) and cut into same-polarity runs (a
     gap longer than max_gap starts a new run too): (order, run id of each ordered event, run start
     times, run pixels, run polarities)."""
-    order = np.argsort(key, kind="stable")
+    if len(key) < (1 << 31):
+        # (pixel << 32 | index) sorted: the stable order by pixel, twice as fast as a stable argsort
+        order = np.sort((key << 32) | np.arange(len(key), dtype=np.int64)) & 0xFFFFFFFF
+    else:
+        order = np.argsort(key, kind="stable")
     k, tt, pp = key[order], t[order], p[order]
     start = np.ones(len(k), bool)
     if len(k) > 1:

@@ -169,6 +169,13 @@ def test_cli_dvs_points_and_its_errors(wand, extracted, tmp_path: Path):
     r = _cli("dvs-points", str(wand.dvs_files["dvs2"]), "--led-hz", "700", "-o", str(tmp_path / "x.csv"))
     assert r.exit_code == 2 and "no LED blinking at 700 Hz" in _text(r) and "500 Hz" in _text(r), _text(r)
     assert not (tmp_path / "x.csv").exists()
+    # A damaged (cut) file: the events before the damage are used, with a warning.
+    cut = tmp_path / "cut.raw"
+    cut.write_bytes(wand.dvs_files["dvs1"].read_bytes()[:1_000_002])
+    r = _cli("dvs-points", str(cut), "--led-hz", "500", "-o", str(tmp_path / "cut.csv"))
+    assert r.exit_code == 0 and "truncated" in _text(r) and "events before the damage were used" in _text(r)
+    n_cut = len(load_points(tmp_path / "cut.csv").frame)
+    assert 0 < n_cut < len(extracted["dvs1"].points.frame)
     # A file without sync events.
     nosync = tmp_path / "nosync.aedat4"
     write_events(nosync, ev[:50_000], 346, 260)
