@@ -27,6 +27,7 @@ class DvsPointsResult:
     size: tuple[int, int]
     points: LedPoints
     seconds: float  # reading and finding, wall time
+    cpu_seconds: float  # the same, CPU time of this process (what the machine's load does not inflate)
     frequencies: list[tuple[float, float]]
     damaged: str | None  # the reader's message when the file is damaged (the events before were used)
 
@@ -59,7 +60,7 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
 
     if not path.exists():
         raise InputError(f"{path}: no such file.")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         reader = EventReader(path, triggers=True)
     except EventFileError as exc:
@@ -99,7 +100,10 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
         pts = ex.finish(first_frame=first_frame, frames=sync_csv[0] if sync_csv is not None else None)
     except SyncError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return DvsPointsResult(name, (w, h), pts, time.perf_counter() - t0, ex.frequencies(), damaged)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    # what the events repeat at, for the message when the LED is (almost) not found
+    freqs = ex.frequencies() if pts.stats["points"] < 0.1 * max(1, pts.stats["syncs"]) else []
+    return DvsPointsResult(name, (w, h), pts, wall, cpu, freqs, damaged)
 
 
 def _empty() -> np.ndarray:
@@ -198,8 +202,10 @@ def dvs_points_cmd(
             raise InputError(f"{res.name}: no LED blinking at {led_hz:g} Hz (+-{100 * tolerance:.0f} %) in "
                              f"{st['events']} events and {st['syncs']} frames. The events repeat most at: "
                              f"{_freq_text(res.frequencies)}. Check --led-hz (and --duty).")
-        console.print(f"{res.name} ({res.size[0]}x{res.size[1]}): {st['events']} events in {res.seconds:.2f} s "
-                      f"({st['events'] / max(res.seconds, 1e-9) / 1e6:.2f} M events/s read and searched), "
+        rate, cpu_rate = st["events"] / max(res.seconds, 1e-9), st["events"] / max(res.cpu_seconds, 1e-9)
+        console.print(f"{res.name} ({res.size[0]}x{res.size[1]}): {st['events']} events read and searched in "
+                      f"{res.seconds:.2f} s, {res.cpu_seconds:.2f} s CPU ({rate / 1e6:.2f} M events/s, "
+                      f"{cpu_rate / 1e6:.2f} M per CPU second), "
                       f"{st['led_events']} near pulses at {led_hz:g} Hz; {st['points']} points in {st['syncs']} "
                       f"frames ({100 * st['points'] / max(1, st['syncs']):.0f} %), median "
                       f"{np.median(res.points.n_events):.0f} events each"
