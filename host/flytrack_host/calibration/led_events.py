@@ -3,15 +3,16 @@ self-calibration beside the frame cameras.
 
 A LED switched on and off at a known frequency makes every pixel it covers fire a run of ON events at
 switch-on and a run of OFF events at switch-off, once per period. Per pixel, the events are cut into
-runs of one polarity; a run belongs to the LED when it is part of `min_cycles` whole cycles in a row
-at that pixel: each next run of the same polarity starting one LED period later (within
-`tolerance`), the run of the other polarity between them after the LED's on (or off) time. A moving
-object, a flicker at another frequency and background noise fail that test. The points are the LED's
-events around each sync event (the trigger pulse recorded by the camera): the events within
-`window_us` of the pulse, kept
-within `radius_px` of their median, fitted by position = a + b (t - t_pulse) per axis, so `a` is
-where the LED was at the pulse even while it moves. The sync events give the trigger frame, so the
-points pair with the frame cameras' points frame by frame.
+runs of one polarity (a run lasts at most the LED's on or off time); a run belongs to the LED when it
+is part of `min_cycles` whole cycles in a row at that pixel: the next run of the same polarity starts
+one LED period later (within `tolerance`), the run of the other polarity between them after the LED's
+on (or off) time. A moving object and background noise fail that test. Around each sync event (the
+trigger pulse recorded by the camera), the events within `window_us` of the pulse and `radius_px` of
+the LED events' median give a point when most of them are the LED's (`min_purity`: at a wrong
+frequency only stray cycles of the real blinking pass) and the switch-ons agree in phase
+(`min_coherence`: one LED switches all its pixels at once); the point is the fit position =
+a + b (t - t_pulse) per axis, so `a` is where the LED was at the pulse even while it moves. The sync
+events give the trigger frame, so the points pair with the frame cameras' points frame by frame.
 
 All of it is vectorised NumPy; `LedExtractor` takes a file's events chunk by chunk (memory bounded by
 a few frames of events), `led_points` a whole array.
