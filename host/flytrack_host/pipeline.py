@@ -70,7 +70,6 @@ from flytrack_host.tracking.types import FrameBundle, FrameResult
 
 log = logging.getLogger("flytrack.pipeline")
 
-DVS_GATE_PX = 3.0  # an event camera's point is used within this distance of a target's projection
 
 TrackerFactory = Callable[[Mapping[int, Camera], TrackingParams, float], Any]
 _POINT_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff", "orientation",
@@ -226,7 +225,6 @@ class HostPipeline:
         self.latency = LatencyStats()
         self.untracked: dict[str, int] = {}
         self.dvs_slices: dict[int, int] = {}  # DVS_CLUSTERS slices taken in, per event camera
-        self._last_positions = np.zeros((0, 3))  # the last tracked frame's estimates (DVS gating)
         dvs_idx = [c.index for c in rig.cameras if c.kind == "dvs"]
         self.dvs_obs = (DvsObservations({i: self.cameras.get(i) for i in dvs_idx}, self.fps)
                         if dvs_idx and self.fps else None)
@@ -508,17 +506,6 @@ class HostPipeline:
         if self.dvs_obs is not None:
             self.dvs_obs.add(item, self._frame_of_host_time)
 
-    def _near_targets(self, cam_index: int, pts: np.ndarray) -> np.ndarray:
-        """An event camera's points near where the last frame's targets project: event clusters lag and
-        merge, so they update tracks the frame cameras started and never start one (two DVS cameras'
-        stray clusters would otherwise triangulate into a phantom)."""
-        cam = self.cameras.get(cam_index)
-        if cam is None or not len(pts) or self._last_positions.size == 0:
-            return pts[:0]
-        uv = cam.project_undistorted(self._last_positions)
-        d = np.hypot(pts["x_undist"][:, None] - uv[None, :, 0], pts["y_undist"][:, None] - uv[None, :, 1])
-        return pts[np.nanmin(d, axis=1) < DVS_GATE_PX]
-
     def _frame_of_host_time(self, t: float) -> float:
         """The trigger clock model inverted: host time -> trigger frame (NaN before it is known)."""
         clock = self.sync.clock if self.sync is not None else None
@@ -535,13 +522,14 @@ class HostPipeline:
             return
         tf = sb.bundle.trigger_frame
         for ci in self.dvs_obs.indices:
-            fr = self.dvs_obs.frame(ci, tf)
-            if fr is not None:
-                fr.points = self._near_targets(ci, fr.points)
-                fr.total_points = len(fr.points)
+            got = self.dvs_obs.frame(ci, tf)
+            if got is not None:
+                fr, cov = got
                 self.dvs_obs.count(ci, len(fr.points))
                 sb.frames[ci] = fr
                 sb.bundle.detections[ci] = fr.points
+                # their own covariance is their measurement noise, and they never start a track
+                sb.bundle.point_cov[ci] = cov
 
     def _guarded(self, fn: Callable[..., object], *args: Any) -> bool:
         """Run one step of the tracking thread; an exception is logged (the first few in full) and
@@ -642,7 +630,6 @@ class HostPipeline:
                 for a in result.associations:
                     if a.camera_index in self.dvs_obs.cams:
                         self.dvs_obs.count(a.camera_index, 0, 1)
-            self._last_positions = np.array([e.state[:3] for e in result.estimates], dtype=np.float64).reshape(-1, 3)
             self.frames_tracked += 1
             self.n_objects = len(result.estimates)
             self.n_estimates += len(result.estimates)

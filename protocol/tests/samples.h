@@ -228,8 +228,9 @@ static size_t ft_make_samples(ft_sample *s) {
         k++;
     }
     {
-        ft_dvs_clusters_hdr h = {0, 0, 2, 5, 1000, 2000, 99};
-        ft_dvs_cluster c[2] = {{1, 10, 20, 1, -1, 3, 40}, {2, 64, 64, 0, 0, 2.5f, 12}};
+        ft_dvs_clusters_hdr h = {FT_DVS_SYNCED, 0, 2, 5, 1000, 2000, 99, 17.25, 10000.0f, 18};
+        ft_dvs_cluster c[2] = {{1, 10, 20, 1, -1, 3, 40, 0.5f, 0.25f, -0.125f},
+                               {2, 64, 64, 0, 0, 2.5f, 12, 4.0f, 4.0f, 0.0f}};
         s[k].name = "dvs_clusters";
         s[k].dec = dec_dvs_clusters;
         if (ft_dvs_clusters_encode(s[k].bytes, sizeof s[k].bytes, &h, c, &s[k].len) != FT_OK)

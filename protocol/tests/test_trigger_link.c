@@ -192,7 +192,8 @@ static void test_frames(void) {
         uint8_t body[80];
         size_t bl;
         CHECK_ERR(ft_cobs_decode(wire, wl - 1, body, sizeof body, &bl), FT_OK);
-        CHECK(bl == FT_TL_CLOCK_SIZE + 6 && body[0] == 0x46 && body[1] == 1 && body[2] == 0x84);
+        CHECK(bl == FT_TL_CLOCK_SIZE + 6 && body[0] == 0x46 && body[1] == FT_PROTOCOL_VERSION &&
+              body[2] == 0x84);
         CHECK(ft_ld_u16(body + bl - 2) == ft_crc16(body, bl - 2));
     }
     /* NO_SPACE at every cap below the need; LENGTH_MISMATCH on a wrong payload size */
@@ -218,7 +219,7 @@ static void test_frames(void) {
     }
     /* CRC flip */
     {
-        uint8_t body[] = {0x46, 1, 0x82, 9, 0x03, 0, 0};
+        uint8_t body[] = {0x46, FT_PROTOCOL_VERSION, 0x82, 9, 0x03, 0, 0};
         uint8_t w2[32];
         size_t n = raw_frame(w2, body, sizeof body, 1);
         CHECK_ERR(ft_tl_decode(w2, n, &id, &seq, pl, &plen), FT_OK);
@@ -232,11 +233,11 @@ static void test_frames(void) {
     {
         uint8_t w2[32];
         const uint8_t bad_magic[] = {0x47, 2, 0xEE, 1, 0, 0};
-        const uint8_t bad_version[] = {0x46, 2, 0xEE, 1, 0, 0};
-        const uint8_t unknown[] = {0x46, 1, 0xEE, 1, 5, 0, 0};
-        const uint8_t too_short[] = {0x46, 1, 0x82, 1, 0, 0};
-        const uint8_t too_long[] = {0x46, 1, 0x03, 1, 5, 0, 0};
-        const uint8_t five[] = {0x46, 1, 0x03, 1, 0};
+        const uint8_t bad_version[] = {0x46, FT_PROTOCOL_VERSION + 1, 0xEE, 1, 0, 0};
+        const uint8_t unknown[] = {0x46, FT_PROTOCOL_VERSION, 0xEE, 1, 5, 0, 0};
+        const uint8_t too_short[] = {0x46, FT_PROTOCOL_VERSION, 0x82, 1, 0, 0};
+        const uint8_t too_long[] = {0x46, FT_PROTOCOL_VERSION, 0x03, 1, 5, 0, 0};
+        const uint8_t five[] = {0x46, FT_PROTOCOL_VERSION, 0x03, 1, 0};
         size_t n;
         n = raw_frame(w2, bad_magic, sizeof bad_magic, 1);
         CHECK_ERR(ft_tl_decode(w2, n, &id, &seq, pl, &plen), FT_E_BAD_MAGIC);
@@ -258,7 +259,7 @@ static void test_frames(void) {
         size_t n;
         memset(body, 0xAB, sizeof body);
         body[0] = 0x46;
-        body[1] = 1;
+        body[1] = FT_PROTOCOL_VERSION;
         body[2] = FT_TL_INFO;
         n = raw_frame(w2, body, sizeof body, 1);
         memset(guard, 0xCC, sizeof guard);

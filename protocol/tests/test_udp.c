@@ -156,10 +156,24 @@ static void test_roundtrips(void) {
         ft_dvs_cluster c[FT_DVS_MAX_CLUSTERS];
         CHECK_ERR(ft_dvs_clusters_decode(s->bytes, s->len, &h, c), FT_OK);
         CHECK(h.n_clusters == 2 && c[1].id == 2 && c[1].size == 2.5f && c[0].vy == -1.0f);
+        CHECK(h.flags == FT_DVS_SYNCED && h.trigger_frame == 17.25 &&
+              h.frame_period_us == 10000.0f && h.syncs == 18);
+        CHECK(c[0].var_x == 0.5f && c[0].var_y == 0.25f && c[0].cov_xy == -0.125f);
         CHECK_ERR(ft_dvs_clusters_encode(out, sizeof out, &h, c, &ol), FT_OK);
         CHECK(ol == s->len && memcmp(out, s->bytes, ol) == 0);
         for (cap = 0; cap < s->len; cap++)
             CHECK_ERR(ft_dvs_clusters_encode(out, cap, &h, c, &ol), FT_E_NO_SPACE);
+        /* not a covariance, a negative variance, SYNCED without a period: refused when sent */
+        c[0].cov_xy = 0.5f;
+        CHECK_ERR(ft_dvs_clusters_encode(out, sizeof out, &h, c, &ol), FT_E_BAD_FIELD);
+        c[0].cov_xy = 0.0f;
+        c[0].var_y = -1.0f;
+        CHECK_ERR(ft_dvs_clusters_encode(out, sizeof out, &h, c, &ol), FT_E_BAD_FIELD);
+        c[0].var_y = 0.25f;
+        h.frame_period_us = 0.0f;
+        CHECK_ERR(ft_dvs_clusters_encode(out, sizeof out, &h, c, &ol), FT_E_BAD_FIELD);
+        h.flags = 0;
+        CHECK_ERR(ft_dvs_clusters_encode(out, sizeof out, &h, c, &ol), FT_OK);
     }
     {
         const ft_sample *s = find("dvs_wingbeat");
@@ -207,11 +221,13 @@ static void test_header_errors(void) {
         b[1] = 'F';
         CHECK_ERR(s->dec(b, s->len), FT_E_BAD_MAGIC);
         b[1] = 'T';
-        b[2] = 2;
+        b[2] = FT_PROTOCOL_VERSION + 1;
+        CHECK_ERR(s->dec(b, s->len), FT_E_BAD_VERSION);
+        b[2] = FT_PROTOCOL_VERSION - 1; /* the layout before: refused, not misread */
         CHECK_ERR(s->dec(b, s->len), FT_E_BAD_VERSION);
         b[2] = 0;
         CHECK_ERR(s->dec(b, s->len), FT_E_BAD_VERSION);
-        b[2] = 1;
+        b[2] = FT_PROTOCOL_VERSION;
         b[3] = 0x7F;
         CHECK_ERR(s->dec(b, s->len), FT_E_UNKNOWN_TYPE);
         CHECK_ERR(ft_peek_type(b, s->len, &type), FT_E_UNKNOWN_TYPE);

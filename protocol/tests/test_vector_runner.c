@@ -10,19 +10,19 @@
 
 static const char *trigger_link_tsv =
     "# hand-made\n"
-    "valid\tget_info\t0746010105619900\tmsg_id=1 seq=5\n"
-    "valid\tclock\t08460184c840e2010101061f4e01ddb300\t"
+    "valid\tget_info\t074602010531c000\tmsg_id=1 seq=5\n"
+    "valid\tclock\t08460284c840e2010101061f4e0142b600\t"
     "msg_id=132 seq=200 frame_count=123456 ticks=0 top=19999 running=1\n"
-    "invalid\tclock_bad_crc\t08460184c840e2010101061f4e01dcb300\tBAD_CRC\n"
-    "valid\tinfo\t064601810101050201010401010324f407626f7820315c010101010101010101038f9800\t"
+    "invalid\tclock_bad_crc\t08460284c840e2010101061f4e0143b600\tBAD_CRC\n"
+    "valid\tinfo\t064602810101050201010401010324f407626f7820315c01010101010101010103d51a00\t"
     "msg_id=129 seq=1 protocol_version=1 fw_major=0 fw_minor=2 fw_patch=1 mcu=1 n_outputs=4 "
     "f_cpu=16000000 name=box\\x201\\x5c\n"
     "invalid\tempty\t00\tTRUNCATED\n"
-    "invalid\tzero_inside\t0746010005619900\tBAD_COBS\n";
+    "invalid\tzero_inside\t0746020005619900\tBAD_COBS\n";
 
 static const char *features_tsv =
     "valid\tone_point\t"
-    "4654010164000000030001004d000000e803000000000000ffffffffffffffff000000000000000005000000000000"
+    "4654020164000000030001004d000000e803000000000000ffffffffffffffff000000000000000005000000000000"
     "00060000000000000001000001000000000000c03f000010400000404000008040000040410000f0410000c07f0000"
     "a03ffa0000000000a041cdcccc3d\t"
     "type=1 flags=0 camera_index=3 n_points=1 seq=77 camera_frame=1000 trigger_frame=-1 "
@@ -31,12 +31,12 @@ static const char *features_tsv =
     "points[0].area=12 points[0].peak_diff=30 points[0].orientation=nan "
     "points[0].eccentricity=1.25 points[0].cur_val=250 points[0].mean_val=20 "
     "points[0].sumsq_val=0.100000001\n"
-    "invalid\tbad_magic\t4655010164000000\tBAD_MAGIC\n"
-    "invalid\tshort\t465401\tTRUNCATED\n";
+    "invalid\tbad_magic\t4655020164000000\tBAD_MAGIC\n"
+    "invalid\tshort\t465402\tTRUNCATED\n";
 
 static const char *status_tsv =
     "valid\ttext_escapes\t"
-    "465401029000000002000005000400010900000000000000640000000000000002000000000000000000c84200a0"
+    "465402029000000002000005000400010900000000000000640000000000000002000000000000000000c84200a0"
     "54440080bb440000000063616d20325cc3a900000000000000000000000000000000000000000000000000000000"
     "00000000000000000000000000000000000000000000000000000000000000000000000000000000000000000000"
     "0000000000000000000000000000"
@@ -45,7 +45,7 @@ static const char *status_tsv =
     "last_error_code=0 frames_seen=100 frames_dropped=2 fps=100 proc_us_mean=850.5 "
     "proc_us_max=1500 camera_name=cam\\x202\\x5c\\xc3\\xa9 last_error=\n"
     "invalid\tinf_proc_max\t"
-    "465401029000000002000005000400010900000000000000640000000000000002000000000000000000c84200a0"
+    "465402029000000002000005000400010900000000000000640000000000000002000000000000000000c84200a0"
     "54440000807f0000000063616d203200000000000000000000000000000000000000000000000000000000000000"
     "00000000000000000000000000000000000000000000000000000000000000000000000000000000000000000000"
     "0000000000000000000000000000"
@@ -64,12 +64,12 @@ static const char *dvs_words_tsv =
 
 /* Each of these must be counted as a failure. */
 static const char *wrong_tsv =
-    "valid\twrong_field\t08460184c840e2010101061f4e01ddb300\t"
+    "valid\twrong_field\t08460284c840e2010101061f4e0142b600\t"
     "msg_id=132 seq=200 frame_count=123456 ticks=0 top=19999 running=0\n"
-    "invalid\tnot_an_error\t0746010105619900\tBAD_CRC\n"
-    "invalid\twrong_error\t08460184c840e2010101061f4e01dcb300\tBAD_COBS\n"
-    "valid\tbad_hex\t07460101056199zz\tmsg_id=1 seq=5\n"
-    "valid\tno_delimiter\t07460101056199\tmsg_id=1 seq=5\n"
+    "invalid\tnot_an_error\t074602010531c000\tBAD_CRC\n"
+    "invalid\twrong_error\t08460284c840e2010101061f4e0143b600\tBAD_COBS\n"
+    "valid\tbad_hex\t074602010531c0zz\tmsg_id=1 seq=5\n"
+    "valid\tno_delimiter\t074602010531c0\tmsg_id=1 seq=5\n"
     "three\tcolumns\tonly\n";
 
 static int write_file(const char *dir, const char *name, const char *text) {

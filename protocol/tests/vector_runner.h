@@ -253,6 +253,9 @@ static inline ft_err vr_dvs_clusters(const uint8_t *b, size_t n, vr_result *r) {
     vr_u(t, "t_start_us", h.t_start_us);
     vr_u(t, "t_end_us", h.t_end_us);
     vr_u(t, "edge_done_ns", h.edge_done_ns);
+    vr_f64(t, "trigger_frame", h.trigger_frame);
+    vr_f32(t, "frame_period_us", h.frame_period_us);
+    vr_u(t, "syncs", h.syncs);
     for (i = 0; i < h.n_clusters; i++) {
         snprintf(k, sizeof k, "clusters[%u].id", i);
         vr_u(t, k, c[i].id);
@@ -263,6 +266,9 @@ static inline ft_err vr_dvs_clusters(const uint8_t *b, size_t n, vr_result *r) {
         VR_CF(vy);
         VR_CF(size);
         VR_CF(mass);
+        VR_CF(var_x);
+        VR_CF(var_y);
+        VR_CF(cov_xy);
 #undef VR_CF
     }
     return ft_dvs_clusters_encode(r->again, sizeof r->again, &h, c, &r->again_len);

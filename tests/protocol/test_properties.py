@@ -108,7 +108,20 @@ def image(draw) -> ImageChunk:
                       draw(u16), w, h, off, total, draw(st.binary(min_size=n, max_size=n)))  # fmt: skip
 
 
-clusters = st.builds(DvsClusters, u16, u32, u64, u64, u64, records(CLUSTER_DTYPE, 51))
+def _covariances(c: np.ndarray) -> np.ndarray:
+    """Random cluster records made valid (SPEC 1.6): variances >= 0, |cov_xy| <= sqrt(var_x var_y)."""
+    c["var_x"], c["var_y"] = np.abs(c["var_x"]), np.abs(c["var_y"])
+    lim = np.sqrt(c["var_x"].astype(np.float64) * c["var_y"]) * 0.999
+    c["cov_xy"] = np.clip(c["cov_xy"].astype(np.float64), -lim, lim).astype(np.float32)
+    return c
+
+
+clusters = st.builds(
+    lambda ci, seq, t0, t1, done, tf, period, syncs, synced, recs: DvsClusters(
+        ci, seq, t0, t1, done, tf, abs(period) if not synced else max(abs(period), 1.0), syncs, int(synced),
+        _covariances(recs)),
+    u16, u32, u64, u64, u64, f64, f32, u32, st.booleans(), records(CLUSTER_DTYPE, 35),
+)  # fmt: skip
 wingbeat = st.builds(DvsWingbeat, u16, u32, u64, u64, records(WINGEDGE_DTYPE, 8))
 live = st.builds(
     lambda tf, tt, seq, lat, split, flags, objs: LiveEstimates(tf, tt, seq, lat, split[0], split[1], flags, objs),
@@ -201,7 +214,7 @@ def test_dvs_roundtrip_across_packets(events, cut: int) -> None:
     ev = np.array(sorted(events, key=lambda e: e[3]), dtype=np.int64).reshape(-1, 4)
     enc, dec = DvsEncoder(), DvsDecoder()
     got = np.concatenate([dec.decode(enc.encode(*part.T)) for part in (ev[:cut], ev[cut:])])
-    assert np.array_equal(np.stack([got["x"], got["y"], got["polarity"], got["t_us"]], 1).astype(np.int64), ev)
+    assert np.array_equal(np.stack([got["x"], got["y"], got["p"], got["t"]], 1).astype(np.int64), ev)
     assert dec.offset == enc.offset
 
 
@@ -222,7 +235,7 @@ def _only_protocol_errors(fn, data: bytes) -> None:
 @given(st.binary(max_size=1600))
 def test_fuzz_decode_datagram_random(data: bytes) -> None:
     _only_protocol_errors(decode_datagram, data)
-    _only_protocol_errors(decode_datagram, b"FT\x01" + data[:1] + len(data[1:]).to_bytes(2, "little") + data[1:])
+    _only_protocol_errors(decode_datagram, b"FT\x02" + data[:1] + len(data[1:]).to_bytes(2, "little") + data[1:])
 
 
 @settings(max_examples=250, deadline=None)

@@ -66,14 +66,14 @@ def test_cobs_bad(bad: bytes) -> None:
     assert e.value.name == "BAD_COBS"
 
 
-def _body(msg_id: int, seq: int, payload: bytes, magic: int = 0x46, version: int = 1) -> bytes:
+def _body(msg_id: int, seq: int, payload: bytes, magic: int = 0x46, version: int = 2) -> bytes:
     b = bytes((magic, version, msg_id, seq)) + payload
     return b + struct.pack("<H", crc16_ccitt_false(b))
 
 
 def test_frame_layout_independent() -> None:
     # SET_RATE prescaler 3, top 12499, seq 9: built by hand, compared with the codec.
-    body = b"\x46\x01\x02\x09" + struct.pack("<BH", 3, 12499)
+    body = b"\x46\x02\x02\x09" + struct.pack("<BH", 3, 12499)
     body += struct.pack("<H", crc16_ccitt_false(body))
     wire = encode_message(SetRate(3, 12499), 9)
     assert wire[-1] == 0 and 0 not in wire[:-1]
@@ -88,7 +88,8 @@ def test_frame_layout_independent() -> None:
         (b"", "TRUNCATED"),
         (_body(1, 0, b"")[:-1] + b"\x00", "BAD_CRC"),
         (_body(1, 0, b"", magic=0x47), "BAD_MAGIC"),
-        (_body(1, 0, b"", version=2), "BAD_VERSION"),
+        (_body(1, 0, b"", version=1), "BAD_VERSION"),
+        (_body(1, 0, b"", version=3), "BAD_VERSION"),
         (_body(0x42, 0, b""), "UNKNOWN_TYPE"),
         (_body(1, 0, b"\x00"), "LENGTH_MISMATCH"),
         (_body(2, 0, b"\x03\x00"), "LENGTH_MISMATCH"),

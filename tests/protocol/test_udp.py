@@ -55,7 +55,7 @@ def test_features_bytes_by_hand() -> None:
     for r in p:
         body += struct.pack("<8fHHff", *[float(r[k]) for k in POINT_DTYPE.names[:8]], int(r["cur_val"]), 0,
                             float(r["mean_val"]), float(r["sumsq_val"]))  # fmt: skip
-    assert encode(msg) == b"FT\x01\x01" + struct.pack("<HH", len(body), 0) + body
+    assert encode(msg) == b"FT\x02\x01" + struct.pack("<HH", len(body), 0) + body
 
 
 def test_decode_is_a_view_of_bytes_and_a_copy_of_bytearray() -> None:

@@ -41,7 +41,7 @@ def test_udp_minimums(family: str) -> None:
     assert errors["TRUNCATED"] >= 3  # several cut points
     has_records = family in ("features", "image", "dvs_clusters", "dvs_wingbeat", "live_estimates")
     has_floats = family not in ("control_ack", "image")
-    has_fields = family in ("features", "status", "control", "control_ack", "image", "live_estimates")
+    has_fields = family in ("features", "status", "control", "control_ack", "image", "dvs_clusters", "live_estimates")
     assert (errors["COUNT_OVERFLOW"] >= 2) == has_records
     assert (errors["NOT_FINITE"] >= 2) == has_floats
     assert (errors["BAD_FIELD"] >= 2) == has_fields

@@ -20,7 +20,7 @@ import pytest
 
 VEC = Path(__file__).resolve().parents[2] / "protocol" / "vectors"
 
-# (field, struct code); None = reserved (written 0, not printed). From SPEC.md §1.1-1.8.
+# (field, struct code); None = reserved (written 0, not printed). From SPEC.md §1.1-1.8, protocol version 2.
 FIXED = {
     1: [("camera_index", "H"), ("n_points", "H"), ("seq", "I"), ("camera_frame", "Q"), ("trigger_frame", "q"),
         ("device_timestamp_ns", "Q"), ("edge_recv_ns", "Q"), ("edge_done_ns", "Q"), ("total_points", "H"),
@@ -35,7 +35,7 @@ FIXED = {
         ("x0", "H"), ("y0", "H"), ("width", "H"), ("height", "H"), ("offset", "I"), ("total_bytes", "I"),
         ("chunk_len", "H"), (None, "H")],
     0x10: [("camera_index", "H"), ("n_clusters", "H"), ("seq", "I"), ("t_start_us", "Q"), ("t_end_us", "Q"),
-           ("edge_done_ns", "Q")],
+           ("edge_done_ns", "Q"), ("trigger_frame", "d"), ("frame_period_us", "f"), ("syncs", "I")],
     0x11: [("camera_index", "H"), ("n_edges", "H"), ("seq", "I"), ("t_us", "Q"), ("edge_done_ns", "Q")],
     0x20: [("trigger_frame", "Q"), ("trigger_time", "d"), ("seq", "I"), ("n_objects", "H"), ("part_index", "B"),
            ("part_count", "B"), ("latency_ms", "f"), (None, "I")],
@@ -46,14 +46,14 @@ RECORDS = {
                                ("area", "f"), ("peak_diff", "f"), ("orientation", "f"), ("eccentricity", "f"),
                                ("cur_val", "H"), (None, "H"), ("mean_val", "f"), ("sumsq_val", "f")]),
     0x10: ("clusters", "n_clusters", [("id", "I"), ("x", "f"), ("y", "f"), ("vx", "f"), ("vy", "f"), ("size", "f"),
-                                      ("mass", "f")]),
+                                      ("mass", "f"), ("var_x", "f"), ("var_y", "f"), ("cov_xy", "f")]),
     0x11: ("edges", "n_edges", [("edge_id", "B"), (None, "3s"), ("angle", "f"), ("amplitude", "f"),
                                 ("frequency", "f"), ("phase", "f")]),
     0x20: ("objects", "n_objects", [("obj_id", "I"), ("x", "f"), ("y", "f"), ("z", "f"), ("vx", "f"), ("vy", "f"),
                                     ("vz", "f")] + [(f"cov[{k}]", "f") for k in range(6)]),
 }
-SIZES = {"FIXED": {1: 56, 2: 144, 3: 40, 4: 56, 5: 36, 0x10: 32, 0x11: 24, 0x20: 32},
-         "RECORD": {1: 44, 0x10: 28, 0x11: 20, 0x20: 52}}
+SIZES = {"FIXED": {1: 56, 2: 144, 3: 40, 4: 56, 5: 36, 0x10: 48, 0x11: 24, 0x20: 32},
+         "RECORD": {1: 44, 0x10: 40, 0x11: 20, 0x20: 52}}
 
 
 def _layouts_match_the_spec_sizes() -> None:
@@ -104,7 +104,7 @@ def _encode(canon: str) -> tuple[bytes, list[str]]:
     if t == 5:
         body += bytes.fromhex(values.pop("data"))
     assert not values, f"fields the SPEC tables do not have: {sorted(values)}"
-    return b"FT" + struct.pack("<BBHH", 1, t, len(body), flags) + body, fmts
+    return b"FT" + struct.pack("<BBHH", 2, t, len(body), flags) + body, fmts
 
 
 def _same_values(a: bytes, b: bytes, fmts: list[str]) -> bool:

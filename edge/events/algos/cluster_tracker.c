@@ -20,6 +20,9 @@ typedef struct {
     int64_t t_mass; /* time the mass was last brought up to date */
     float px, py;   /* centre at the last tick, for the velocity */
     uint32_t events;
+    /* the events taken since the last tick: count and sums (kf_centroid's measurement) */
+    uint32_t nk;
+    double sx, sy, sxx, syy;
     /* Kalman filter, state (y, y', x, x') as the seed writes it */
     int tracking;
     float s[4];
@@ -55,6 +58,7 @@ void ft_ct_defaults(ft_ct_params *p, uint32_t width, uint32_t height) {
     p->events_until_track = 0;
     p->max_meas_var = 1.0f;
     p->min_proc_var = 2500.0f;
+    p->kf_centroid = 1;
 }
 
 ft_cluster_tracker *ft_ct_create(const ft_ct_params *p) {
@@ -101,15 +105,46 @@ static void kf_start(ft_cluster_tracker *t, cluster *c) {
     c->tracking = 1;
 }
 
-/* Predict by dt (s) and update with the cluster's centre (eqs 2-6). The seed's eq. 2 prints the
+/* The filter's measurement at a tick: the cluster's centre with the seed's measurement variance
+ * (kf_centroid 0), or the centroid of the events the cluster took since the last tick, whose
+ * variance per axis is the events' spread over their number, plus a pixel's quantisation (1/12
+ * px^2). The centre follows events by the mixing factor, so it trails a moving animal by about
+ * (1 - m) / m events (a few px at a few hundred events/s); the centroid does not trail. Returns 0
+ * when there is nothing to measure (no event since the last tick). */
+static int kf_measure(const ft_cluster_tracker *t, const cluster *c, float *zy, float *zx,
+                      float *ry, float *rx) {
+    float ramp =
+        t->p.dynamic_variances && t->p.kf_ramp ? (float)c->updates / (float)t->p.kf_ramp : 1.0f;
+    if (ramp > 1.0f)
+        ramp = 1.0f;
+    if (!t->p.kf_centroid) {
+        *zy = c->y;
+        *zx = c->x;
+        *ry = *rx =
+            t->p.dynamic_variances ? t->p.max_meas_var * (0.1f + 0.9f * ramp) : t->p.max_meas_var;
+        return 1;
+    }
+    if (c->nk == 0)
+        return 0;
+    const double n = (double)c->nk, my = c->sy / n, mx = c->sx / n;
+    double vy = c->syy / n - my * my, vx = c->sxx / n - mx * mx;
+    /* one or two events say little about the spread: at least half a pixel squared */
+    vy = vy > 0.5 ? vy : 0.5;
+    vx = vx > 0.5 ? vx : 0.5;
+    *zy = (float)my;
+    *zx = (float)mx;
+    *ry = (float)(vy / n + 1.0 / 12.0);
+    *rx = (float)(vx / n + 1.0 / 12.0);
+    return 1;
+}
+
+/* Predict by dt (s) and update with the measurement (eqs 2-6). The seed's eq. 2 prints the
  * velocity entries as dt; the constant-velocity transition is y += dt y', x += dt x'. */
 static void kf_step(ft_cluster_tracker *t, cluster *c, float dt) {
     float ramp =
         t->p.dynamic_variances && t->p.kf_ramp ? (float)c->updates / (float)t->p.kf_ramp : 1.0f;
     if (ramp > 1.0f)
         ramp = 1.0f;
-    const float r =
-        t->p.dynamic_variances ? t->p.max_meas_var * (0.1f + 0.9f * ramp) : t->p.max_meas_var;
     const float q =
         t->p.dynamic_variances ? t->p.min_proc_var * (10.0f - 9.0f * ramp) : t->p.min_proc_var;
     float(*P)[4] = c->P;
@@ -127,8 +162,11 @@ static void kf_step(ft_cluster_tracker *t, cluster *c, float dt) {
     P[3][3] += q * dt;
     P[0][0] += 0.01f * q * dt * dt; /* a little on the positions keeps P well conditioned */
     P[2][2] += 0.01f * q * dt * dt;
+    float zy, zx, ry, rx;
+    if (!kf_measure(t, c, &zy, &zx, &ry, &rx))
+        return; /* no event since the last tick: the prediction only */
     /* S = H P H^T + R, H picks y (0) and x (2) */
-    const float s00 = P[0][0] + r, s01 = P[0][2], s11 = P[2][2] + r;
+    const float s00 = P[0][0] + ry, s01 = P[0][2], s11 = P[2][2] + rx;
     const float det = s00 * s11 - s01 * s01;
     if (!(det > 0.0f))
         return;
@@ -138,9 +176,9 @@ static void kf_step(ft_cluster_tracker *t, cluster *c, float dt) {
         K[i][0] = P[i][0] * i00 + P[i][2] * i01;
         K[i][1] = P[i][0] * i01 + P[i][2] * i11;
     }
-    const float ry = c->y - c->s[0], rx = c->x - c->s[2];
+    const float ey = zy - c->s[0], ex = zx - c->s[2];
     for (int i = 0; i < 4; i++)
-        c->s[i] += K[i][0] * ry + K[i][1] * rx;
+        c->s[i] += K[i][0] * ey + K[i][1] * ex;
     /* P = (I - K H) P, then symmetrised */
     float N[4][4];
     for (int i = 0; i < 4; i++)
@@ -221,6 +259,10 @@ static void tick(ft_cluster_tracker *t, int64_t now) {
                 kf_step(t, c, dt);
         }
     }
+    for (uint32_t i = 0; i < n; i++) {
+        t->c[i].nk = 0;
+        t->c[i].sx = t->c[i].sy = t->c[i].sxx = t->c[i].syy = 0.0;
+    }
     t->last_tick = now;
 }
 
@@ -264,6 +306,11 @@ void ft_ct_feed(ft_cluster_tracker *t, const ft_event *ev, size_t n) {
             best->mass = best->mass * decay(e.t - best->t_mass, t->p.mass_decay_us) + 1.0f;
             best->t_mass = e.t;
             best->events++;
+            best->nk++;
+            best->sx += ex;
+            best->sy += ey;
+            best->sxx += (double)ex * ex;
+            best->syy += (double)ey * ey;
         } else if (free_slot >= 0) {
             cluster *c = &t->c[free_slot];
             memset(c, 0, sizeof *c);
@@ -274,6 +321,11 @@ void ft_ct_feed(ft_cluster_tracker *t, const ft_event *ev, size_t n) {
             c->mass = 1.0f;
             c->t_mass = e.t;
             c->events = 1;
+            c->nk = 1;
+            c->sx = ex;
+            c->sy = ey;
+            c->sxx = (double)ex * ex;
+            c->syy = (double)ey * ey;
             t->st.created++;
         } else {
             t->st.unassigned++;
@@ -297,13 +349,16 @@ size_t ft_ct_clusters(ft_cluster_tracker *t, int64_t t_us, ft_ct_cluster *out, s
         o->events = c->events;
         o->tracking = c->tracking;
         if (c->tracking) {
-            o->y = c->s[0];
+            /* the filter predicted from its last tick to t_us (state and covariance) */
+            const float dt = t_us > t->last_tick ? (float)(t_us - t->last_tick) * 1e-6f : 0.0f;
+            const float(*P)[4] = (const float(*)[4])c->P;
+            o->y = c->s[0] + dt * c->s[1];
             o->vy = c->s[1];
-            o->x = c->s[2];
+            o->x = c->s[2] + dt * c->s[3];
             o->vx = c->s[3];
-            o->var_y = c->P[0][0];
-            o->var_x = c->P[2][2];
-            o->cov_xy = c->P[0][2];
+            o->var_y = P[0][0] + 2.0f * dt * P[0][1] + dt * dt * P[1][1];
+            o->var_x = P[2][2] + 2.0f * dt * P[2][3] + dt * dt * P[3][3];
+            o->cov_xy = P[0][2] + dt * (P[0][3] + P[1][2]) + dt * dt * P[1][3];
         } else {
             o->x = c->x;
             o->y = c->y;

@@ -11,14 +11,7 @@
 
 #include "flytrack/events.h"
 
-static int failures;
-#define CHECK(c)                                                                                   \
-    do {                                                                                           \
-        if (!(c)) {                                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #c);                  \
-            failures++;                                                                            \
-        }                                                                                          \
-    } while (0)
+#include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
 typedef struct {
     uint8_t b[1 << 16];
@@ -365,8 +358,8 @@ int main(void) {
     test_aedat3();
     test_writers();
     test_bad_open();
-    if (failures) {
-        fprintf(stderr, "test_events: %d checks failed\n", failures);
+    if (ft_test_failures) {
+        fprintf(stderr, "test_events: %d checks failed\n", ft_test_failures);
         return 1;
     }
     printf("test_events: all checks passed\n");

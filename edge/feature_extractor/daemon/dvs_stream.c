@@ -26,12 +26,11 @@ static int word(ft_dvs_stream *s, const uint8_t *p, ft_event *e) {
         s->wraps++;
     else if (w.kind == FT_DVS_RESET)
         s->resets++;
-#ifdef FT_DVS_SYNC /* the bridge's sync input (frame pulses), in protocol versions that have it */
-    else if (w.kind == FT_DVS_SYNC)
-        s->syncs++;
-#endif
-    if (!ft_dvs_apply(&s->dec, &w, &ev))
+    if (!ft_dvs_apply(&s->dec, &w, &ev)) {
+        if (w.kind == FT_DVS_SYNC) /* the bridge's sync input: a trigger pulse, at its time */
+            s->sync_t[s->syncs++ % FT_DVS_STREAM_SYNCS] = (int64_t)s->dec.sync_t_us;
         return 0;
+    }
     e->t = (int64_t)ev.t_us;
     e->x = ev.x;
     e->y = ev.y;

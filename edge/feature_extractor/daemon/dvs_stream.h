@@ -3,7 +3,7 @@
  *
  * Each complete word goes through the protocol codec (flytrack/dvs.h): WRAP adds 0x4000 us to the
  * time base, RESET zeroes it, an address event becomes an ft_event (t us, x, y, p = 1 ON), a SYNC
- * word (where the codec knows it) is counted. A word the codec rejects (RESET and WRAP both set,
+ * word is counted and its time kept. A word the codec rejects (RESET and WRAP both set,
  * ...) is garbage: counted, skipped, and the stream goes on with the next word. */
 #ifndef FLYTRACK_EDGE_DVS_STREAM_H
 #define FLYTRACK_EDGE_DVS_STREAM_H
@@ -19,6 +19,9 @@ typedef struct {
     uint8_t carry[4]; /* the first bytes of a word cut by the end of a transfer */
     size_t n_carry;
     uint64_t words, events, wraps, resets, syncs, bad_words;
+#define FT_DVS_STREAM_SYNCS 256
+    int64_t
+        sync_t[FT_DVS_STREAM_SYNCS]; /* times of the latest SYNC words, [i % 256] for i < syncs */
 } ft_dvs_stream;
 
 void ft_dvs_stream_init(ft_dvs_stream *s);

@@ -5,6 +5,8 @@
  * words of a DVS128), fps is events per second over the last second, proc_us_* the processing time
  * per slice; width/height are the sensor's; state is ERROR while a DVS128 is unplugged (RUNNING
  * again once it is back). CONTROL: START, STOP, SET_PARAM slice_us; other commands answer FAILED.
+ * With --wingbeat 1 the events go to the wing-beat tracker instead and DVS_WINGBEAT datagrams go
+ * out (edge_wingbeat.h).
  */
 #define _POSIX_C_SOURCE 200809L
 #include <arpa/inet.h>
@@ -21,10 +23,12 @@
 
 #include "config.h"
 #include "edge_dvs.h"
+#include "edge_wingbeat.h"
 #include "event_pipeline.h"
 #include "util.h"
 #include "flytrack/udp.h"
 #include "source_events.h"
+#include "sync_clock.h"
 
 #define POLL_MS 5
 #define SLICE_CAP 65536 /* events held per slice; a fuller slice is cut early */
@@ -53,6 +57,11 @@ typedef struct {
     double win_us_sum, win_us_max;
     float rate, proc_mean, proc_max;
     ft_dvs_cluster clusters[FT_DVS_MAX_CLUSTERS];
+    /* trigger frames from the source's sync events (SPEC 1.6 stamp); a slice is cut at each sync */
+    ft_sync_clock clock;
+    uint64_t syncs_taken;
+    int64_t cut_sync;  /* the latest sync time a slice was cut at (or passed) */
+    edge_wingbeat *wb; /* --wingbeat 1: wing beats instead of clusters */
 } dvs_edge;
 
 static void set_error(dvs_edge *e, uint32_t code, const char *text) {
@@ -86,12 +95,40 @@ static void send_status(dvs_edge *e) {
         send_to(e, buf, len, &e->host);
 }
 
-/* Processes and sends the slice held, if any. */
-static void flush_slice(dvs_edge *e) {
+/* Syncs the source has seen since the last call go into the clock. */
+static void take_syncs(dvs_edge *e) {
+    if (e->src.triggers - e->syncs_taken >
+        FT_SRC_SYNC_RING) /* overwritten: the clock counts the gap */
+        e->syncs_taken = e->src.triggers - FT_SRC_SYNC_RING;
+    for (; e->syncs_taken < e->src.triggers; e->syncs_taken++)
+        ft_sync_add(&e->clock, e->src.sync_t[e->syncs_taken % FT_SRC_SYNC_RING]);
+}
+
+/* The earliest sync after the last cut, or INT64_MAX. */
+static int64_t next_cut(const dvs_edge *e) {
+    int64_t best = INT64_MAX;
+    uint64_t k = e->clock.n < FT_SYNC_KEEP ? e->clock.n : FT_SYNC_KEEP;
+    for (uint64_t j = 0; j < k; j++) {
+        int64_t ts = e->clock.t[(e->clock.n - 1 - j) % FT_SYNC_KEEP];
+        if (ts <= e->cut_sync)
+            break;
+        best = ts;
+    }
+    return best;
+}
+
+static void wb_send(void *ctx, const uint8_t *buf, size_t len) {
+    dvs_edge *e = ctx;
+    send_to(e, buf, len, &e->host);
+}
+
+/* Processes and sends the slice held, if any; its clusters are stated at t_end (the slice's last
+ * event, or the sync event that closes it). */
+static void flush_slice_at(dvs_edge *e, int64_t t_end) {
     if (!e->n_slice)
         return;
     uint64_t t0 = edge_mono_ns();
-    int64_t ts = e->slice[0].t, te = e->slice[e->n_slice - 1].t;
+    int64_t ts = e->slice[0].t, te = t_end;
     size_t nc =
         e->proc.slice(e->proc.ctx, e->slice, e->n_slice, ts, te, e->clusters, FT_DVS_MAX_CLUSTERS);
     double us = (double)(edge_mono_ns() - t0) / 1000.0;
@@ -102,6 +139,13 @@ static void flush_slice(dvs_edge *e) {
     h.seq = e->seq;
     h.t_start_us = (uint64_t)ts;
     h.t_end_us = (uint64_t)te;
+    h.syncs = (uint32_t)e->clock.n;
+    double frame;
+    if (ft_sync_frame(&e->clock, te, &frame) && isfinite(frame)) {
+        h.flags = FT_DVS_SYNCED;
+        h.trigger_frame = frame;
+        h.frame_period_us = (float)ft_sync_period(&e->clock);
+    }
     struct timespec rt;
     clock_gettime(CLOCK_REALTIME, &rt);
     h.edge_done_ns = (uint64_t)rt.tv_sec * 1000000000ull + (uint64_t)rt.tv_nsec;
@@ -120,8 +164,50 @@ static void flush_slice(dvs_edge *e) {
     e->n_slice = 0;
 }
 
+static void flush_slice(dvs_edge *e) {
+    if (e->wb) { /* --wingbeat 1: the wing-beat tracker reports on its own clock */
+        edge_wb_flush(e->wb);
+        return;
+    }
+    if (e->n_slice)
+        flush_slice_at(e, e->slice[e->n_slice - 1].t);
+}
+
+/* Every event up to the latest sync is in (the source delivered all it decoded): cut there now
+ * rather than wait for a later event to close the slice. */
+static void cut_at_sync(dvs_edge *e) {
+    if (!e->clock.n)
+        return;
+    int64_t s = e->clock.t[(e->clock.n - 1) % FT_SYNC_KEEP];
+    if (s <= e->cut_sync)
+        return;
+    if (e->n_slice && e->slice[e->n_slice - 1].t <= s)
+        flush_slice_at(e, s);
+    e->cut_sync = s;
+}
+
 static void take_events(dvs_edge *e, const ft_event *ev, size_t n) {
+    if (e->wb) { /* the whole batch to the wing-beat tracker; its time counts as a slice's */
+        uint64_t t0 = edge_mono_ns();
+        const char *news = edge_wb_take(e->wb, ev, n);
+        double us = (double)(edge_mono_ns() - t0) / 1000.0;
+        if (news)
+            set_error(e, news[0] ? 42 : 0, news);
+        e->slices++;
+        e->win_slices++;
+        e->win_us_sum += us;
+        if (us > e->win_us_max)
+            e->win_us_max = us;
+        return;
+    }
+    int64_t s = next_cut(e);
     for (size_t i = 0; i < n; i++) {
+        while (ev[i].t > s) { /* a sync before this event: the slice ends there */
+            if (e->n_slice && e->slice[0].t <= s)
+                flush_slice_at(e, s);
+            e->cut_sync = s;
+            s = next_cut(e);
+        }
         if (e->n_slice && (ev[i].t - e->slice[0].t >= e->slice_us || e->n_slice == SLICE_CAP))
             flush_slice(e);
         e->slice[e->n_slice++] = ev[i];
@@ -234,6 +320,8 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     g_stop = 0;
     e.cfg = cfg;
     e.slice_us = cfg->slice_us;
+    ft_sync_init(&e.clock);
+    e.cut_sync = INT64_MIN;
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
     sa.sa_handler = on_signal;
@@ -267,6 +355,14 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
         free(e.slice);
         return 2;
     }
+    if (cfg->wingbeat &&
+        !(e.wb = edge_wb_create(cfg, e.src.width, e.src.height, &e.seq, wb_send, &e))) {
+        e.proc.destroy(e.proc.ctx);
+        e.src.close(&e.src);
+        close(e.sock);
+        free(e.slice);
+        return 2;
+    }
     e.state = cfg->start_stopped ? FT_STATE_IDLE : FT_STATE_RUNNING;
     edge_log("%s %s: %ux%u sensor, slices of %lld us -> %s:%d, control on port %d", cfg->source,
              cfg->input, e.src.width, e.src.height, (long long)e.slice_us, cfg->host, cfg->port,
@@ -279,13 +375,18 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     while (!g_stop) {
         long n = e.src.next(&e.src, in, sizeof in / sizeof in[0], POLL_MS);
         uint64_t now = edge_mono_ns();
+        if (n >= 0)
+            take_syncs(&e);
         if (n > 0) {
             e.events += (uint64_t)n;
             e.win_events += (uint64_t)n;
             last_event_ns = now;
             if (e.state == FT_STATE_RUNNING)
                 take_events(&e, in, (size_t)n);
-        } else if (n == FT_SRC_END) {
+        }
+        if (n >= 0 && e.src.drained && e.state == FT_STATE_RUNNING)
+            cut_at_sync(&e);
+        if (n == FT_SRC_END) {
             edge_log("source ended after %llu events", (unsigned long long)e.events);
             break;
         } else if (n == FT_SRC_ERROR) {
@@ -343,6 +444,10 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     edge_log("%llu events in %llu slices sent, %llu garbage words, %llu reconnects",
              (unsigned long long)e.events, (unsigned long long)e.slices,
              (unsigned long long)e.src.lost, (unsigned long long)e.src.reconnects);
+    if (e.wb) {
+        edge_wb_log_summary(e.wb);
+        edge_wb_destroy(e.wb);
+    }
     e.src.close(&e.src);
     if (e.proc.destroy)
         e.proc.destroy(e.proc.ctx);

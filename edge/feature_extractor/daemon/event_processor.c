@@ -1,6 +1,7 @@
 /* flytrack-edge's event processor (event_pipeline.h): each slice's events go through the noise
  * filters, then the cluster tracker with its Kalman filters (edge/events/algos, defaults of
  * flytrack/event_algos.h); the live clusters at the slice's end go out as DVS_CLUSTERS records. */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -39,6 +40,12 @@ static size_t slice(void *ctx, const ft_event *ev, size_t n, int64_t t_start, in
         out[i].vy = cl[i].vy;
         out[i].size = cl[i].size;
         out[i].mass = cl[i].mass;
+        /* a covariance on the wire (SPEC 1.6): variances >= 0, |cov| <= sqrt(var_x var_y) */
+        const float vx = cl[i].var_x > 0 ? cl[i].var_x : 0, vy = cl[i].var_y > 0 ? cl[i].var_y : 0;
+        const float lim = 0.999f * sqrtf(vx * vy);
+        out[i].var_x = vx;
+        out[i].var_y = vy;
+        out[i].cov_xy = cl[i].cov_xy > lim ? lim : cl[i].cov_xy < -lim ? -lim : cl[i].cov_xy;
     }
     return k;
 }

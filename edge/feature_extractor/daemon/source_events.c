@@ -46,9 +46,13 @@ static long file_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms
         if (!ft_ev_poll(p->r, timeout_ms)) /* a pipe with nothing new: back to the loop */
             return 0;
         long long n = ft_ev_read(p->r, p->buf, FILE_BUF);
-        ft_ev_info info;
-        ft_ev_get_info(p->r, &info);
-        s->triggers = info.n_triggers;
+        /* The frame syncs are the rising edges (or pulses) of the recorded trigger input. */
+        ft_ev_trigger tt[64];
+        size_t k;
+        while ((k = ft_ev_triggers(p->r, tt, sizeof tt / sizeof tt[0])) > 0)
+            for (size_t j = 0; j < k; j++)
+                if (tt[j].value)
+                    s->sync_t[s->triggers++ % FT_SRC_SYNC_RING] = tt[j].t;
         if (n < 0) { /* the events before the damage were delivered already */
             snprintf(s->error, sizeof s->error, "%.230s", ft_ev_error(p->r));
             p->failed = 1;
@@ -82,6 +86,7 @@ static long file_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms
     }
     memcpy(out, p->buf + p->off, n * sizeof *out);
     p->off += n;
+    s->drained = p->off == p->len;
     return (long)n;
 }
 
@@ -117,6 +122,7 @@ int ft_ev_source_open_file(ft_ev_source *s, const char *path, const char *format
         free(p);
         return -1;
     }
+    ft_ev_keep_triggers(p->r, 1);
     ft_ev_info info;
     ft_ev_get_info(p->r, &info);
     p->realtime = realtime;
@@ -229,7 +235,10 @@ static long dvs_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms)
         for (size_t i = 0; i < n; i++)
             out[i].p ^= 1u;
     s->lost = p->st.bad_words;
+    for (uint64_t i = s->triggers; i < p->st.syncs; i++)
+        s->sync_t[i % FT_SRC_SYNC_RING] = p->st.sync_t[i % FT_DVS_STREAM_SYNCS];
     s->triggers = p->st.syncs;
+    s->drained = p->off == p->len;
     return (long)n;
 }
 

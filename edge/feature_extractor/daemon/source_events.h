@@ -48,8 +48,15 @@ struct ft_ev_source {
     long (*next)(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms);
     void (*close)(ft_ev_source *s);
     uint32_t width, height;
-    uint64_t lost;       /* garbage words skipped (DVS128) */
-    uint64_t triggers;   /* external trigger / sync events seen (files) */
+    uint64_t lost;     /* garbage words skipped (DVS128) */
+    uint64_t triggers; /* external trigger / sync events seen */
+    /* times (us, the events' time base) of the latest sync events: sync_t[i % FT_SRC_SYNC_RING]
+     * for i < triggers; the caller takes them as they come (a sync may run ahead of the events
+     * delivered so far) */
+#define FT_SRC_SYNC_RING 256
+    int64_t sync_t[FT_SRC_SYNC_RING];
+    int drained; /* set by next: every event decoded so far has been delivered (so every event
+                  * before the latest sync is in) */
     uint64_t reconnects; /* DVS128 plugged back in */
     int connected;       /* DVS128: 0 while unplugged */
     int state_changed;   /* set by the source when connected changes (the caller clears it) */

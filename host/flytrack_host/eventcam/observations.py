@@ -2,16 +2,18 @@
 
 An event camera's edge sends DVS_CLUSTERS per time slice of its own clock (protocol/SPEC.md 1.6), not
 per trigger frame. For each trigger frame the tracker takes, this module picks, per DVS camera, the
-clusters of the latest slice ending at or before that frame's time on the sensor's clock, moves them
-to the frame's time with their velocities, and hands them to the tracker as that camera's 2D points
-(a CameraFrame flagged `dvs`, so the recording's data2d rows say where they came from).
+clusters of the latest slice stated at or before that frame, moves them to the frame's time with their
+velocities, and hands them to the tracker as that camera's 2D points (a CameraFrame flagged `dvs`, so
+the recording's data2d rows say where they came from) with their position covariances (the edge's
+Kalman filters', grown by the move), which the tracker uses as each point's measurement noise.
 
-Sensor clock to trigger frames: the edge's DVS_CLUSTERS carry device times only (the sync events
-stay in the edge), so the tie is made through the host's trigger clock model: a slice received at
-host time r holds events no later than the frame the clock model gives r, so
-t0 = t_end_us - frame(r) * period_us is a lower bound of the sensor time of trigger frame 0, and the
-largest seen (the freshest slice) is the estimate. Its error is the edge-to-host delay of the freshest
-slice (about a millisecond on loopback), well under a period at 100 fps.
+Sensor clock to trigger frames: the edge stamps each slice with the trigger frame at its end, from the
+sync events the sensor records at every trigger pulse (flag SYNCED), and cuts a slice at each sync, so
+that most slices are stated exactly at a trigger frame. Without the stamp (an edge that sees no sync
+events) the tie is made through the host's trigger clock model: a slice received at host time r holds
+events no later than the frame the clock model gives r, so t0 = t_end_us - frame(r) * period_us is a
+lower bound of the sensor time of trigger frame 0, and the largest seen is the estimate (early by the
+edge-to-host delay of the freshest slice).
 """
 
 from __future__ import annotations
@@ -36,10 +38,11 @@ class DvsCameraStats:
     slices: int = 0
     clusters: int = 0
     frames_given: int = 0  # trigger frames this camera gave the tracker points for
-    points_given: int = 0  # after the host's gate near the targets (HostPipeline._near_targets)
+    points_given: int = 0  # given to the tracker (which gates them on their covariance)
     points_used: int = 0  # associated with a target by the 3D tracker
     no_slice: int = 0  # trigger frames without a recent slice (sensor silent, or behind)
-    t0_us: float | None = None  # sensor time of trigger frame 0, as estimated
+    synced_slices: int = 0  # slices the edge stamped with their trigger frame (sync events)
+    t0_us: float | None = None  # sensor time of trigger frame 0, as estimated (unsynced slices)
 
 
 @dataclass
@@ -55,17 +58,20 @@ class DvsObservations:
     frame_of_host_time: the trigger clock model, host time (s) -> trigger frame (float)."""
 
     def __init__(self, cameras: dict[int, Camera | None], fps: float, max_age_frames: float = 2.0,
-                 min_mass: float = 0.0, blob_radius_px: float = 3.0) -> None:
+                 min_mass: float = 0.0, blob_radius_px: float = 3.0, velocity_std_px_s: float = 50.0) -> None:
         """blob_radius_px: the animal's apparent radius on the event sensor, for the points' area. A
         cluster's `size` is the tracker's a priori search radius (10% of the sensor), not the animal's;
         as area it would fail the 3D tracker's area gate and drag each target's smoothed area away
-        from what the frame cameras see."""
+        from what the frame cameras see. velocity_std_px_s: the uncertainty of a cluster's velocity
+        (the record carries the position covariance only), which grows the covariance of a point
+        moved by dt by (velocity_std_px_s dt)^2 per axis."""
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"fps must be positive, got {fps}")
         self.period_us = 1e6 / fps
         self.max_age_us = max_age_frames * self.period_us
         self.min_mass = float(min_mass)
         self.area_px = math.pi * float(blob_radius_px) ** 2
+        self.vel_var = float(velocity_std_px_s) ** 2
         self.cams = {int(i): _Cam(c) for i, c in cameras.items()}
 
     @property
@@ -79,33 +85,49 @@ class DvsObservations:
         m = sl.msg
         c.stats.slices += 1
         c.stats.clusters += len(m.clusters)
-        if frame_of_host_time is not None:
+        frame_end = None
+        if m.synced and math.isfinite(m.trigger_frame) and m.frame_period_us > 0:
+            c.stats.synced_slices += 1
+            frame_end = float(m.trigger_frame)
+        elif frame_of_host_time is not None:
             f = frame_of_host_time(sl.recv_time)
             if math.isfinite(f):
                 cand = float(m.t_end_us) - f * self.period_us
                 if c.stats.t0_us is None or cand > c.stats.t0_us:
                     c.stats.t0_us = cand
-        c.slices.append((int(m.t_end_us), m.clusters, sl.recv_time, int(m.edge_done_ns)))
+        c.slices.append((frame_end, int(m.t_end_us), m.clusters, sl.recv_time, int(m.edge_done_ns)))
 
-    def frame(self, cam_index: int, trigger_frame: int) -> CameraFrame | None:
-        """The camera's observations for a trigger frame (None when it has nothing recent)."""
-        c = self.cams.get(cam_index)
-        if c is None or c.stats.t0_us is None:
-            return None
-        t_f = c.stats.t0_us + trigger_frame * self.period_us
-        best = None
+    def _slice_for(self, c: _Cam, trigger_frame: int) -> tuple[tuple, float] | None:
+        """The latest slice stated at or before the frame (a quarter period of slack), and the time
+        (s) from its end to the frame."""
         for s in reversed(c.slices):
-            if s[0] <= t_f + 0.25 * self.period_us:
-                best = s
-                break
-        if best is None or t_f - best[0] > self.max_age_us:
+            if s[0] is not None:  # stamped by the edge
+                lag = trigger_frame - s[0]
+            elif c.stats.t0_us is not None:
+                lag = (c.stats.t0_us + trigger_frame * self.period_us - s[1]) / self.period_us
+            else:
+                continue
+            if lag >= -0.25:
+                return (s, lag * self.period_us / 1e6) if lag * self.period_us <= self.max_age_us else None
+        return None
+
+    def frame(self, cam_index: int, trigger_frame: int) -> tuple[CameraFrame, np.ndarray] | None:
+        """The camera's observations for a trigger frame and their covariances ((n, 3) var_x, var_y,
+        cov_xy in distorted px^2), or None when it has nothing recent."""
+        c = self.cams.get(cam_index)
+        if c is None:
+            return None
+        got = self._slice_for(c, trigger_frame)
+        if got is None:
             c.stats.no_slice += 1
             return None
-        t_end, cl, recv, done_ns = best
+        (_f, _t_end, cl, recv, done_ns), dt = got
         cl = cl[np.isfinite(cl["x"]) & np.isfinite(cl["y"]) & (cl["mass"] >= self.min_mass)]
-        dt = (t_f - t_end) / 1e6
         x = cl["x"].astype(np.float64) + cl["vx"] * dt
         y = cl["y"].astype(np.float64) + cl["vy"] * dt
+        grow = self.vel_var * dt * dt
+        cov = np.column_stack([cl["var_x"].astype(np.float64) + grow, cl["var_y"].astype(np.float64) + grow,
+                               cl["cov_xy"].astype(np.float64)])
         pts = np.zeros(len(cl), dtype=POINT_DTYPE)
         pts["x_dist"], pts["y_dist"] = x, y
         if c.camera is not None and c.camera.has_distortion and len(cl):
@@ -117,8 +139,9 @@ class DvsObservations:
         pts["orientation"] = np.nan
         pts["eccentricity"] = np.nan
         pts["peak_diff"] = cl["mass"]
-        return CameraFrame(cam_index, trigger_frame, trigger_frame, pts, recv, edge_done_ns=done_ns,
-                           total_points=len(pts), dvs=True)
+        fr = CameraFrame(cam_index, trigger_frame, trigger_frame, pts, recv, edge_done_ns=done_ns,
+                         total_points=len(pts), dvs=True)
+        return fr, cov
 
     def count(self, cam_index: int, given: int, used: int = 0) -> None:
         c = self.cams.get(cam_index)

@@ -26,10 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from flytrack_host.events._lib import Info, lib
-
-#: One event, 16 bytes, the C struct ft_event: t (us), x, y, p (1 = ON).
-EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "u1"],
-                        "offsets": [0, 8, 10, 12], "itemsize": 16})
+from flytrack_host.protocol.dvs import EVENT_DTYPE  # noqa: F401 (the event layout; re-exported here)
 
 #: One external trigger / sync event, the C struct ft_ev_trigger: t (us, the events' time base),
 #: value (1 rising edge, pulse or sync; 0 falling edge), channel (trigger input id, 0 if none).

@@ -7,12 +7,12 @@
 - canonical_fields (canonical.py): the SPEC §5 text the golden vectors compare.
 """
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 
 from .canonical import canonical_fields, fmt_f32, fmt_f64  # noqa: E402
 from .dvs import (  # noqa: E402
-    DVS_EVENT_DTYPE,
     DVS_WORD_DTYPE,
+    EVENT_DTYPE,
     WRAP_US,
     DvsDecoder,
     DvsEncoder,
@@ -77,6 +77,7 @@ from .udp import (  # noqa: E402
     Control,
     ControlAck,
     DvsClusters,
+    DvsFlags,
     DvsWingbeat,
     EdgeStatus,
     FeatureFlags,
@@ -101,7 +102,7 @@ from .udp import (  # noqa: E402
 __all__ = [
     "PROTOCOL_VERSION", "ERROR_NAMES", "ProtocolError", "canonical_fields", "fmt_f32", "fmt_f64",
     # dvs
-    "DVS_EVENT_DTYPE", "DVS_WORD_DTYPE", "WRAP_US", "DvsDecoder", "DvsEncoder", "DvsPacket",
+    "EVENT_DTYPE", "DVS_WORD_DTYPE", "WRAP_US", "DvsDecoder", "DvsEncoder", "DvsPacket",
     "decode_dvs_words", "encode_dvs_words", "encode_events",
     # trigger link
     "FRAME_NOW", "MAX_BODY", "MAX_WIRE_FRAME", "PRESCALER_DIVISORS", "SERIAL_MESSAGE_TYPES",
@@ -114,7 +115,7 @@ __all__ = [
     "LIVE_MAX_OBJECTS", "MAX_DATAGRAM", "MAX_PARTS", "OBJECT_DTYPE", "POINT_DTYPE", "UDP_MESSAGE_TYPES",
     "WINGEDGE_DTYPE", "WINGEDGES_MAX", "AckStatus", "CameraState", "Command", "Control", "ControlAck",
     "DvsClusters", "DvsWingbeat", "EdgeStatus", "FeatureFlags", "FeatureFrame", "ImageChunk", "ImageKind",
-    "LiveEstimates", "LiveFlags", "MsgType", "PixelFormat", "UdpMessage", "decode_datagram", "encode",
+    "LiveEstimates", "LiveFlags", "DvsFlags", "MsgType", "PixelFormat", "UdpMessage", "decode_datagram", "encode",
     "encode_features", "join_feature_parts", "make_points", "encode_live_estimates", "image_chunks",
     "assemble_image",
 ]  # fmt: skip

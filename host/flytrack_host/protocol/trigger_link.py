@@ -14,7 +14,7 @@ from .errors import ProtocolError
 from .text import decode_text, encode_text
 
 SERIAL_MAGIC = 0x46
-SERIAL_VERSION = 1
+SERIAL_VERSION = 2  # the SPEC's one PROTOCOL_VERSION
 MAX_BODY = 64  # SPEC: the longest body
 MIN_BODY = 6  # magic, version, msg_id, seq, CRC
 # A COBS encoding of n bytes is at most n + ceil(n / 254) bytes: the longest legal frame before its delimiter.
@@ -153,7 +153,7 @@ def decode_frame(frame: bytes) -> tuple[int, int, bytes]:
     if body[0] != SERIAL_MAGIC:
         raise ProtocolError("BAD_MAGIC", f"magic is 0x{body[0]:02X}, expected 0x{SERIAL_MAGIC:02X}")
     if body[1] != SERIAL_VERSION:
-        raise ProtocolError("BAD_VERSION", f"serial protocol version {body[1]}, this reader speaks 1")
+        raise ProtocolError("BAD_VERSION", f"serial protocol version {body[1]}, this reader speaks {SERIAL_VERSION}")
     msg_id, seq = body[2], body[3]
     cls = _BY_ID.get(msg_id)
     if cls is None:

@@ -19,7 +19,7 @@ from .errors import ProtocolError
 from .text import decode_text, encode_text
 
 MAGIC = b"FT"
-UDP_VERSION = 1
+UDP_VERSION = 2  # SPEC §4: 2 since DVS_CLUSTERS carries covariance and a trigger-frame stamp
 HEADER = struct.Struct("<2sBBHH")  # magic, version, type, length, flags
 HEADER_SIZE = HEADER.size
 MAX_DATAGRAM = 1472  # Ethernet MTU less IPv4 and UDP headers
@@ -43,6 +43,10 @@ class FeatureFlags(IntFlag):
 
 class LiveFlags(IntFlag):
     SPLIT = 0x1
+
+
+class DvsFlags(IntFlag):
+    SYNCED = 0x1  # DVS_CLUSTERS: trigger_frame and frame_period_us are valid
 
 
 class PixelFormat(IntEnum):
@@ -95,10 +99,10 @@ POINT_DTYPE = np.dtype(
 )  # fmt: skip
 CLUSTER_DTYPE = np.dtype(
     {
-        "names": ["id", "x", "y", "vx", "vy", "size", "mass"],
-        "formats": ["<u4"] + ["<f4"] * 6,
-        "offsets": [0, 4, 8, 12, 16, 20, 24],
-        "itemsize": 28,
+        "names": ["id", "x", "y", "vx", "vy", "size", "mass", "var_x", "var_y", "cov_xy"],
+        "formats": ["<u4"] + ["<f4"] * 9,
+        "offsets": [0, 4, 8, 12, 16, 20, 24, 28, 32, 36],
+        "itemsize": 40,
     }
 )
 WINGEDGE_DTYPE = np.dtype(
@@ -119,7 +123,7 @@ OBJECT_DTYPE = np.dtype(
 )
 
 FEATURES_MAX_POINTS = (MAX_DATAGRAM - HEADER_SIZE - 56) // POINT_DTYPE.itemsize  # 32
-CLUSTERS_MAX = 51
+CLUSTERS_MAX = (MAX_DATAGRAM - HEADER_SIZE - 48) // CLUSTER_DTYPE.itemsize  # 35
 WINGEDGES_MAX = 8
 LIVE_MAX_OBJECTS = 27
 IMAGE_MAX_CHUNK = MAX_DATAGRAM - HEADER_SIZE - 36  # 1428
@@ -411,13 +415,16 @@ class ImageChunk(UdpMessage):
 @_finish_layout
 @dataclass(frozen=True, eq=False)
 class DvsClusters(UdpMessage):
-    """DVS_CLUSTERS (0x10): event-camera cluster tracks of one time slice."""
+    """DVS_CLUSTERS (0x10): event-camera cluster tracks of one time slice, stated at t_end_us, with
+    each cluster's position covariance and (flag SYNCED) the trigger frame at t_end_us."""
 
     TYPE: ClassVar[MsgType] = MsgType.DVS_CLUSTERS
     _FIELDS: ClassVar[tuple[FieldSpec, ...]] = (
         ("camera_index", "H", "u"), ("n_clusters", "H", "n"), ("seq", "I", "u"), ("t_start_us", "Q", "u"),
-        ("t_end_us", "Q", "u"), ("edge_done_ns", "Q", "u"),
+        ("t_end_us", "Q", "u"), ("edge_done_ns", "Q", "u"), ("trigger_frame", "d", "d"),
+        ("frame_period_us", "f", "f"), ("syncs", "I", "u"),
     )  # fmt: skip
+    _FLAG_MASK: ClassVar[int] = int(DvsFlags.SYNCED)
     _ARRAY: ClassVar[str | None] = "clusters"
     _DTYPE: ClassVar[np.dtype | None] = CLUSTER_DTYPE
     _MAX: ClassVar[int] = CLUSTERS_MAX
@@ -427,11 +434,35 @@ class DvsClusters(UdpMessage):
     t_start_us: int
     t_end_us: int
     edge_done_ns: int = 0
+    trigger_frame: float = 0.0
+    frame_period_us: float = 0.0
+    syncs: int = 0
+    flags: int = 0
     clusters: np.ndarray = field(default_factory=lambda: _empty(CLUSTER_DTYPE))
 
     @property
     def n_clusters(self) -> int:
         return len(self.clusters)
+
+    @property
+    def synced(self) -> bool:
+        return bool(self.flags & DvsFlags.SYNCED)
+
+
+def _check_dvs_clusters(vals: dict, flags: int, buf: bytes, rec_off: int, count: int) -> None:
+    """BAD_FIELD rules of SPEC 1.6: a covariance per cluster, a period when SYNCED."""
+    period = vals["frame_period_us"]
+    if period < 0 or (flags & DvsFlags.SYNCED and not period > 0):
+        raise ProtocolError("BAD_FIELD", f"DvsClusters.frame_period_us = {period} (SYNCED: {bool(flags & 1)})")
+    if count:
+        c = np.frombuffer(buf, CLUSTER_DTYPE, count, rec_off)
+        # float32 products are exact in float64: the same test as the C codec's
+        vx, vy, cxy = (c[k].astype(np.float64) for k in ("var_x", "var_y", "cov_xy"))
+        bad = (vx < 0) | (vy < 0) | (cxy * cxy > vx * vy)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ProtocolError("BAD_FIELD", f"DvsClusters.clusters[{i}]: var_x {vx[i]}, var_y {vy[i]}, "
+                                f"cov_xy {cxy[i]} is not a covariance")
 
 
 @_finish_layout
@@ -574,6 +605,8 @@ def decode_datagram(buf: bytes | bytearray | memoryview) -> UdpMessage:
             )
     if cls is ImageChunk:
         _check_image(vals, count)
+    elif cls is DvsClusters:
+        _check_dvs_clusters(vals, flags, buf, rec_off, count)
 
     if cls._ARRAY is not None:
         if cls._DTYPE is None:

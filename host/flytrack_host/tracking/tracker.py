@@ -39,6 +39,7 @@ from flytrack_host.tracking.birth import Birth, search_births
 from flytrack_host.tracking.ekf import cv_process_noise, cv_transition, joseph_update, predict
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.orientation import axes_from_normals
+from flytrack_host.tracking.own_covariance import own_covariance_update
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.types import Association, Estimate, FrameBundle, FrameResult
 
@@ -68,6 +69,10 @@ STAT_KEYS = (
     "rejected_updates",  # EKF updates refused because the posterior was not finite / positive definite
     "conflicts_resolved",  # cameras where targets clashed over a point (global assignment)
     "merges_prevented",  # targets stripped of shared points by the merge-prevention rule
+    "own_cov_points",  # points with their own covariance (event cameras) offered
+    "own_cov_used",  # ... that updated a target with that covariance
+    "own_cov_gated_out",  # ... outside every target's gate
+    "own_cov_bad",  # ... whose covariance was not finite positive definite: not used
 )
 
 
@@ -114,6 +119,8 @@ class Tracker:
         self._R_cache: dict[int, F64] = {}
         self._death_var = p.death_position_std_m**2
         self._ok_dtypes: set[np.dtype] = set()
+        self._own_cov_bundle: FrameBundle | None = None
+        self._own_cov_pairs: list[tuple[int, int, int]] = []
         self._slot_edges = np.arange(self.cams.n + 1)
         self._aranges = np.arange(256)
         # Targets, stacked. obj_id is -1 while tentative.
@@ -155,6 +162,17 @@ class Tracker:
         return int(self._x.shape[0])
 
     def process(self, bundle: FrameBundle) -> FrameResult:
+        own_cov = bundle.point_cov
+        if own_cov:
+            # Points with their own covariance take their own update (_own_cov_update), not the frame
+            # cameras' association, update and births.
+            self._own_cov_bundle = bundle
+            bundle = FrameBundle(bundle.trigger_frame, bundle.timestamp,
+                                 {c: a for c, a in bundle.detections.items() if c not in own_cov},
+                                 bundle.missing_cameras)
+        else:
+            self._own_cov_bundle = None
+        self._own_cov_pairs = []
         frame = int(bundle.trigger_frame)
         result = FrameResult(trigger_frame=frame, timestamp=bundle.timestamp)
         self.last_births = []
@@ -207,6 +225,7 @@ class Tracker:
                     upd = upd[accepted]
                 if upd.size:
                     self._orient(upd, assign[:, upd], J[:, upd], pts)
+        self._own_cov_update()
         n_cams = (assign >= 0).sum(axis=0)
 
         # 5. Deaths.
@@ -241,6 +260,7 @@ class Tracker:
             st = self._settle(k, T, st[ckernel.ST_POINTS])
         s["conflicts_resolved"] += st[ckernel.ST_CONFLICTS]
         s["rejected_updates"] += st[ckernel.ST_REJECTED]
+        self._own_cov_update()  # self._x, self._P view the kernel's buffers: updated in place
         assign = k.assign_view(T)
         n_cams = k.n_cams[:T]
         extra = self._support_deaths(n_cams, any_points)
@@ -585,6 +605,24 @@ class Tracker:
                 result.associations.extend(
                     Association(ids[k], c, p) for k, c, p in zip(ks.tolist(), cam_index, pidx, strict=True)
                 )
+        if self._own_cov_pairs:
+            shown = set(ids)
+            result.associations.extend(Association(o, c, p) for o, c, p in self._own_cov_pairs if o in shown)
+
+    def _own_cov_update(self) -> None:
+        """The update by the points with their own covariance (tracking/own_covariance.py); the pairs
+        are kept by object id (deaths reorder the rows) for _report."""
+        b = self._own_cov_bundle
+        if b is None:
+            return
+        pairs, st = own_covariance_update(self._x, self._P, self.cams, b.detections, b.point_cov)
+        s = self.stats
+        s["own_cov_points"] += st["points"]
+        s["own_cov_used"] += st["used"]
+        s["own_cov_gated_out"] += st["gated_out"]
+        s["own_cov_bad"] += st["bad_covariance"]
+        s["rejected_updates"] += st["rejected"]
+        self._own_cov_pairs = [(int(self._obj_id[r]), c, p) for r, c, p in pairs if self._obj_id[r] >= 0]
 
 
 def _as_protocol(arr: np.ndarray) -> np.ndarray:

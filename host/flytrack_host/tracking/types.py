@@ -23,6 +23,10 @@ class FrameBundle:
     detections: dict[int, np.ndarray]
     # Cameras expected but not (yet) heard from when the bundle was closed.
     missing_cameras: tuple[int, ...] = ()
+    # camera_index -> (n, 3) var_x, var_y, cov_xy (px^2) of detections[camera_index]: points with
+    # their own measurement covariance (event cameras, SPEC 1.6). They update targets with that
+    # covariance as R (tracking/own_covariance.py) and never start one.
+    point_cov: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(slots=True)

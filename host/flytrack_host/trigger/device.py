@@ -132,7 +132,8 @@ class TriggerDevice(SerialTrigger):
             )
         if info.protocol_version != tl.SERIAL_VERSION:
             self.close()
-            raise TriggerError(f"device speaks protocol version {info.protocol_version}, host speaks 1")
+            raise TriggerError(
+                f"device speaks protocol version {info.protocol_version}, host speaks {tl.SERIAL_VERSION}")
         return info
 
     def _read_loop(self) -> None:

@@ -126,7 +126,7 @@ class SoftwareTrigger:
 
     def _handle(self, seq: int, msg: tl.SerialMessage) -> None:  # noqa: C901 - one branch per request
         if isinstance(msg, tl.GetInfo):
-            self._send(tl.Info(1, 1, 0, 0, tl.Mcu.ATMEGA328P, 4, self.f_cpu, self.name), seq)
+            self._send(tl.Info(tl.SERIAL_VERSION, 1, 0, 0, tl.Mcu.ATMEGA328P, 4, self.f_cpu, self.name), seq)
         elif isinstance(msg, tl.SetRate):
             if self.running:
                 self._err(seq, msg, tl.ErrorCode.BUSY)

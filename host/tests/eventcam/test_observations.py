@@ -40,8 +40,10 @@ def test_slices_map_to_trigger_frames_through_the_clock_model():
     assert st["slices"] == 299 and st["clusters"] == 299
     assert abs(st["t0_us"] - T0_US) < 500, st["t0_us"] - T0_US  # within half a slice
     for tf in (5, 17, 29):
-        fr = obs.frame(5, tf)
-        assert fr is not None and fr.dvs and fr.trigger_frame == tf
+        got = obs.frame(5, tf)
+        assert got is not None
+        fr, cov = got
+        assert fr.dvs and fr.trigger_frame == tf and cov.shape == (1, 3)
         truth = 10.0 + vx * tf / FPS
         assert abs(float(fr.points["x_undist"][0]) - truth) < 0.3, (fr.points["x_undist"][0], truth)
         assert float(fr.points["y_undist"][0]) == pytest.approx(50.0)
@@ -58,3 +60,40 @@ def test_no_clock_no_observations_and_unknown_cameras_ignored():
     assert 9 not in obs.stats()
     with pytest.raises(ValueError):
         DvsObservations({5: None}, 0.0)
+
+
+def _stamped(t_end_us: int, frame: float, x: float, vx: float, var: tuple[float, float, float], seq: int) -> DvsSlice:
+    c = np.zeros(1, CLUSTER_DTYPE)
+    c["id"], c["x"], c["y"], c["vx"], c["vy"], c["size"], c["mass"] = 3, x, 50.0, vx, 0.0, 2.0, 12.0
+    c["var_x"], c["var_y"], c["cov_xy"] = var
+    msg = DvsClusters(camera_index=5, seq=seq, t_start_us=t_end_us - 5000, t_end_us=t_end_us,
+                      trigger_frame=frame, frame_period_us=10_000.0, syncs=int(frame) + 1, flags=1, clusters=c)
+    return DvsSlice(5, msg, 0.0)
+
+
+def test_edge_stamp_wins_over_the_clock_model_and_covariance_grows_with_the_move():
+    """Slices stamped with their trigger frame (SYNCED) map by the stamp, whatever the host's clock
+    model says (here it is 3 ms off); a point moved over dt gets (velocity_std dt)^2 more variance."""
+    obs = DvsObservations({5: None}, FPS, velocity_std_px_s=50.0)
+    vx = 400.0
+
+    def wrong_clock(t: float) -> float:
+        return frame_of_host_time(t) + 0.3
+
+    for k in range(0, 40):  # slices cut at every sync (frame k) and halfway (k + 0.5)
+        for half in (0.0, 0.5):
+            f = k + half
+            obs.add(_stamped(T0_US + int(f * 10_000), f, 10.0 + vx * f / FPS, vx, (0.3, 0.2, 0.05), 2 * k),
+                    wrong_clock)
+    st = obs.stats()[5]
+    assert st["synced_slices"] == 80 and st["t0_us"] is None
+    fr, cov = obs.frame(5, 17)
+    assert float(fr.points["x_dist"][0]) == pytest.approx(10.0 + vx * 17 / FPS, abs=1e-3)
+    assert cov[0] == pytest.approx([0.3, 0.2, 0.05], abs=1e-6)  # stated at the frame: no move, no growth
+    obs2 = DvsObservations({5: None}, FPS, velocity_std_px_s=50.0)
+    obs2.add(_stamped(T0_US, 16.5, 100.0, vx, (0.3, 0.2, 0.05), 1), None)  # half a frame before frame 17
+    fr2, cov2 = obs2.frame(5, 17)
+    assert float(fr2.points["x_dist"][0]) == pytest.approx(100.0 + vx * 0.005, abs=1e-3)
+    assert cov2[0, 0] == pytest.approx(0.3 + (50.0 * 0.005) ** 2, rel=1e-5)
+    assert cov2[0, 2] == pytest.approx(0.05, rel=1e-6)
+    assert obs2.frame(5, 19) is None  # older than max_age_frames (2)

@@ -8,6 +8,7 @@ import tty
 
 import pytest
 
+from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.trigger.common import RateChoice, TriggerError, choose_rate
 from flytrack_host.trigger.device import TriggerDevice
 from flytrack_host.trigger.software import SoftwareTrigger
@@ -38,7 +39,7 @@ def test_driver_against_software_trigger() -> None:
         evs = dev.events()
         assert len(evs) == 1 and evs[0].edge == 1 and evs[0].host_time is not None
         dev._ser.write(b"\x05\x07garbage\x00\x01\x02")  # noise between requests
-        assert dev.info().protocol_version == 1
+        assert dev.info().protocol_version == tl.SERIAL_VERSION
         dev.stop_reset()
         assert dev.query_clock().frame_count == 0
 

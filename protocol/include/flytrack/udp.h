@@ -54,9 +54,9 @@ typedef char
 #define FT_CONTROL_ACK_SIZE 56
 #define FT_IMAGE_FIXED 36
 #define FT_IMAGE_MAX_CHUNK 1428
-#define FT_DVS_CLUSTERS_FIXED 32
-#define FT_DVS_CLUSTER_SIZE 28
-#define FT_DVS_MAX_CLUSTERS 51
+#define FT_DVS_CLUSTERS_FIXED 48
+#define FT_DVS_CLUSTER_SIZE 40
+#define FT_DVS_MAX_CLUSTERS 35
 #define FT_DVS_WINGBEAT_FIXED 24
 #define FT_WING_EDGE_SIZE 20
 #define FT_DVS_MAX_EDGES 8
@@ -68,6 +68,7 @@ typedef char
 #define FT_FEATURES_SPLIT 0x0001u
 #define FT_FEATURES_TRUNCATED 0x0002u
 #define FT_LIVE_SPLIT 0x0001u
+#define FT_DVS_SYNCED 0x0001u /* DVS_CLUSTERS: trigger_frame and frame_period_us are valid */
 
 /* Enumerations */
 #define FT_PIXFMT_MONO8 0
@@ -170,6 +171,8 @@ static inline uint16_t ft_udp_flag_mask(uint8_t type) {
         return FT_FEATURES_SPLIT | FT_FEATURES_TRUNCATED;
     case FT_MSG_LIVE_ESTIMATES:
         return FT_LIVE_SPLIT;
+    case FT_MSG_DVS_CLUSTERS:
+        return FT_DVS_SYNCED;
     default:
         return 0;
     }
@@ -635,31 +638,46 @@ static inline ft_err ft_image_decode(const uint8_t *buf, size_t len, ft_image *m
 /* ---- DVS_CLUSTERS (0x10) ---- */
 
 typedef struct {
-    uint16_t flags; /* 0 */
+    uint16_t flags; /* FT_DVS_SYNCED */
     uint16_t camera_index;
     uint16_t n_clusters;
     uint32_t seq;
     uint64_t t_start_us;
-    uint64_t t_end_us;
+    uint64_t t_end_us; /* the clusters are stated at this device time */
     uint64_t edge_done_ns;
+    double trigger_frame;  /* trigger frame (with fraction) at t_end_us; 0 without FT_DVS_SYNCED */
+    float frame_period_us; /* measured sync period; > 0 with FT_DVS_SYNCED, else 0 */
+    uint32_t syncs;        /* sync events the edge has seen */
 } ft_dvs_clusters_hdr;
 
 typedef struct {
     uint32_t id;
-    float x, y;   /* px */
-    float vx, vy; /* px/s */
-    float size;   /* radius, px */
-    float mass;   /* decayed event count */
+    float x, y;                 /* px */
+    float vx, vy;               /* px/s */
+    float size;                 /* radius, px */
+    float mass;                 /* decayed event count */
+    float var_x, var_y, cov_xy; /* px^2: position covariance (the cluster's Kalman filter) */
 } ft_dvs_cluster;
 
 static inline ft_err ft_dvs_clusters_check(const ft_dvs_clusters_hdr *h, const ft_dvs_cluster *c) {
     uint32_t i;
     if (h->n_clusters > FT_DVS_MAX_CLUSTERS)
         return FT_E_COUNT_OVERFLOW;
+    if (!ft_f64_finite(h->trigger_frame) || !ft_f32_finite(h->frame_period_us))
+        return FT_E_NOT_FINITE;
     for (i = 0; i < h->n_clusters; i++)
         if (!ft_f32_finite(c[i].x) || !ft_f32_finite(c[i].y) || !ft_f32_finite(c[i].vx) ||
-            !ft_f32_finite(c[i].vy) || !ft_f32_finite(c[i].size) || !ft_f32_finite(c[i].mass))
+            !ft_f32_finite(c[i].vy) || !ft_f32_finite(c[i].size) || !ft_f32_finite(c[i].mass) ||
+            !ft_f32_finite(c[i].var_x) || !ft_f32_finite(c[i].var_y) || !ft_f32_finite(c[i].cov_xy))
             return FT_E_NOT_FINITE;
+    if (h->frame_period_us < 0.0f || ((h->flags & FT_DVS_SYNCED) && !(h->frame_period_us > 0.0f)))
+        return FT_E_BAD_FIELD;
+    for (i = 0; i < h->n_clusters; i++) {
+        /* products of two floats are exact in double: the same test as the Python codec's */
+        const double vx = c[i].var_x, vy = c[i].var_y, cxy = c[i].cov_xy;
+        if (vx < 0.0 || vy < 0.0 || cxy * cxy > vx * vy)
+            return FT_E_BAD_FIELD;
+    }
     return FT_OK;
 }
 
@@ -681,6 +699,9 @@ static inline ft_err ft_dvs_clusters_encode(uint8_t *buf, size_t cap, const ft_d
     ft_st_u64(p + 8, h->t_start_us);
     ft_st_u64(p + 16, h->t_end_us);
     ft_st_u64(p + 24, h->edge_done_ns);
+    ft_st_f64(p + 32, h->trigger_frame);
+    ft_st_f32(p + 40, h->frame_period_us);
+    ft_st_u32(p + 44, h->syncs);
     for (i = 0; i < h->n_clusters; i++) {
         uint8_t *q = p + FT_DVS_CLUSTERS_FIXED + i * FT_DVS_CLUSTER_SIZE;
         ft_st_u32(q + 0, c[i].id);
@@ -690,6 +711,9 @@ static inline ft_err ft_dvs_clusters_encode(uint8_t *buf, size_t cap, const ft_d
         ft_st_f32(q + 16, c[i].vy);
         ft_st_f32(q + 20, c[i].size);
         ft_st_f32(q + 24, c[i].mass);
+        ft_st_f32(q + 28, c[i].var_x);
+        ft_st_f32(q + 32, c[i].var_y);
+        ft_st_f32(q + 36, c[i].cov_xy);
     }
     *out_len = FT_UDP_HEADER + payload;
     return FT_OK;
@@ -714,6 +738,9 @@ static inline ft_err ft_dvs_clusters_decode(const uint8_t *buf, size_t len, ft_d
     h->t_start_us = ft_ld_u64(p + 8);
     h->t_end_us = ft_ld_u64(p + 16);
     h->edge_done_ns = ft_ld_u64(p + 24);
+    h->trigger_frame = ft_ld_f64(p + 32);
+    h->frame_period_us = ft_ld_f32(p + 40);
+    h->syncs = ft_ld_u32(p + 44);
     for (i = 0; i < n; i++) {
         const uint8_t *q = p + FT_DVS_CLUSTERS_FIXED + i * FT_DVS_CLUSTER_SIZE;
         c[i].id = ft_ld_u32(q + 0);
@@ -723,6 +750,9 @@ static inline ft_err ft_dvs_clusters_decode(const uint8_t *buf, size_t len, ft_d
         c[i].vy = ft_ld_f32(q + 16);
         c[i].size = ft_ld_f32(q + 20);
         c[i].mass = ft_ld_f32(q + 24);
+        c[i].var_x = ft_ld_f32(q + 28);
+        c[i].var_y = ft_ld_f32(q + 32);
+        c[i].cov_xy = ft_ld_f32(q + 36);
     }
     return ft_dvs_clusters_check(h, c);
 }

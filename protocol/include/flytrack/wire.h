@@ -9,7 +9,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define FT_PROTOCOL_VERSION 1
+#define FT_PROTOCOL_VERSION 2
 
 /* Decoder and encoder results. The names (ft_err_name) are the SPEC's, shared with the Python codec
  * and the golden vectors; FT_E_NO_SPACE is the encoders' "output buffer too small". */

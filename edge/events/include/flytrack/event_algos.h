@@ -25,7 +25,10 @@
  * Options as the seed's appendix: feedback to the cluster (its position set to the filter's),
  * dynamic variances (measurement variance grows from a tenth of max_meas_var to max_meas_var and
  * process variance falls from 10 x min_proc_var to min_proc_var over the first kf_ramp updates),
- * and events until tracking starts (filters launched once that many events were processed). */
+ * and events until tracking starts (filters launched once that many events were processed).
+ * kf_centroid (on by default) measures the events' centroid per tick instead of the centre. The
+ * clusters are reported with the filter predicted to the time asked for, and its position
+ * covariance. */
 #ifndef FLYTRACK_EVENT_ALGOS_H
 #define FLYTRACK_EVENT_ALGOS_H
 
@@ -83,6 +86,10 @@ typedef struct {
     uint64_t events_until_track;
     float max_meas_var; /* px^2 */
     float min_proc_var; /* (px/s)^2 per second, on the velocities */
+    /* 1: the filter measures the centroid of the events a cluster took since the last tick, with
+     * their spread over their number as the variance (the centre trails a moving animal by about
+     * (1 - m) / m events); 0: the cluster's centre with max_meas_var, as the seed */
+    int kf_centroid;
 } ft_ct_params;
 
 typedef struct {
@@ -91,7 +98,8 @@ typedef struct {
     float vx, vy;               /* px/s */
     float size;                 /* radius, px */
     float mass;                 /* decayed event count */
-    float var_x, var_y, cov_xy; /* px^2: position covariance (the filter's, else radius^2 / 4) */
+    float var_x, var_y, cov_xy; /* px^2: position covariance (the filter's at the time asked for,
+                                 * else radius^2 / 4) */
     uint32_t events;            /* events the cluster has taken */
     int tracking;               /* 1 once its Kalman filter runs */
 } ft_ct_cluster;
