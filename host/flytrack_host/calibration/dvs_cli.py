@@ -17,7 +17,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from flytrack_host.calibration.cli import InputError, _clean_errors, _parse_size, app, console, err
-from flytrack_host.calibration.led_events import LedExtractor, LedParams, LedPoints, SyncError
+from flytrack_host.calibration.led_events import EventOrderError, LedExtractor, LedParams, LedPoints, SyncError
 from flytrack_host.calibration.observations import Observations, load_points, save_points
 
 
@@ -86,6 +86,8 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
                     progress.update(task, completed=r.info.offset)
         except EventFileError as exc:  # keep what came before the damage
             damaged = str(exc)
+        except EventOrderError as exc:
+            raise InputError(f"{path}: {exc}") from None
         trig = r.read_triggers()  # those after the last events
         ex.feed(_empty(), trig["t"][trig["value"] == 1] if sync_csv is None else None)
         if progress is not None and task is not None:

@@ -26,11 +26,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["LedParams", "LedPoints", "LedExtractor", "led_points", "periodic_mask", "dominant_frequencies",
-           "sync_frames", "SyncError"]
+           "sync_frames", "SyncError", "EventOrderError"]
 
 
 class SyncError(ValueError):
     """The sync events cannot tie event times to trigger frames."""
+
+
+class EventOrderError(ValueError):
+    """Event times go back (a timestamp reset inside the recording)."""
 
 
 @dataclass(frozen=True)
@@ -298,6 +302,7 @@ class LedExtractor:
         self._freq_sample: list[np.ndarray] = []  # a bounded sample of events for the error message
         self._freq_n = 0
         self._half: float | None = None
+        self._t_last = -(1 << 62)
 
     def _half_window(self) -> float:
         """Half the window, whole microseconds (so a frame interval measured a microsecond apart gives the same)."""
@@ -314,8 +319,13 @@ class LedExtractor:
 
     def feed(self, events: np.ndarray, sync_t: NDArray[np.int64] | None = None) -> None:
         if len(events):
-            if len(events) > 1 and np.any(np.diff(events["t"]) < 0):
-                raise ValueError("events must come in non-decreasing time")
+            t = events["t"]
+            back = np.nonzero(np.diff(t) < 0)[0]
+            if len(back) or t[0] < self._t_last:
+                before, at = (int(t[back[0]]), int(t[back[0] + 1])) if len(back) else (self._t_last, int(t[0]))
+                raise EventOrderError(f"event times go back (to {at} us after {before} us): a timestamp reset "
+                                      "inside the recording? Cut the file there.")
+            self._t_last = int(t[-1])
             self._buf.append(events)
             self.stats["events"] += len(events)
             if self._freq_n < 4_000_000:

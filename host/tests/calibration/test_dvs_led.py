@@ -184,6 +184,14 @@ def test_cli_dvs_points_and_its_errors(wand, extracted, tmp_path: Path):
     write_events(nosync, ev[:50_000], 346, 260)
     r = _cli("dvs-points", str(nosync), "--led-hz", "500", "-o", str(tmp_path / "y.csv"))
     assert r.exit_code == 2 and "no sync" in _text(r), _text(r)
+    # Event times that go back (a timestamp reset): AEDAT 2.0 written byte by byte.
+    import struct
+
+    recs = [(0x8000, 500), ((5 << 8), 1000), ((6 << 8), 2000), ((7 << 8), 1500), (0x8000, 2500)]
+    back = tmp_path / "reset.aedat"
+    back.write_bytes(b"#!AER-DAT2.0\r\n# AEChip: DVS128\r\n" + b"".join(struct.pack(">II", a, t) for a, t in recs))
+    r = _cli("dvs-points", str(back), "--led-hz", "500", "-o", str(tmp_path / "v.csv"))
+    assert r.exit_code == 2 and "event times go back (to 1500 us after 2000 us)" in _text(r), _text(r)
     # Not an event file, and no file.
     r = _cli("dvs-points", str(frames), "--led-hz", "500", "-o", str(tmp_path / "z.csv"))
     assert r.exit_code == 2 and "not an event file" in _text(r), _text(r)
