@@ -94,3 +94,35 @@ def test_evt3_aedat2_aedat3_trigger_times(tmp_path):
     assert len(ev) == 1 and ev["t"][0] == 90
     assert tr["t"].tolist() == [(1 << 31) + 100, (1 << 31) + 200]  # the invalid one (bit 0 clear) skipped
     assert tr["value"].tolist() == [1, 0]
+
+
+def test_aedat4_trigger_stream_written_by_dv_processing(tmp_path):
+    """dv-processing writes triggers as their own stream (TriggerPacket, identifier TRIG): kept ones
+    come out with their type's edge; the events of the event stream are unchanged."""
+    import dv_processing as dv
+
+    for comp in ("NONE", "LZ4", "ZSTD"):
+        cfg = dv.io.MonoCameraWriter.Config("DVXplorer")
+        cfg.addEventStream((346, 260))
+        cfg.addTriggerStream()
+        cfg.compression = getattr(dv.CompressionType, comp)
+        path = tmp_path / f"t_{comp}.aedat4"
+        w = dv.io.MonoCameraWriter(str(path), cfg)
+        times = []
+        for k in range(20):
+            st = dv.EventStore()
+            for t in range(10_000 * k, 10_000 * k + 9_000, 300):
+                st.push_back(t, 5 + k, 6, bool(k % 2))
+            w.writeEvents(st)
+            tp = dv.TriggerPacket()
+            tp.elements.append(dv.Trigger(10_000 * k + 9_500, dv.TriggerType.EXTERNAL_SIGNAL_RISING_EDGE))
+            tp.elements.append(dv.Trigger(10_000 * k + 9_700, dv.TriggerType.EXTERNAL_SIGNAL_FALLING_EDGE))
+            tp.elements.append(dv.Trigger(10_000 * k + 9_800, dv.TriggerType.APS_FRAME_START))  # not a sync
+            w.writeTriggerPacket(tp)
+            times += [10_000 * k + 9_500, 10_000 * k + 9_700]
+        del w
+        ev, tr = read_events_and_triggers(path)
+        assert len(ev) == 20 * 30 and ev["x"][-1] == 24
+        assert tr["t"].tolist() == times, comp
+        assert tr["value"].tolist() == [1, 0] * 20
+        np.testing.assert_array_equal(read_events(path)["t"], ev["t"])  # without keeping: the same events
