@@ -253,7 +253,7 @@ def dvs_sim_cmd(
     with (out_dir / "led.csv").open("w") as fh:
         fh.write("frame,x,y,z\n")
         for i, (x, y, z) in enumerate(scene.led):
-            fh.write(f"{i},{x!r},{y!r},{z!r}\n")
+            fh.write(f"{i},{float(x)!r},{float(y)!r},{float(z)!r}\n")
     ev = ", ".join(f"{n}: {scene.dvs_events[n]} events, {scene.dvs_syncs[n]} sync" for n in scene.dvs_files)
     console.print(f"written {out_dir}: frames.csv ({len(scene.frame_obs.frame)} points of {frame_cameras} frame "
                   f"cameras), {ev}; truth.xml, led.csv", highlight=False)

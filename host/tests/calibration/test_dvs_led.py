@@ -201,3 +201,21 @@ def test_cli_dvs_points_and_its_errors(wand, extracted, tmp_path: Path):
     r = _cli("dvs-points", str(wand.dvs_files["dvs1"]), "--camera", "cam1", "--led-hz", "500", "--with",
              str(frames), "-o", str(tmp_path / "w.csv"))
     assert r.exit_code == 2 and "already in the points file" in _text(r)
+
+
+def test_cli_dvs_sim_writes_what_the_readme_uses(tmp_path: Path):
+    from flytrack_host.calibration.formats import load_calibration
+
+    out = tmp_path / "wand"
+    r = _cli("dvs-sim", str(out), "--seconds", "0.3", "--dvs", "1", "--frame-cameras", "3")
+    assert r.exit_code == 0, r.output
+    cams = load_calibration(out / "truth.xml")
+    assert sorted(cams) == ["cam1", "cam2", "cam3", "dvs1"] and (cams["dvs1"].width, cams["dvs1"].height) == (346, 260)
+    obs = load_points(out / "frames.csv")
+    assert obs.camera_names == ["cam1", "cam2", "cam3"] and obs.frame.max() <= 29
+    led = np.loadtxt(out / "led.csv", delimiter=",", skiprows=1)
+    assert led.shape == (30, 4)
+    ev, trig = read_events_and_triggers(out / "dvs1.raw")
+    assert len(trig) == 30 and len(ev) > 1000
+    r = _cli("dvs-sim", str(out), "--seconds", "0.01")
+    assert r.exit_code == 2 and "fewer than 10 frames" in _text(r)
