@@ -58,6 +58,21 @@ def test_entry_drives_the_pulse_the_coil_and_the_can_frame(demo) -> None:  # noq
     # The pulse is never later than it would have been without prediction.
     if r["frame_errors"] and r["frame_errors_no_prediction"]:
         assert max(r["frame_errors"]) <= max(r["frame_errors_no_prediction"])
+    # Where the time went, per output and stage, for every action performed; and what each ack is.
+    st = r["latency_stages_ms"]
+    assert sorted(st) == ["hscam", "stimulus_can", "valve"]
+    for name, d in st.items():
+        assert list(d) == ["trigger_to_estimate", "estimate_to_queued", "queued_to_worker", "worker_to_sent",
+                           "sent_to_ack", "trigger_to_ack"]
+        assert d["trigger_to_ack"]["n"] == outs[name]["done"]
+        if d["trigger_to_ack"]["n"]:
+            assert all(x["p50"] >= 0 for x in d.values())
+            assert d["trigger_to_ack"]["p50"] >= d["trigger_to_estimate"]["p50"]
+    assert "kernel receive stamp" in act["outputs"]["valve"]["acknowledged_means"]
+    assert "armed for its trigger frame" in act["outputs"]["hscam"]["acknowledged_means"]
+    assert "trigger time" in act["latency_definition"]
+    # The tracking thread waited for the devices' sends on frames that fired (bounded, counted).
+    assert act["handoff"]["timeouts"] <= act["handoff"]["frames"] <= r["fired"]
     # Rig file written with the lab's actuators and the rules; the rules copied beside it.
     rig = (out / "rig.toml").read_text()
     assert 'rules = "rules.toml"' in rig and 'kind = "modbus"' in rig and (out / "rules.toml").exists()

@@ -8,7 +8,10 @@ the rules and hands the resulting actions to per-device worker threads.
 
 `on_frame` runs on the tracking thread: per rule one vectorised condition over the frame's objects
 and a few dict updates per object, then `put_nowait` of each action (`make bench-actuation` prints
-its cost per frame against the number of objects). Nothing here waits for a device.
+its cost per frame against the number of objects). Nothing here waits for a device's answer: on a
+frame that fired, it only waits (at most `HANDOFF_MAX_S`) for the idle devices' threads to put their
+commands on the wire (`devices.base.Handoff`), so they do not wait for this thread's next stretch of
+work to get Python's GIL.
 
 The frame each firing aims for is the first frame its slowest output can still reach (the measured
 trigger-to-estimate latency, the device's latency and its arming lead; `prediction.reachable_frame`),
@@ -31,10 +34,10 @@ import numpy as np
 
 from flytrack_host import hostclock
 from flytrack_host.actuation.devices import Output, make_output
-from flytrack_host.actuation.devices.base import Job, Outcome, OutputWorker
+from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, Handoff, Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
-from flytrack_host.actuation.prediction import reachable_frame
+from flytrack_host.actuation.prediction import StepVelocities, reachable_frame
 from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
 from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig, RigConfig
@@ -66,14 +69,25 @@ class ActuationEngine:
         self.shadow = [RuleEvaluator(r.model_copy(update={"predict": False}), self.period_s) if r.predict else None
                        for r in rules.rules]
         self.rule_outputs = [[self.outputs[a.output] for a in r.actions] for r in rules.rules]
+        self.step_vel = StepVelocities(self.period_s)  # the velocities to predict with, per frame
+        self._predicting = any(r.predict for r in rules.rules)
         self.firings = FiringLog(record=self._record)
         # The latest firings (the recording keeps them all), and counts per rule.
         self.shadow_fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
         self.fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
         self.fired: dict[str, int] = {r.name: 0 for r in rules.rules}
+        # Per action, the host times of each stage (trigger, estimate, queued, taken by the worker, sent,
+        # acknowledged): where the time from a frame's trigger to the device's acknowledgement goes.
+        self.stages: deque[tuple[str, str, int, float, float, float, float, float, float]] = deque(
+            maxlen=MAX_KEPT_FIRES)
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
+        self.handoff_max_s = HANDOFF_MAX_S  # 0: no hand-off wait (the benchmark's side-by-side)
+        self.handoffs = 0  # frames that fired with an idle device: the tracking thread waited for the send
+        self.handoff_timeouts = 0
+        self.handoff_s_total = 0.0
+        self.handoff_s_max = 0.0
         self._pipe: Any = None
         self.warn = RateLimitedLog(lambda m: self._log(m))
         self.workers = {n: OutputWorker(o, self._done, self.warn) for n, o in self.outputs.items()}
@@ -104,8 +118,11 @@ class ActuationEngine:
         if not self._started:
             self._started = True
             if self.workers and sys.getswitchinterval() > SWITCH_INTERVAL_S:
-                # A device thread waiting for the GIL would otherwise run only when the tracking thread
-                # blocks or after Python's 5 ms switch interval: 1-2 ms added to every action.
+                # The commands leave during the tracking thread's hand-off wait; after that, a device
+                # thread that needs the GIL again (the firmware's ACK read by the trigger's reader thread,
+                # a reply's bookkeeping) would wait for the tracking thread to block or for Python's 5 ms
+                # switch interval. Measured side by side in chrt'd demos, 0.2 ms and 5 ms gave the same
+                # trigger -> estimate (P50 0.95-1.15 ms host part) within the runs' spread.
                 self._switch_interval = sys.getswitchinterval()
                 sys.setswitchinterval(SWITCH_INTERVAL_S)
             for w in self.workers.values():
@@ -132,22 +149,52 @@ class ActuationEngine:
             for ev in (*self.evals, *self.shadow):
                 if ev is not None:
                     ev.reset()
+            self.step_vel.reset()
         self._last_frame = frame
         ids, states = estimates_arrays(result)
+        step_vel = self.step_vel(frame, ids, states) if self._predicting else None  # once for all rules
         self.frames += 1
-        for ev, sh, outs in zip(self.evals, self.shadow, self.rule_outputs, strict=True):
+        handoff: Handoff | None = None
+        jobs: list[tuple[OutputWorker, Job]] = []
+        targets = []
+        for ev, outs in zip(self.evals, self.rule_outputs, strict=True):
             target = max((reachable_frame(frame, frame_time, now, o.lead_s + o.arm_frames * self.period_s,
                                           self.period_s) for o in outs),
                          default=reachable_frame(frame, frame_time, now, 0.0, self.period_s))
-            fires = ev.step(frame, target, ids, states)
-            self.shadow_fires.extend(fires if sh is None else sh.step(frame, target, ids, states))
+            targets.append(target)
+            fires = ev.step(frame, target, ids, states, step_vel)
+            if not ev.rule.predict:
+                self.shadow_fires.extend(fires)  # its own shadow
             for f in fires:
-                self._dispatch(f, ev, frame_time, estimate_time)
+                handoff = self._dispatch(f, ev, frame_time, estimate_time, handoff, jobs)
+        # Queued together (no device thread runs before the last is queued), the devices that act at once
+        # (a coil, a CAN frame) before those a command reaches a frame ahead (the PULSE: its lead counts
+        # this wait).
+        jobs.sort(key=lambda wj: wj[0].output.arm_frames)
+        for worker, job in jobs:
+            worker.submit(job)
+        if handoff is not None:
+            # Let the device threads put their commands on the wire now (this thread's GIL released),
+            # rather than after this thread's next stretch of work: bounded, and only on a frame that fired.
+            t1 = time.perf_counter()
+            if not handoff.wait(self.handoff_max_s):
+                self.handoff_timeouts += 1
+            w = time.perf_counter() - t1
+            self.handoffs += 1
+            self.handoff_s_total += w
+            self.handoff_s_max = max(self.handoff_s_max, w)
+        # The shadow (no prediction) only feeds the summary: judged after the commands have left.
+        for sh, target in zip(self.shadow, targets, strict=True):
+            if sh is not None:
+                self.shadow_fires.extend(sh.step(frame, target, ids, states))
         dt = time.perf_counter() - t0
         self.eval_s_total += dt
         self.eval_s_max = max(self.eval_s_max, dt)
 
-    def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float) -> None:
+    def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float,
+                  handoff: Handoff | None, jobs: list[tuple[OutputWorker, Job]]) -> Handoff | None:
+        """Adds the firing's actions to `jobs` (queued by the caller); a command for an idle, connected
+        device joins `handoff` (made here when needed), which the tracking thread then waits for, bounded."""
         self.fires.append(f)
         self.fired[f.rule] += 1
         pos = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
@@ -159,14 +206,24 @@ class ActuationEngine:
                 out = Outcome(job, a.output if a else "", self.outputs[a.output].kind if a else "",
                               scheduled_frame=f.scheduled_frame, error="dry run")
                 self.firings.add(out, dry_run=True)
-            return
+            return handoff
         for a in rule.actions:
             job = Job(f.rule, f.obj_id, f.condition_frame, f.scheduled_frame, frame_time, estimate_time, pos,
                       a, f.predicted)
-            self.workers[a.output].submit(job)
+            worker = self.workers[a.output]
+            # An idle, connected device's first command of this frame joins the hand-off.
+            if self.handoff_max_s > 0 and worker.ready and all(w is not worker for w, _ in jobs):
+                handoff = handoff or Handoff()
+                handoff.add()
+                job.handoff = handoff
+            jobs.append((worker, job))
+        return handoff
 
     def _done(self, o: Outcome) -> None:
         self.firings.add(o)
+        j = o.job
+        self.stages.append((j.rule, o.output, j.condition_frame, j.frame_time, j.estimate_time, j.queued_at,
+                            o.time_started, o.time_sent, o.time_ack))
         late = o.error.startswith("late")
         if late:
             self.warn(f"{o.output}:late", f"output {o.output}: {o.error}")
@@ -207,8 +264,12 @@ class ActuationEngine:
             "frames": self.frames,
             "eval_us_mean": self.eval_s_total / self.frames * 1e6 if self.frames else math.nan,
             "eval_us_max": self.eval_s_max * 1e6,
+            "handoff": {"frames": self.handoffs, "timeouts": self.handoff_timeouts,
+                        "us_mean": self.handoff_s_total / self.handoffs * 1e6 if self.handoffs else math.nan,
+                        "us_max": self.handoff_s_max * 1e6},
             "rules": out_rules,
-            "outputs": {n: {**w.stats.__dict__, "connected": w.output.connected,
+            "outputs": {n: {**w.stats.__dict__, "connected": w.output.connected, "kind": w.output.kind,
+                            "acknowledged_means": w.output.ack_means,
                             "lead_ms": w.output.lead_s * 1e3} for n, w in self.workers.items()},
             "firing_rows": int(len(rows)),
             "rule_problems": list(self.rule_problems),

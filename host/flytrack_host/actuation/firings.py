@@ -105,3 +105,21 @@ def summarize(rows: np.ndarray) -> dict[str, Any]:
                              "latency_ms": percentiles_ms(g["time_ack"] - g["frame_time"])}
         out[rule] = {"fired": len(keys), "latency_ms": percentiles_ms(lat), "outputs": per_out}
     return out
+
+
+STAGES = ("trigger_to_estimate", "estimate_to_queued", "queued_to_worker", "worker_to_sent", "sent_to_ack",
+          "trigger_to_ack")
+
+
+def stage_latencies(stages: Any, rule: str) -> dict[str, dict[str, dict[str, float]]]:
+    """Per output of `rule`: P50/P99 (ms) of each stage from the frame's trigger to the device's
+    acknowledgement (the engine's `stages` rows: rule, output, frame, trigger, estimate, queued, taken by
+    the worker, sent, acknowledged host times)."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    rows = [s for s in stages if s[0] == rule]
+    for name in sorted({s[1] for s in rows}):
+        a = np.array([s[3:] for s in rows if s[1] == name], dtype=float).reshape(-1, 6)
+        d = {k: percentiles_ms(a[:, i + 1] - a[:, i]) for i, k in enumerate(STAGES[:-1])}
+        d[STAGES[-1]] = percentiles_ms(a[:, 5] - a[:, 0])
+        out[name] = d
+    return out

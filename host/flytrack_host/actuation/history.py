@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flytrack_host.actuation.conditions import compile_condition, turn_rate_deg_s
-from flytrack_host.actuation.prediction import predict_states
+from flytrack_host.actuation.prediction import StepVelocities, predict_states
 from flytrack_host.actuation.rules import Rule
 
 _EPS = 1e-9
@@ -58,9 +58,11 @@ class RuleEvaluator:
         self._mask = compile_condition(self.rule.when)
         self._hold = self.rule.when.hold_ms / 1e3
         self._after = self.rule.when.after_false_ms / 1e3
+        self._step_vel = StepVelocities(self.period_s)  # when the caller gives none (see `step`)
 
     def reset(self) -> None:
         """Forget every object and the last firing (trigger frames start again from 0)."""
+        self._step_vel.reset()
         self.objs.clear()
         self.last_fire_frame = None
         self.recent.clear()
@@ -73,19 +75,23 @@ class RuleEvaluator:
             return ids == ids.min()
         return ids == int(o)
 
-    def step(self, frame: int, target_frame: int, ids: np.ndarray, states: np.ndarray) -> list[Fire]:
+    def step(self, frame: int, target_frame: int, ids: np.ndarray, states: np.ndarray,
+             step_vel: np.ndarray | None = None) -> list[Fire]:
         """One frame's estimates (ids (N,), states (N, 6)); the action would reach `target_frame`.
-        Returns the firings (already through the gates)."""
+        `step_vel`: the objects' velocities to predict with (`StepVelocities` of this frame: the engine
+        computes them once for all its rules); None: this evaluator's own. Returns the firings (already
+        through the gates)."""
         self.frames += 1
         r = self.rule
+        id_list = ids.tolist()
         if r.predict:
             ahead = min((target_frame - frame) * self.period_s, r.max_predict_ms / 1e3)
-            judged = predict_states(states, ahead) if ahead > 0 else states
+            vel = self._step_vel(frame, ids, states) if step_vel is None else step_vel
+            judged = predict_states(states, ahead, vel) if ahead > 0 else states
             at = target_frame
         else:
             judged = states
             at = target_frame  # the action still lands on the reachable frame, judged on frame `frame`
-        id_list = ids.tolist()
         turn = None
         if self._needs_turn:  # from each object's previous velocity (vectorised over the objects)
             prev = np.full((len(ids), 3), np.nan)

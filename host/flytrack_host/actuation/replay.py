@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.actuation.history import Fire, RuleEvaluator
-from flytrack_host.actuation.prediction import reachable_frame
+from flytrack_host.actuation.prediction import StepVelocities, reachable_frame
 from flytrack_host.actuation.rules import RuleSet
 from flytrack_host.recording.reader import Recording
 
@@ -71,6 +71,7 @@ def replay(rec: Recording, rules: RuleSet, prediction: bool | None = None, lead_
             ks = [kinds.get(a.output, "") for a in r.actions]
             leads.append(max((DEFAULT_LEAD_S.get(x, 0.0) + ARM_FRAMES.get(x, 0) * period for x in ks), default=0.0))
     fires: list[Fire] = []
+    step_vel = StepVelocities(period)
     order = np.argsort(k["trigger_frame"], kind="stable")
     k = k[order]
     frames = np.unique(k["trigger_frame"])
@@ -82,9 +83,10 @@ def replay(rec: Recording, rules: RuleSet, prediction: bool | None = None, lead_
         states = np.stack([rows[c] for c in cols], axis=1)
         ids = rows["obj_id"].astype(np.int64)
         ft, et = t_trig.get(f, math.nan), t_est.get(f, math.nan)
+        vel = step_vel(f, ids, states)  # once for all rules, as the live engine
         for ev, lead in zip(evals, leads, strict=True):
             target = reachable_frame(f, ft, et, lead, period)
-            fires += ev.step(f, target, ids, states)
+            fires += ev.step(f, target, ids, states, vel)
     return Replay(fires, len(frames), fps, rec.table("actuation_firings"),
                   {ev.rule.name: dict(ev.suppressed) for ev in evals})
 

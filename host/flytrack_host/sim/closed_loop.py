@@ -25,14 +25,21 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.actuation.engine import ActuationEngine
-from flytrack_host.actuation.firings import percentiles_ms
+from flytrack_host.actuation.firings import percentiles_ms, stage_latencies
 from flytrack_host.actuation.history import RuleEvaluator
 from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
+from flytrack_host.sim.frames import raise_priority
 
 MATCH_WINDOW_S = 0.3  # a firing further than this from every true entry is a false fire
+LATENCY_DEFINITION = (
+    "latency_ms_p50/p99: per firing, from the trigger time of the frame whose estimate fired (the host's trigger "
+    "clock model) to the last acknowledgement of the devices that act at once (Modbus response, CAN send); the "
+    "PULSE is armed ahead for a later frame, its ACK time is pulse_ack_ms_p50/p99 and its landing frame_error_max. "
+    "What each device's acknowledgement is: outputs.NAME.acknowledged_means. latency_stages_ms splits it per "
+    "output: trigger -> estimate -> queued -> taken by the device thread -> sent -> acknowledged.")
 
 
 def expected_firings(rule: Any, gt: Any) -> list[tuple[int, int]]:
@@ -75,6 +82,10 @@ class ClosedLoopLab:
         self.rules_copy = Path(out) / "rules.toml"
         shutil.copyfile(self.rules_src, self.rules_copy)
         self.modbus = ModbusPeerProcess(log_dir=str(out)).start()  # a process of its own, as a PLC
+        if self.modbus.proc is not None:
+            # A PLC is a machine of its own: it runs at the simulated hardware's priority (as the cameras
+            # and the trigger), so a loaded machine delays the host under test rather than the device.
+            raise_priority(self.modbus.proc.pid)
         self.can_channel = f"flytrack-demo-{uuid.uuid4().hex[:8]}"
         self.can = CanListener("virtual", self.can_channel)
 
@@ -141,6 +152,9 @@ class ClosedLoopLab:
                 # Where it went: the host's trigger -> estimate, then estimate -> the devices' acknowledgement.
                 "latency_parts_ms_p50": {"trigger_to_estimate": percentiles_ms(est).get("p50", math.nan),
                                          "estimate_to_ack": percentiles_ms(ack).get("p50", math.nan)},
+                # Each stage per output: trigger -> estimate -> queued -> taken by the device thread -> sent
+                # -> acknowledged (ms, P50/P99).
+                "latency_stages_ms": stage_latencies(engine.stages, name),
                 "pulse_ack_ms_p50": pp.get("p50", math.nan),
                 "pulse_ack_ms_p99": pp.get("p99", math.nan),
                 "expected_frames": exp,
@@ -160,11 +174,13 @@ class ClosedLoopLab:
             out_rules[name] = d
         return {
             "rules_file": str(self.rules_src),
+            "latency_definition": LATENCY_DEFINITION,
             "rules": out_rules,
             "modbus_coil_writes": len(self.modbus.writes),
             "can_frames": len(self.can.frames),
             "eval_us_mean": summary["eval_us_mean"],
             "eval_us_max": summary["eval_us_max"],
+            "handoff": summary["handoff"],
             "outputs": summary["outputs"],
         }
 

@@ -13,6 +13,7 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import serial
@@ -189,7 +190,7 @@ class TriggerDevice(SerialTrigger):
         return self._request_timed(msg, timeout_s)[0]
 
     def _request_timed(
-        self, msg: tl.SerialMessage, timeout_s: float | None = None
+        self, msg: tl.SerialMessage, timeout_s: float | None = None, on_written: Callable[[], None] | None = None
     ) -> tuple[tl.SerialMessage, float, float]:
         if self._closed.is_set():
             raise TriggerError(f"trigger on {self.port} is closed")
@@ -205,6 +206,8 @@ class TriggerDevice(SerialTrigger):
                 self._ser.write(wire)
             except (serial.SerialException, OSError) as exc:
                 raise TriggerError(f"cannot write to {self.port}: {exc}") from None
+            if on_written is not None:
+                on_written()
             try:
                 reply, t1 = box.get(timeout=timeout_s or self.timeout_s)
             except queue.Empty:
@@ -280,12 +283,15 @@ class TriggerDevice(SerialTrigger):
         self._request(tl.Pulse(channel, tl.FRAME_NOW if frame is None else int(frame), width_ticks))
         return width_ticks
 
-    def pulse_timed(self, channel: int, frame: int | None, width_s: float) -> tuple[float, float]:
-        """As `pulse`, returning (host time the request was written, host time its ACK arrived)."""
+    def pulse_timed(self, channel: int, frame: int | None, width_s: float,
+                    on_written: Callable[[], None] | None = None) -> tuple[float, float]:
+        """As `pulse`, returning (host time the request was written, host time its ACK arrived);
+        `on_written` is called as soon as the request has been written to the port."""
         if not width_s > 0:
             raise TriggerError(f"pulse width must be positive, got {width_s} s")
         width_ticks = max(1, min(0xFFFF, round(width_s / self._tick_s())))
-        _, t0, t1 = self._request_timed(tl.Pulse(channel, tl.FRAME_NOW if frame is None else int(frame), width_ticks))
+        _, t0, t1 = self._request_timed(tl.Pulse(channel, tl.FRAME_NOW if frame is None else int(frame), width_ticks),
+                                        on_written=on_written)
         return t0, t1
 
     def set_output(self, channel: int, level: int | bool) -> None:

@@ -10,7 +10,7 @@ import pytest
 
 from flytrack_host.actuation.conditions import closing_speed, condition_mask, point_in_polygon, region_mask
 from flytrack_host.actuation.history import RuleEvaluator
-from flytrack_host.actuation.prediction import predict_states, reachable_frame
+from flytrack_host.actuation.prediction import StepVelocities, predict_states, reachable_frame
 from flytrack_host.actuation.rules import Condition, Region, RulesError, bind_rules, load_rules, parse_rules
 from flytrack_host.rig import ActuatorConfig, load_rig
 
@@ -192,6 +192,39 @@ def test_prediction_fires_on_the_entry_frame() -> None:
     ev_nopred = _eval({"when": BOX, "predict": False})
     assert _run(ev_pred, xs, vx, lead=2) == [true_entry]
     assert _run(ev_nopred, xs, vx, lead=2) == [true_entry + 2]
+
+
+def test_prediction_follows_a_decelerating_object() -> None:
+    # Slowing from 0.3 to 0.05 m/s towards the box: the tracker's velocity state lags the change (here it
+    # keeps the speed of 4 frames before), its positions do not. The entry is predicted from the last
+    # position step: on the true entry frame; from the lagging velocity it would be 2 frames early.
+    n = 60
+    v = np.maximum(0.05, 0.3 - 0.015 * np.arange(n))  # m/s at each frame
+    xs = 0.97 + np.r_[0.0, np.cumsum(v[1:] * 0.01)]
+    true_entry = int(np.argmax(xs >= 1.0))
+    lagging = np.r_[np.full(4, v[0]), v[:-4]]
+    ev = _eval({"when": BOX})
+    fired = []
+    for f in range(n):
+        st = np.array([[xs[f], 0, 0, lagging[f], 0, 0]])
+        fired += [fi.scheduled_frame for fi in ev.step(f, f + 2, np.array([1]), st)]
+    assert true_entry == 21 and fired == [true_entry]
+    pred_lagging = [f + 2 for f in range(n - 2) if xs[f] + lagging[f] * 0.02 >= 1.0]
+    assert pred_lagging[0] <= true_entry - 2  # what the velocity state alone would have done
+    s = predict_states(np.array([[1.0, 2, 3, 1, -1, 0.5]]), 0.02, np.array([[0.5, 0, 0]]))
+    assert s[0].tolist() == pytest.approx([1.01, 2, 3, 1, -1, 0.5])  # moved by `vel`, keeps its velocity
+
+
+def test_step_velocities_fall_back_to_the_filter() -> None:
+    sv = StepVelocities(0.01)
+    st = np.array([[0.0, 0, 0, 0.2, 0, 0], [1.0, 0, 0, 0.3, 0, 0]])
+    assert sv(5, np.array([1, 2]), st)[:, 0].tolist() == [0.2, 0.3]  # nothing before: the filter's
+    st2 = np.array([[1.5, 0, 0, 0.3, 0, 0], [0.001, 0, 0, 0.2, 0, 0], [9.0, 0, 0, 0.7, 0, 0]])
+    v = sv(6, np.array([2, 1, 3]), st2)
+    # id 2 jumped 0.5 m in a frame (a new association): the filter's; id 1 stepped 1 mm: 0.1 m/s; id 3 is new.
+    assert v[:, 0].tolist() == pytest.approx([0.3, 0.1, 0.7])
+    assert sv(6, np.array([2, 1, 3]), st2).tolist() == v.tolist()  # the same frame again: the same answer
+    assert sv(8, np.array([1]), np.array([[0.01, 0, 0, 0.4, 0, 0]]))[0, 0] == 0.4  # a frame missed: the filter's
 
 
 def test_turn_rate_from_history() -> None:

@@ -47,13 +47,17 @@ def _entry_run(act, dev: TriggerDevice, predict: bool, v: float = 1.0) -> tuple[
     n = 40
     xs = 0.7 + v / FPS * np.arange(n) + 0.003
     entry = f0 + int(np.argmax(xs >= 1.0))
+    late = 0.0
     for k in range(n):
         f = f0 + k
         ft = model.frame_to_host_time(f)
         time.sleep(max(0.0, ft + 0.002 - hostclock.now()))
-        eng.on_frame(act.result(f, {1: (float(xs[k]), v)}), ft, hostclock.now())
+        now = hostclock.now()
+        late = max(late, now - ft - 0.002)
+        eng.on_frame(act.result(f, {1: (float(xs[k]), v)}), ft, now)
     act.wait_for(lambda: eng.firings.count >= 1, 5.0)
     eng.close()
+    eng.test_late_s = late  # how much later than asked this (possibly loaded) machine gave us the frames
     return entry, eng
 
 
@@ -113,5 +117,10 @@ def test_pulse_lands_on_the_entry_frame(act, built) -> None:  # noqa: ANN001
     assert int(t2["scheduled_frame"][0]) == frame_of(pulses[1])
     print(f"\npulse frame - entry frame: with prediction {err_pred:+d}, without {err_nopred:+d}; "
           f"estimate -> ACK {1e3 * (t['time_ack'][0] - t['estimate_time'][0]):.2f} ms")
-    assert abs(err_pred) <= 1
+    # A frame handed over late by less than a period moves the frame the pulse can reach by one at most.
+    if eng.test_late_s < 1.0 / FPS:
+        assert abs(err_pred) <= 1
+    else:  # frames handed over a frame late or more (a loaded machine) can only reach later frames
+        print(f"frames came up to {eng.test_late_s * 1e3:.1f} ms late: only checked that it is not early")
+        assert err_pred >= -1
     assert err_nopred >= 2  # the firmware arms a frame ahead: the estimate's frame + 2 at the earliest

@@ -1,7 +1,11 @@
 """What every output device shares: connect / perform / close, and the worker thread that drives it.
 
 The tracking thread only puts a job on the device's bounded queue (`OutputWorker.submit`, never
-blocks; a full queue drops the job, counted and recorded as an error). The worker connects, performs
+blocks; a full queue drops the job, counted and recorded as an error). On a frame that fired, it then
+waits at most `HANDOFF_MAX_S` (a `Handoff`) until each device thread that was idle and connected has
+put its command on the wire: Python runs one thread at a time (the GIL), and a woken device thread
+otherwise waits for the tracking thread to block or be preempted (0.5-1.5 ms measured, P50). A device
+that is busy, absent or reconnecting is not waited for, so it never delays tracking. The worker connects, performs
 the jobs one by one and reports each outcome; a failure closes the connection, and the worker
 reconnects on its own every `RECONNECT_S` (also while no job comes), so a device that was absent at
 start or went away mid-run is back as soon as it answers. Failures are logged rate-limited per kind
@@ -29,6 +33,7 @@ from flytrack_host.rig import ActuatorConfig
 log = logging.getLogger("flytrack.actuation")
 
 RECONNECT_S = 0.5
+HANDOFF_MAX_S = 0.002  # the tracking thread waits at most this long, on a frame that fired
 LEAD_SAMPLES = 50
 LEAD_MARGIN_S = 0.5e-3
 WORKER_NICE = -5
@@ -36,6 +41,30 @@ WORKER_NICE = -5
 
 class OutputError(RuntimeError):
     """A device failure with a clear cause (absent, refused, timed out)."""
+
+
+class Handoff:
+    """Counts the commands of one frame still to be put on the wire by their device threads; the
+    tracking thread `wait`s (bounded) for them, its GIL released meanwhile."""
+
+    def __init__(self) -> None:
+        self._left = 0
+        self._cond = threading.Condition(threading.Lock())
+
+    def add(self) -> None:
+        with self._cond:
+            self._left += 1
+
+    def done(self) -> None:
+        with self._cond:
+            self._left -= 1
+            if self._left <= 0:
+                self._cond.notify_all()
+
+    def wait(self, timeout_s: float) -> bool:
+        """True when every command left in time."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._left <= 0, timeout_s)
 
 
 @dataclass
@@ -50,6 +79,13 @@ class Job:
     action: Action
     predicted: bool
     queued_at: float = field(default_factory=hostclock.now)
+    handoff: Handoff | None = None  # the tracking thread waits for this job's command to leave
+
+    def handed_off(self) -> None:
+        """The command is on the wire (or failed): release the tracking thread's wait. Idempotent."""
+        h, self.handoff = self.handoff, None
+        if h is not None:
+            h.done()
 
 
 @dataclass
@@ -59,6 +95,8 @@ class Outcome:
     kind: str
     time_sent: float = math.nan
     time_ack: float = math.nan
+    time_started: float = math.nan  # the worker took the job off its queue (hand-off stage)
+    time_written: float = math.nan  # the command had left the host (NaN: the device has no such hook)
     scheduled_frame: int = -1
     frame_exact: bool = False
     error: str = ""
@@ -80,6 +118,7 @@ class Output:
     """One device. Subclasses implement `_connect`, `_perform` and `_close`."""
 
     kind = "?"
+    ack_means = "?"  # what `time_ack` is for this device (said in the demo JSON and the README)
     arm_frames = 0  # frames ahead the device must have the command (the trigger firmware: 1)
 
     initial_lead_s = 0.0  # until measured: time from queueing a command to its acknowledgement
@@ -90,6 +129,8 @@ class Output:
         self.connected = False
         self._lead: deque[float] = deque(maxlen=LEAD_SAMPLES)  # measured queued -> acknowledged times
         self._lead_s = self.initial_lead_s
+        self._job: Job | None = None  # the job being performed (its hand-off is released by `written`)
+        self.time_written = math.nan
 
     @property
     def name(self) -> str:
@@ -107,12 +148,30 @@ class Output:
         self.connected = True
 
     def perform(self, job: Job) -> Done:
-        done = self._perform(job)
-        if math.isfinite(done.time_ack):
-            self._lead.append(max(0.0, done.time_ack - job.queued_at))
+        self._job = job
+        self.time_written = math.nan
+        try:
+            done = self._perform(job)
+        finally:
+            self._job = None
+        sample = self._lead_sample(job, done)
+        if math.isfinite(sample):
+            self._lead.append(max(0.0, sample))
             v = sorted(self._lead)
             self._lead_s = max(self.initial_lead_s, v[int(0.9 * (len(v) - 1))] + LEAD_MARGIN_S)
         return done
+
+    def written(self) -> None:
+        """Called by a device right after its command left the host (the write returned): stamps it
+        and lets the tracking thread go on."""
+        self.time_written = hostclock.now()
+        job = getattr(self, "_job", None)
+        if job is not None:
+            job.handed_off()
+
+    def _lead_sample(self, job: Job, done: Done) -> float:
+        """The time this command needed, from queueing, to take effect (default: to its acknowledgement)."""
+        return done.time_ack - job.queued_at
 
     def close(self) -> None:
         self.connected = False
@@ -155,6 +214,13 @@ class OutputWorker:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"actuation-{output.name}", daemon=True)
         self._next_connect = 0.0
+        self.idle = False  # waiting on an empty queue: a job now is taken at once
+
+    @property
+    def ready(self) -> bool:
+        """Idle and connected: a command now goes straight to the device (the tracking thread may wait
+        for it to leave)."""
+        return self.idle and self.output.connected and self.q.empty()
 
     def start(self) -> None:
         self._thread.start()
@@ -164,6 +230,7 @@ class OutputWorker:
             self.q.put_nowait(job)
             return True
         except queue.Full:
+            job.handed_off()
             self.stats.dropped += 1
             self.stats.last_error = "queue full"
             self.warn(f"{self.output.name}:full", f"output {self.output.name}: queue full "
@@ -200,19 +267,25 @@ class OutputWorker:
             pass
         while True:
             try:
+                self.idle = True
                 job = self.q.get(timeout=RECONNECT_S)
             except queue.Empty:
                 if self._stop.is_set():
                     break
                 self._try_connect()  # reconnect while idle too
                 continue
+            finally:
+                self.idle = False
             if job is None:
                 break
-            self._do(job)
+            try:
+                self._do(job)
+            finally:
+                job.handed_off()  # a device without a write hook, or one that failed
         self.output.close()
 
     def _do(self, job: Job) -> None:
-        out = Outcome(job, self.output.name, self.output.kind)
+        out = Outcome(job, self.output.name, self.output.kind, time_started=hostclock.now())
         if not self._try_connect():
             self._next_connect = 0.0  # a job is waiting: try once more now
             if not self._try_connect():
@@ -236,6 +309,7 @@ class OutputWorker:
             return
         self.stats.ok += 1
         out.time_sent, out.time_ack = done.time_sent, done.time_ack
+        out.time_written = self.output.time_written
         out.scheduled_frame = job.scheduled_frame if done.scheduled_frame is None else done.scheduled_frame
         out.frame_exact = done.frame_exact
         out.error = done.note

@@ -13,6 +13,7 @@ from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 class CanOutput(Output):
     kind = "can"
+    ack_means = "Bus.send returned: the frame was handed to the bus (CAN acknowledges on the wire, unreported)"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]
@@ -43,7 +44,9 @@ class CanOutput(Output):
             self.bus.send(msg, timeout=self.cfg.timeout_s)
         except can.CanError as exc:
             raise OutputError(f"CAN send failed: {exc}") from None
-        return Done(t0, hostclock.now())
+        t1 = hostclock.now()
+        self.written()
+        return Done(t0, t1)
 
     def _close(self) -> None:
         if self.bus is not None:

@@ -39,6 +39,7 @@ class HidapiBackend:
 
 class HidOutput(Output):
     kind = "hid"
+    ack_means = "the output report write returned"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]
@@ -54,6 +55,7 @@ class HidOutput(Output):
         a = job.action
         report = bytes([a.report_id or 0]) + bytes(a.data or [])  # hidapi: first byte is the report id
         t0 = hostclock.now()
+        self.written()  # the transfer may take long: the tracking thread does not wait for it
         n = self.handle.write(report)
         if n < 0:
             raise OutputError("hid write failed (device gone?)")

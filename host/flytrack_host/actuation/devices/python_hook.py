@@ -45,6 +45,7 @@ def load_hook(address: str, base_dir: Path | None = None) -> Callable[..., Any]:
 
 class PythonHookOutput(Output):
     kind = "python"
+    ack_means = "the function returned"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]
@@ -59,5 +60,6 @@ class PythonHookOutput(Output):
         firing = {"rule": job.rule, "obj_id": job.obj_id, "condition_frame": job.condition_frame,
                   "scheduled_frame": job.scheduled_frame, "x": x, "y": y, "z": z}
         t0 = hostclock.now()
+        self.written()  # custom code may take long: the tracking thread does not wait for it
         self.fn(firing, **job.action.params)
         return Done(t0, hostclock.now())

@@ -33,11 +33,34 @@ def _request_wire_s(dev: Any) -> float:
     return n * 10 / baud + FIRMWARE_SAMPLE_DELAY_S
 
 
+def _ack_wire_s(dev: Any) -> float:
+    """Time the firmware's ACK takes on the wire (delimiter + frame, 10 bits a byte)."""
+    from flytrack_host.protocol import trigger_link as tl
+
+    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", 115200) or 115200)
+    return len(b"\0" + tl.encode_message(tl.Ack(int(tl.MsgId.PULSE)), 1)) * 10 / baud
+
+
 class TriggerPulseOutput(Output):
     kind = "trigger_pulse"
+    ack_means = ("the firmware's ACK of the PULSE request: armed for its trigger frame, where the pin fires "
+                 "(exactly, FRAME_EXACT), after the ACK")
     arm_frames = 1
-    # PULSE + ACK at 115200 baud (~22 bytes with framing, ~1.9 ms) and a clock query it may wait behind.
-    initial_lead_s = 0.006
+    # Until measured: a PULSE on the wire at 115200 baud (~12 bytes with framing, ~1 ms), the firmware's
+    # dispatch, and a clock query it may wait behind (the link carries one request at a time).
+    initial_lead_s = 0.003
+
+    def _lead_sample(self, job: Job, done: Done) -> float:
+        """A PULSE reaches its frame when the firmware has read it, not when its ACK is back: the
+        firmware answers as soon as it has armed the pulse, so it had the PULSE at the latest when its
+        ACK started back, the ACK's arrival less its time on the wire (~0.6 ms at 115200 baud). That
+        keeps whatever delayed the request (a clock query ahead of it, a lagging simulator) in the lead.
+        A PULSE that is too late anyway is refused and pulsed at once, recorded as late."""
+        try:
+            back = _ack_wire_s(self._device())
+        except OutputError:
+            return math.nan
+        return done.time_ack - job.queued_at - back
 
     def _device(self) -> Any:
         get = self.context.get("trigger")
@@ -61,7 +84,7 @@ class TriggerPulseOutput(Output):
             return Done(t0, hostclock.now())
         width = (a.width_ms or DEFAULT_WIDTH_MS) / 1e3
         try:
-            t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width)
+            t0, t1 = dev.pulse_timed(0, job.scheduled_frame, width, on_written=self.written)
             return Done(t0, t1, job.scheduled_frame, True)
         except TriggerError as exc:
             if "BUSY" in str(exc):
@@ -70,7 +93,7 @@ class TriggerPulseOutput(Output):
             if "BAD_ARG" not in str(exc) or job.scheduled_frame < 0:
                 raise
         # Too late for that frame: pulse at the earliest frame the firmware can still reach.
-        t0, t1 = dev.pulse_timed(0, None, width)
+        t0, t1 = dev.pulse_timed(0, None, width, on_written=self.written)
         clock = self.context.get("clock")
         est = -1
         if clock is not None:

@@ -13,6 +13,7 @@ from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 class UdpOutput(Output):
     kind = "udp"
+    ack_means = "sendto returned (UDP has no acknowledgement)"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]
@@ -31,7 +32,9 @@ class UdpOutput(Output):
         data = text.format(rule=job.rule, obj_id=job.obj_id, frame=job.scheduled_frame, x=x, y=y, z=z).encode()
         t0 = hostclock.now()
         self.sock.sendto(data, self.dest)
-        return Done(t0, hostclock.now())
+        t1 = hostclock.now()
+        self.written()
+        return Done(t0, t1)
 
     def _close(self) -> None:
         if self.sock is not None:

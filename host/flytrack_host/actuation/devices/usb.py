@@ -44,6 +44,7 @@ class PyusbBackend:
 
 class UsbOutput(Output):
     kind = "usb"
+    ack_means = "the control or bulk transfer completed"
 
     def __init__(self, *args: object, **kw: object):
         super().__init__(*args, **kw)  # type: ignore[arg-type]
@@ -60,6 +61,7 @@ class UsbOutput(Output):
         ms = max(1, int(self.cfg.timeout_s * 1000))
         data = bytes(a.data or [])
         t0 = hostclock.now()
+        self.written()  # the transfer may take long: the tracking thread does not wait for it
         if a.endpoint is not None:
             self.handle.write(a.endpoint, data, ms)
         else:
