@@ -8,7 +8,8 @@
  *   come from the packet's ts overflow (t = overflow << 31 | ts).
  * - 4.0: IOHeader FlatBuffer (compression, data-table position, info XML), then packets of
  *   i32 stream id + i32 size + (compressed) size-prefixed FlatBuffer; an "EVTS" packet's first
- *   field is a vector of 16-byte events (i64 t, i16 x, i16 y, u8 on, 3 pad). */
+ *   field is a vector of 16-byte events (i64 t, i16 x, i16 y, u8 on, 3 pad); a "TRIG" packet's
+ *   (read when trigger times are kept) a vector of Trigger tables (i64 timestamp, i8 type). */
 #include <lz4frame.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -338,6 +339,46 @@ static int decompress(ft_ev_reader *r, const uint8_t *src, size_t len, uint64_t 
     }
 }
 
+/* A TriggerPacket (identifier "TRIG", dv's trigger stream): a table whose field 0 is a vector of
+ * Trigger tables {timestamp: int64 (field 0), type: int8 (field 1)}; the external signal's rising
+ * edges (type 1), falling edges (2) and pulses (3) are kept. 1: it was one; 0: another kind of
+ * packet; -1: corrupt (the reader failed). */
+static int aedat4_triggers(ft_ev_reader *r, const uint8_t *b, size_t len, uint64_t at) {
+    if (len >= 12 && memcmp(b + 8, "TRIG", 4) == 0 && ev_le32(b) <= len - 4) {
+        len = ev_le32(b); /* size-prefixed */
+        b += 4;
+    } else if (!(len >= 8 && memcmp(b + 4, "TRIG", 4) == 0)) {
+        return 0;
+    }
+    long long f = fb_field(b, len, ev_le32(b), 0, 4);
+    if (f < 0)
+        goto corrupt;
+    if (f == 0)
+        return 1;
+    uint64_t vec = (uint64_t)f + ev_le32(b + f);
+    if (vec + 4 > len)
+        goto corrupt;
+    uint64_t count = ev_le32(b + vec);
+    if (count > (len - vec - 4) / 4)
+        goto corrupt;
+    for (uint64_t i = 0; i < count; i++) {
+        uint64_t slot = vec + 4 + 4 * i;
+        uint64_t el = slot + ev_le32(b + slot);
+        if (el + 4 > len)
+            goto corrupt;
+        long long ft = fb_field(b, len, (size_t)el, 0, 8), fk = fb_field(b, len, (size_t)el, 1, 1);
+        if (ft < 0 || fk < 0)
+            goto corrupt;
+        int kind = fk ? (int8_t)b[fk] : 0;
+        if (kind >= 1 && kind <= 3)
+            ev_trigger(r, ft ? (int64_t)ev_le64(b + ft) : 0, kind != 2, 0u);
+    }
+    return 1;
+corrupt:
+    ev_fail(r, at, "corrupt AEDAT 4.0 trigger packet (FlatBuffer outside its %zu bytes)", len);
+    return -1;
+}
+
 int ev_next_packet_aedat4(ft_ev_reader *r) {
     for (;;) {
         uint64_t at = ev_pos(r);
@@ -364,7 +405,22 @@ int ev_next_packet_aedat4(ft_ev_reader *r) {
             return -1;
         }
         if (r->ev_stream >= 0 && stream != r->ev_stream) {
-            r->info.n_skipped++; /* another stream: frames, IMU, triggers, a second camera */
+            /* another stream: frames, IMU, triggers, a second camera; triggers are decoded when
+             * kept (a stream whose first packet was something else is not looked into again) */
+            int known_other = stream < 64 && ((r->not_trig >> stream) & 1u);
+            if (r->keep_triggers && !known_other) {
+                if (decompress(r, r->data + r->start + 8, (size_t)size, at) < 0)
+                    return -1;
+                int k = aedat4_triggers(r, r->dec, r->dec_len, at);
+                if (k < 0)
+                    return -1;
+                if (k == 0 && stream < 64)
+                    r->not_trig |= (uint64_t)1 << stream;
+                if (k == 0)
+                    r->info.n_skipped++;
+            } else {
+                r->info.n_skipped++;
+            }
             r->start += 8 + (size_t)size;
             continue;
         }
@@ -382,7 +438,11 @@ int ev_next_packet_aedat4(ft_ev_reader *r) {
                         stream);
                 return -1;
             }
-            r->info.n_skipped++; /* not an event stream */
+            int k = r->keep_triggers ? aedat4_triggers(r, r->dec, r->dec_len, at) : 0;
+            if (k < 0)
+                return -1;
+            if (k == 0)
+                r->info.n_skipped++; /* not an event stream */
             continue;
         }
         r->ev_stream = stream;

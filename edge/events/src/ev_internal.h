@@ -52,6 +52,7 @@ struct ft_ev_reader {
 
     /* trigger times kept for ft_ev_triggers (keep_triggers set) */
     int keep_triggers;
+    uint64_t not_trig; /* AEDAT 4.0: stream ids (< 64) seen to hold something else than triggers */
     ft_ev_trigger *trig;
     size_t trig_n, trig_cap;
 };

@@ -17,7 +17,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from flytrack_host.calibration.cli import InputError, _clean_errors, _parse_size, app, console, err
-from flytrack_host.calibration.led_events import LedExtractor, LedParams, LedPoints, SyncError
+from flytrack_host.calibration.led_events import EventOrderError, LedExtractor, LedParams, LedPoints, SyncError
 from flytrack_host.calibration.observations import Observations, load_points, save_points
 
 
@@ -27,6 +27,7 @@ class DvsPointsResult:
     size: tuple[int, int]
     points: LedPoints
     seconds: float  # reading and finding, wall time
+    cpu_seconds: float  # the same, CPU time of this process (what the machine's load does not inflate)
     frequencies: list[tuple[float, float]]
     damaged: str | None  # the reader's message when the file is damaged (the events before were used)
 
@@ -59,7 +60,7 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
 
     if not path.exists():
         raise InputError(f"{path}: no such file.")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         reader = EventReader(path, triggers=True)
     except EventFileError as exc:
@@ -72,6 +73,8 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
         if w <= 0 or h <= 0:
             raise InputError(f"{path}: the file does not give the sensor size; pass --size WIDTHxHEIGHT.")
         ex = LedExtractor(w, h, params)
+        if sync_csv is not None:  # all pulse times known up front
+            ex.feed(_empty(), sync_csv[1])
         total = max(1, os.path.getsize(path))
         task = progress.add_task(name, total=total) if progress is not None else None
         try:
@@ -83,14 +86,14 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
                     progress.update(task, completed=r.info.offset)
         except EventFileError as exc:  # keep what came before the damage
             damaged = str(exc)
+        except EventOrderError as exc:
+            raise InputError(f"{path}: {exc}") from None
         trig = r.read_triggers()  # those after the last events
         ex.feed(_empty(), trig["t"][trig["value"] == 1] if sync_csv is None else None)
         if progress is not None and task is not None:
             progress.update(task, completed=total)
         n_trig = r.info.n_triggers
-    if sync_csv is not None:
-        ex.feed(_empty(), sync_csv[1])
-    elif ex.stats["events"] and not len(ex._sync_all):
+    if sync_csv is None and ex.stats["events"] and not len(ex._sync_all):
         how = (f"{n_trig} trigger events, none a rising edge" if n_trig else "no sync (external trigger) events")
         raise InputError(f"{path}: {how}, so its event times cannot be tied to trigger frames. Wire the trigger "
                          "output to the camera's sync input while recording, or give --sync FRAMES.csv "
@@ -99,7 +102,10 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
         pts = ex.finish(first_frame=first_frame, frames=sync_csv[0] if sync_csv is not None else None)
     except SyncError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return DvsPointsResult(name, (w, h), pts, time.perf_counter() - t0, ex.frequencies(), damaged)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    # what the events repeat at, for the message when the LED is (almost) not found
+    freqs = ex.frequencies() if pts.stats["points"] < 0.1 * max(1, pts.stats["syncs"]) else []
+    return DvsPointsResult(name, (w, h), pts, wall, cpu, freqs, damaged)
 
 
 def _empty() -> np.ndarray:
@@ -134,7 +140,7 @@ def to_observations(results: list[DvsPointsResult], base: Observations | None = 
 def _freq_text(freqs: list[tuple[float, float]]) -> str:
     if not freqs:
         return "no repeating activity at all (too few events?)"
-    return ", ".join(f"{f:.0f} Hz ({100 * s:.0f} % of same-polarity repeats)" for f, s in freqs)
+    return ", ".join(f"{f:.0f} Hz ({100 * s:.0f} %)" for f, s in freqs) + " of a pixel's same-polarity repeats"
 
 
 @app.command("dvs-points")
@@ -181,6 +187,10 @@ def dvs_points_cmd(
     names = camera or [p.stem for p in events]
     if len(set(names)) != len(names):
         raise InputError(f"two event files give the same camera name ({', '.join(names)}): name them with --camera.")
+    taken = [n for n in names if base is not None and n in base.camera_names]
+    if taken:
+        raise InputError(f"camera name(s) {', '.join(taken)} already in the points file {with_points}; name the DVS "
+                         "camera(s) otherwise with --camera.")
     results = []
     with Progress(TextColumn("[bold]{task.description}[/bold]"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeRemainingColumn(), console=err, transient=True) as prog:
@@ -194,8 +204,10 @@ def dvs_points_cmd(
             raise InputError(f"{res.name}: no LED blinking at {led_hz:g} Hz (+-{100 * tolerance:.0f} %) in "
                              f"{st['events']} events and {st['syncs']} frames. The events repeat most at: "
                              f"{_freq_text(res.frequencies)}. Check --led-hz (and --duty).")
-        console.print(f"{res.name} ({res.size[0]}x{res.size[1]}): {st['events']} events in {res.seconds:.2f} s "
-                      f"({st['events'] / max(res.seconds, 1e-9) / 1e6:.2f} M events/s read and searched), "
+        rate, cpu_rate = st["events"] / max(res.seconds, 1e-9), st["events"] / max(res.cpu_seconds, 1e-9)
+        console.print(f"{res.name} ({res.size[0]}x{res.size[1]}): {st['events']} events read and searched in "
+                      f"{res.seconds:.2f} s, {res.cpu_seconds:.2f} s CPU ({rate / 1e6:.2f} M events/s, "
+                      f"{cpu_rate / 1e6:.2f} M per CPU second), "
                       f"{st['led_events']} near pulses at {led_hz:g} Hz; {st['points']} points in {st['syncs']} "
                       f"frames ({100 * st['points'] / max(1, st['syncs']):.0f} %), median "
                       f"{np.median(res.points.n_events):.0f} events each"
@@ -241,7 +253,7 @@ def dvs_sim_cmd(
     with (out_dir / "led.csv").open("w") as fh:
         fh.write("frame,x,y,z\n")
         for i, (x, y, z) in enumerate(scene.led):
-            fh.write(f"{i},{x!r},{y!r},{z!r}\n")
+            fh.write(f"{i},{float(x)!r},{float(y)!r},{float(z)!r}\n")
     ev = ", ".join(f"{n}: {scene.dvs_events[n]} events, {scene.dvs_syncs[n]} sync" for n in scene.dvs_files)
     console.print(f"written {out_dir}: frames.csv ({len(scene.frame_obs.frame)} points of {frame_cameras} frame "
                   f"cameras), {ev}; truth.xml, led.csv", highlight=False)

@@ -49,6 +49,7 @@ def run(seconds: float = 20.0, n_frame: int = 4, n_dvs: int = 2, sensor: str = "
         fig["dvs"][r.name] = {
             "events": r.points.stats["events"], "extract_s": r.seconds,
             "events_per_s": r.points.stats["events"] / max(r.seconds, 1e-9),
+            "events_per_cpu_s": r.points.stats["events"] / max(r.cpu_seconds, 1e-9),
             "points": len(r.points.frame), "frames_led_visible": int(visible.sum()),
             "points_at_hidden_frames": int(scene.dvs_hidden[r.name][r.points.frame].sum()),
             "point_err_median_px": float(np.median(e)) if len(e) else float("nan"),
@@ -86,10 +87,11 @@ def main() -> None:
     print(f"LED wand at {f['led_hz']:g} Hz, {f['seconds']:g} s, {f['frames']} trigger frames, "
           f"{f['frame_cameras']} frame cameras + {f['dvs_cameras']} DVS ({f['sensor']}); frequency check "
           f"{'on' if f['check_frequency'] else 'OFF'}; simulated in {f['sim_s']:.1f} s, selfcal {f['selfcal_s']:.1f} s")
-    print(f"{'DVS':>5} {'events':>9} {'M ev/s':>7} {'points':>6} {'LED seen':>8} {'at hidden':>9} "
+    print(f"{'DVS':>5} {'events':>9} {'M ev/s':>7} {'/CPU s':>7} {'points':>6} {'LED seen':>8} {'at hidden':>9} "
           f"{'pt err med px':>13} {'p95 px':>7} {'>2 px':>6}")
     for n, d in f["dvs"].items():
-        print(f"{n:>5} {d['events']:>9d} {d['events_per_s'] / 1e6:>7.2f} {d['points']:>6d} "
+        print(f"{n:>5} {d['events']:>9d} {d['events_per_s'] / 1e6:>7.2f} {d['events_per_cpu_s'] / 1e6:>7.2f} "
+              f"{d['points']:>6d} "
               f"{d['frames_led_visible']:>8d} {d['points_at_hidden_frames']:>9d} {d['point_err_median_px']:>13.3f} "
               f"{d['point_err_p95_px']:>7.3f} {d['points_over_2px']:>6d}")
     print(f"{'camera':>6} {'inliers/obs':>12} {'reproj px':>9} {'vs truth px (mean/p95)':>22} {'centre err mm':>13}")

@@ -3,14 +3,16 @@ self-calibration beside the frame cameras.
 
 A LED switched on and off at a known frequency makes every pixel it covers fire a run of ON events at
 switch-on and a run of OFF events at switch-off, once per period. Per pixel, the events are cut into
-runs of one polarity; a run belongs to the LED when the next (or the previous) run of the same
-polarity at that pixel starts one LED period later (within `tolerance`), and the run of the other
-polarity between them starts after the LED's on (or off) time. A moving object, a flicker at another
-frequency and background noise fail that test. The points are the LED's events around each sync
-event (the trigger pulse recorded by the camera): the events within `window_us` of the pulse, kept
-within `radius_px` of their median, fitted by position = a + b (t - t_pulse) per axis, so `a` is
-where the LED was at the pulse even while it moves. The sync events give the trigger frame, so the
-points pair with the frame cameras' points frame by frame.
+runs of one polarity (a run lasts at most the LED's on or off time); a run belongs to the LED when it
+is part of `min_cycles` whole cycles in a row at that pixel: the next run of the same polarity starts
+one LED period later (within `tolerance`), the run of the other polarity between them after the LED's
+on (or off) time. A moving object and background noise fail that test. Around each sync event (the
+trigger pulse recorded by the camera), the events within `window_us` of the pulse and `radius_px` of
+the LED events' median give a point when most of them are the LED's (`min_purity`: at a wrong
+frequency only stray cycles of the real blinking pass) and the switch-ons agree in phase
+(`min_coherence`: one LED switches all its pixels at once); the point is the fit position =
+a + b (t - t_pulse) per axis, so `a` is where the LED was at the pulse even while it moves. The sync
+events give the trigger frame, so the points pair with the frame cameras' points frame by frame.
 
 All of it is vectorised NumPy; `LedExtractor` takes a file's events chunk by chunk (memory bounded by
 a few frames of events), `led_points` a whole array.
@@ -24,11 +26,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["LedParams", "LedPoints", "LedExtractor", "led_points", "periodic_mask", "dominant_frequencies",
-           "sync_frames", "SyncError"]
+           "sync_frames", "SyncError", "EventOrderError"]
 
 
 class SyncError(ValueError):
     """The sync events cannot tie event times to trigger frames."""
+
+
+class EventOrderError(ValueError):
+    """Event times go back (a timestamp reset inside the recording)."""
 
 
 @dataclass(frozen=True)
@@ -39,6 +45,9 @@ class LedParams:
     window_us: float | None = None  # events within +-window/2 of a pulse; default 4 periods, at most 0.8 frame
     radius_px: float = 6.0  # events farther than this from the window's median are not the LED
     min_events: int = 12  # fewer LED events in a window: no point
+    min_cycles: int = 1  # a pixel must repeat this many whole periods in a row
+    min_coherence: float = 0.7  # switch-on times modulo the period must agree this well in a window (0..1)
+    min_purity: float = 0.4  # this share of the events near the LED must be its cycles
     check_frequency: bool = True  # False: every event is taken as the LED's (diagnosis; the test breaks it)
 
     def __post_init__(self) -> None:
@@ -48,6 +57,8 @@ class LedParams:
             raise ValueError(f"tolerance must be 0.01..0.45 (a fraction of the period), got {self.tolerance}")
         if self.duty is not None and not (0.05 <= self.duty <= 0.95):
             raise ValueError(f"duty must be 0.05..0.95, got {self.duty}")
+        if not (1 <= self.min_cycles <= 20):
+            raise ValueError(f"min_cycles must be 1..20, got {self.min_cycles}")
         if self.window_us is not None and not (self.window_us > 0):
             raise ValueError(f"window must be positive, got {self.window_us} us")
 
@@ -73,7 +84,11 @@ def _runs(key: NDArray[np.int64], t: NDArray[np.int64], p: NDArray[np.uint8],
     """Events ordered by pixel (time order kept within a pixel) and cut into same-polarity runs (a
     gap longer than max_gap starts a new run too): (order, run id of each ordered event, run start
     times, run pixels, run polarities)."""
-    order = np.argsort(key, kind="stable")
+    if len(key) < (1 << 31):
+        # (pixel << 32 | index) sorted: the stable order by pixel, twice as fast as a stable argsort
+        order = np.sort((key << 32) | np.arange(len(key), dtype=np.int64)) & 0xFFFFFFFF
+    else:
+        order = np.argsort(key, kind="stable")
     k, tt, pp = key[order], t[order], p[order]
     start = np.ones(len(k), bool)
     if len(k) > 1:
@@ -82,13 +97,15 @@ def _runs(key: NDArray[np.int64], t: NDArray[np.int64], p: NDArray[np.uint8],
     return order, run, tt[start], k[start], pp[start]
 
 
-def periodic_mask(ev: np.ndarray, width: int, params: LedParams) -> NDArray[np.bool_]:
-    """Which events (time-ordered EVENT_DTYPE) belong to an on/off cycle at the LED's frequency."""
-    if not params.check_frequency:
-        return np.ones(len(ev), bool)
+def periodic_mask(ev: np.ndarray, width: int, params: LedParams,
+                  onsets: bool = False) -> NDArray[np.bool_] | tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Which events (time-ordered EVENT_DTYPE) belong to an on/off cycle at the LED's frequency; with
+    `onsets`, also which of them start such a cycle's ON run (a switch-on seen by that pixel)."""
     n = len(ev)
+    if not params.check_frequency:
+        return (np.ones(n, bool), np.zeros(n, bool)) if onsets else np.ones(n, bool)
     if n < 3:
-        return np.zeros(n, bool)
+        return (np.zeros(n, bool), np.zeros(n, bool)) if onsets else np.zeros(n, bool)
     T = params.period_us
     tol = params.tolerance * T
     # A switch's run of events lasts at most its on (or off) time: a longer gap at a pixel starts a
@@ -108,14 +125,28 @@ def periodic_mask(ev: np.ndarray, width: int, params: LedParams) -> NDArray[np.b
         if params.duty is not None:
             on_time = np.where(r_p[:-2] == 1, params.duty, 1.0 - params.duty) * T
             fwd &= np.abs((r_t[1:-1] - r_t[:-2]) - on_time) <= tol
-        ok[:-2] |= fwd  # the cycle starting at run r ...
-        ok[2:] |= fwd  # ... and the run one period later
-        ok[1:-1] |= fwd  # the opposite switch between them
+        # min_cycles whole cycles in a row: cycles starting at r, r+2, ... (a pattern that matches the
+        # period once by chance, e.g. motion inside the on time of a LED at another frequency, rarely
+        # repeats)
+        c = params.min_cycles
+        chain = np.zeros(m + 2 * c, bool)
+        chain[: m - 2] = fwd
+        start = chain[: m].copy()
+        for i in range(1, c):
+            start &= chain[2 * i: 2 * i + m]
+        for i in range(2 * c + 1):  # the runs of those cycles
+            ok[i:] |= start[: m - i]
     t_sorted = ev["t"].astype(np.int64)[order]
     ok_ev = ok[run] & (t_sorted - r_t[run] <= limit)
     mask = np.empty(n, bool)
     mask[order] = ok_ev
-    return mask
+    if not onsets:
+        return mask
+    first = np.ones(n, bool)
+    first[1:] = run[1:] != run[:-1]
+    on = np.empty(n, bool)
+    on[order] = ok_ev & first & (r_p[run] == 1)
+    return mask, on
 
 
 def dominant_frequencies(ev: np.ndarray, width: int, top: int = 3) -> list[tuple[float, float]]:
@@ -168,12 +199,16 @@ def sync_frames(t_us: NDArray[np.int64], first_frame: int = 0) -> tuple[NDArray[
     return frames.astype(np.int64), int((steps - 1).sum())
 
 
-def _fit_windows(ev: np.ndarray, sync_t: NDArray[np.int64], half_w: float,
-                 params: LedParams) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64],
-                                             NDArray[np.float64]]:
-    """LED position at each pulse from the (LED) events near it: (sync index, uv, events, spread)."""
+def _fit_windows(ev: np.ndarray, led: NDArray[np.bool_], on: NDArray[np.bool_] | None, sync_t: NDArray[np.int64],
+                 half_w: float, params: LedParams) -> tuple[NDArray[np.int64], NDArray[np.float64],
+                                                            NDArray[np.int64], NDArray[np.float64]]:
+    """LED position at each pulse from the events near it: (sync index, uv, LED events, spread).
+    `led` marks the events of on/off cycles at the LED's frequency, `on` their switch-on onsets (None:
+    not checked). A window gives a point when, around the median of its LED events, most events are
+    the LED's (at a wrong frequency only a few stray cycles of the real blinking are) and the
+    switch-ons agree in phase (one LED switches all its pixels on at once)."""
     empty = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0))
-    if not len(ev) or not len(sync_t):
+    if not len(ev) or not len(sync_t) or not np.any(led):
         return empty
     t = ev["t"].astype(np.int64)
     j = np.searchsorted(sync_t, t)  # nearest pulse: j-1 or j
@@ -181,23 +216,39 @@ def _fit_windows(ev: np.ndarray, sync_t: NDArray[np.int64], half_w: float,
     jr = np.clip(j, 0, len(sync_t) - 1)
     pick_r = np.abs(sync_t[jr] - t) < np.abs(t - sync_t[jl])
     jn = np.where(pick_r, jr, jl)
-    dt = (t - sync_t[jn]).astype(np.float64)
-    keep = np.abs(dt) <= half_w
-    if not np.any(keep):
+    dt_all = (t - sync_t[jn]).astype(np.float64)
+    keep = np.abs(dt_all) <= half_w
+    lk = keep & led
+    if not np.any(lk):
         return empty
-    jn, dt = jn[keep], dt[keep]
-    x = ev["x"][keep].astype(np.float64)
-    y = ev["y"][keep].astype(np.float64)
-    # Robust centre: the per-window median of x and of y (sort by window, then coordinate).
-    wins, inv, counts = np.unique(jn, return_inverse=True, return_counts=True)
+    # Robust centre: the per-window median of the LED events' x and y (sort by window, then coordinate).
+    wins, inv, counts = np.unique(jn[lk], return_inverse=True, return_counts=True)
+    nw = len(wins)
     first = np.r_[0, np.cumsum(counts)[:-1]]
-    med = np.empty((len(wins), 2))
-    for a, c in enumerate((x, y)):
+    med = np.empty((nw, 2))
+    for a, c in enumerate((ev["x"][lk].astype(np.float64), ev["y"][lk].astype(np.float64))):
         o = np.lexsort((c, inv))
         med[:, a] = c[o][first + counts // 2]
-    near = np.hypot(x - med[inv, 0], y - med[inv, 1]) <= params.radius_px
-    inv, dt, x, y = inv[near], dt[near], x[near], y[near]
-    nw = len(wins)
+    # Every event of a window with LED events, by window index, and which are near its median.
+    wi_all = np.full(len(sync_t), -1, np.int64)
+    wi_all[wins] = np.arange(nw)
+    sel = keep & (wi_all[jn] >= 0)
+    wi = wi_all[jn[sel]]
+    x = ev["x"][sel].astype(np.float64)
+    y = ev["y"][sel].astype(np.float64)
+    near = np.hypot(x - med[wi, 0], y - med[wi, 1]) <= params.radius_px
+    is_led = led[sel] & near
+    purity = np.bincount(wi[is_led], minlength=nw) / np.maximum(1, np.bincount(wi[near], minlength=nw))
+    coherent = np.ones(nw, bool)
+    if on is not None:
+        o = on[sel] & is_led
+        per = params.period_us
+        ph = 2 * np.pi * np.mod(t[sel][o].astype(np.float64), per) / per
+        k = np.bincount(wi[o], minlength=nw).astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            R = np.hypot(np.bincount(wi[o], np.cos(ph), nw), np.bincount(wi[o], np.sin(ph), nw)) / k
+        coherent = (k >= 3) & (R >= params.min_coherence)
+    inv, dt, x, y = wi[is_led], dt_all[sel][is_led], x[is_led], y[is_led]
     s0 = np.bincount(inv, minlength=nw).astype(np.float64)
     s1 = np.bincount(inv, dt, nw)
     s2 = np.bincount(inv, dt * dt, nw)
@@ -221,7 +272,8 @@ def _fit_windows(ev: np.ndarray, sync_t: NDArray[np.int64], half_w: float,
     side = max(3, params.min_events // 4)
     before = np.bincount(inv, dt < 0, nw)
     after = np.bincount(inv, dt > 0, nw)
-    good = (s0 >= params.min_events) & (before >= side) & (after >= side) & np.all(np.isfinite(uv), axis=1)
+    good = ((s0 >= params.min_events) & (before >= side) & (after >= side) & coherent
+            & (purity >= params.min_purity) & np.all(np.isfinite(uv), axis=1))
     return wins[good].astype(np.int64), uv[good], s0[good].astype(np.int64), spread[good]
 
 
@@ -250,6 +302,7 @@ class LedExtractor:
         self._freq_sample: list[np.ndarray] = []  # a bounded sample of events for the error message
         self._freq_n = 0
         self._half: float | None = None
+        self._t_last = -(1 << 62)
 
     def _half_window(self) -> float:
         """Half the window, whole microseconds (so a frame interval measured a microsecond apart gives the same)."""
@@ -266,8 +319,13 @@ class LedExtractor:
 
     def feed(self, events: np.ndarray, sync_t: NDArray[np.int64] | None = None) -> None:
         if len(events):
-            if len(events) > 1 and np.any(np.diff(events["t"]) < 0):
-                raise ValueError("events must come in non-decreasing time")
+            t = events["t"]
+            back = np.nonzero(np.diff(t) < 0)[0]
+            if len(back) or t[0] < self._t_last:
+                before, at = (int(t[back[0]]), int(t[back[0] + 1])) if len(back) else (self._t_last, int(t[0]))
+                raise EventOrderError(f"event times go back (to {at} us after {before} us): a timestamp reset "
+                                      "inside the recording? Cut the file there.")
+            self._t_last = int(t[-1])
             self._buf.append(events)
             self.stats["events"] += len(events)
             if self._freq_n < 4_000_000:
@@ -298,11 +356,11 @@ class LedExtractor:
         hi = sync[stop - 1] + margin
         i0, i1 = np.searchsorted(ev["t"], [lo, hi + 1])
         block = ev[i0:i1]
-        mask = periodic_mask(block, self.width, self.p)
-        led = block[mask]
+        mask, on = periodic_mask(block, self.width, self.p, onsets=True)
         self.stats["led_events"] += int(np.count_nonzero(mask[(block["t"] >= sync[self._done] - half)
                                                                & (block["t"] <= sync[stop - 1] + half)]))
-        idx, uv, n, spread = _fit_windows(led, sync[self._done:stop], half, self.p)
+        idx, uv, n, spread = _fit_windows(block, mask, on if self.p.check_frequency else None,
+                                          sync[self._done:stop], half, self.p)
         self.stats["windows"] += stop - self._done
         self._out.append((idx + self._done, uv, n, spread))
         self._done = stop

@@ -134,7 +134,7 @@ class EventReader:
             n = self._so.ft_ev_triggers(self._r, buf.ctypes.data, len(buf))
             parts.append(buf[:n])
             if n < len(buf):
-                return np.concatenate(parts)
+                return _cat_triggers(parts)
 
     def __iter__(self) -> Iterator[np.ndarray]:
         while (c := self.read_chunk()) is not None:
@@ -182,7 +182,17 @@ def read_events_and_triggers(path: str | os.PathLike[str],
     raises EventFileError with the events before it."""
     trig: list[np.ndarray] = []
     ev = _read_all(path, fmt, trig)
-    return ev, np.concatenate(trig) if trig else np.zeros(0, TRIGGER_DTYPE)
+    return ev, _cat_triggers(trig)
+
+
+def _cat_triggers(parts: list[np.ndarray]) -> np.ndarray:
+    """Concatenated, in TRIGGER_DTYPE's own padded layout (np.concatenate would pack the fields)."""
+    out = np.zeros(sum(len(p) for p in parts), TRIGGER_DTYPE)
+    i = 0
+    for p in parts:
+        out[i:i + len(p)] = p
+        i += len(p)
+    return out
 
 
 def _read_all(path: str | os.PathLike[str], fmt: str | None, triggers: list[np.ndarray] | None) -> np.ndarray:

@@ -130,12 +130,15 @@ def _render_dvs(cam: Camera, p: WandParams, dvs: DvsParams, t_frames: NDArray[np
     o = np.argsort(sw_t, kind="stable")
     sw_t, sw_on = sw_t[o], sw_on[o]
     m = p.led_substeps
+    rng = np.random.default_rng(seed + 99)
     gap = np.diff(sw_t, append=sw_t[-1] + period / 2)
     sw_is_switch = np.tile(np.arange(m) == 0, len(sw_t))
-    sw_t = (sw_t[:, None] + gap[:, None] * (np.arange(m) / m)[None, :]).ravel()
+    # (at random times inside the phase: the light of a moving spot changes continuously, so these
+    # events are not locked to the switches)
+    frac = np.column_stack([np.zeros(len(sw_t)), np.sort(rng.uniform(0.1, 0.9, (len(sw_t), m - 1)), axis=1)])
+    sw_t = (sw_t[:, None] + gap[:, None] * frac).ravel()
     sw_on = np.repeat(sw_on, m)
     # Spells with the LED turned away from this camera (dark for it: its events stop).
-    rng = np.random.default_rng(seed + 99)
     hid_t = np.zeros(0)
     if p.hidden > 0:
         span = float(t_frames[-1] - t_frames[0])

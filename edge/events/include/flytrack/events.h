@@ -89,9 +89,10 @@ void ft_ev_close(ft_ev_reader *r);
 
 /* External trigger / sync events (the frame trigger recorded by the camera: EVT 2.0/3.0
  * EXT_TRIGGER, AEDAT 2.0 sync bit 15 and special bit 31, AEDAT 3.1 external input edges and
- * pulses; AEDAT 4.0 keeps them in another stream, skipped). Counted always; their times are kept
- * only after ft_ev_keep_triggers(r, 1), and ft_ev_triggers moves them out oldest first, so
- * memory grows only by what the caller has not collected (16 bytes a trigger). */
+ * pulses, AEDAT 4.0 trigger streams' external-signal edges and pulses). Counted always, except
+ * AEDAT 4.0's (another stream, decoded only when kept); their times are kept only after
+ * ft_ev_keep_triggers(r, 1), and ft_ev_triggers moves them out oldest first, so memory grows
+ * only by what the caller has not collected (16 bytes a trigger). */
 typedef struct {
     int64_t t;       /* microseconds, the events' time base */
     uint8_t value;   /* 1: rising edge, pulse or sync; 0: falling edge */
