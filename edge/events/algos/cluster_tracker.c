@@ -59,12 +59,14 @@ void ft_ct_defaults(ft_ct_params *p, uint32_t width, uint32_t height) {
     p->max_meas_var = 1.0f;
     p->min_proc_var = 2500.0f;
     p->kf_centroid = 1;
+    p->centroid_var = 0.5f;
 }
 
 ft_cluster_tracker *ft_ct_create(const ft_ct_params *p) {
     if (!p || p->max_clusters == 0 || p->max_clusters > FT_CT_MAX_CLUSTERS || !(p->radius_px > 0) ||
         !(p->mixing > 0 && p->mixing <= 1) || p->mass_decay_us == 0 || p->kf_interval_us == 0 ||
-        !(p->max_meas_var > 0) || !(p->min_proc_var > 0) || !(p->velocity_tau_us > 0))
+        !(p->max_meas_var > 0) || !(p->min_proc_var > 0) || !(p->velocity_tau_us > 0) ||
+        !(p->centroid_var >= 0))
         return NULL;
     ft_cluster_tracker *t = calloc(1, sizeof *t);
     if (!t)
@@ -359,6 +361,10 @@ size_t ft_ct_clusters(ft_cluster_tracker *t, int64_t t_us, ft_ct_cluster *out, s
             o->var_y = P[0][0] + 2.0f * dt * P[0][1] + dt * dt * P[1][1];
             o->var_x = P[2][2] + 2.0f * dt * P[2][3] + dt * dt * P[3][3];
             o->cov_xy = P[0][2] + dt * (P[0][3] + P[1][2]) + dt * dt * P[1][3];
+            if (t->p.kf_centroid) {
+                o->var_x += t->p.centroid_var;
+                o->var_y += t->p.centroid_var;
+            }
         } else {
             o->x = c->x;
             o->y = c->y;
