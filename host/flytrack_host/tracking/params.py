@@ -29,7 +29,7 @@ class TrackingParams(BaseModel):
         16.0, gt=0, description="Points with their own covariance (event cameras, SPEC 1.6) update a target "
         "with R = this x that covariance. The frame cameras' R (measurement_noise_px^2) is far above their "
         "points' real error (0.06 px median in the simulated rig), so an event point at its true covariance "
-        "would outweigh better frame points; 16 keeps the simulated rig's RMSE with event cameras within 1.5 % "
+        "would outweigh better frame points; 16 keeps the simulated rig's RMSE with event cameras within 2 % "
         "of that without (README, DVS cameras in the rig).",
     )
     gate_px: float = Field(
