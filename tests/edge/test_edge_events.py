@@ -295,6 +295,7 @@ def test_a_dvs128_in_the_simulated_rig_gives_clusters_with_its_support_options(e
                 uv = cam.project(gt.pos[f])
                 errs += [float(np.min(np.hypot(uv[:, 0] - c["x"], uv[:, 1] - c["y"]))) for c in m.clusters]
         found[name] = (len(at_frames), float(np.median(errs)) if errs else np.inf)
+    print(f"DVS128 frames with a cluster (of 150), median px from the animal: {found}")
     # trigger frames whose slice, cut at the frame's sync event, holds a cluster (of 150)
     assert found["defaults"][0] < 10, found  # measured: 0
     assert found["options"][0] > 40, found  # measured: 59
