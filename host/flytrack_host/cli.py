@@ -32,7 +32,7 @@ _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.tracking.bench", "app", "bench", "Benchmarks that print measured figures."),
     ("flytrack_host.trigger.cli", "app", "trigger", "Trigger box: info, start, stop, watch, pulse, flash."),
     ("flytrack_host.calibration.cli", "app", "calibrate",
-     "Calibration: selfcal, dlt, align, intrinsics, collect, report, convert."),
+     "Calibration: selfcal, dlt, align, intrinsics, collect, report, convert, dvs-points, dvs-sim."),
     ("flytrack_host.actuation.cli", "app", "rules", "Closed-loop rules: check, replay on a recording."),
     ("flytrack_host.batch.cli", "app", "batch", "Batches on Dask: re-track many recordings, sweep parameters, export."),
     ("flytrack_host.events.cli", "app", "events", "Event-camera files: info, convert (AEDAT 2/3/4, EVT 2/3, DAT)."),

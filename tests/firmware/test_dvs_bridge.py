@@ -61,18 +61,18 @@ def _match(played: np.ndarray, run: sim.BridgeRun, got: np.ndarray) -> tuple[np.
     """Indices of the played events the decoded ones are (in order, a dropped event is skipped) and
     each one's timestamp error (decoded t_us - truth us). A word that matches no played event fails."""
     truth = run.truth_us(run.req_cycles)
-    addr = got["x"].astype(np.uint16) << 1 | got["polarity"].astype(np.uint16) | got["y"].astype(np.uint16) << 8
+    addr = got["x"].astype(np.uint16) << 1 | got["p"].astype(np.uint16) | got["y"].astype(np.uint16) << 8
     idx = np.empty(len(got), np.int64)
     j = 0
     for i in range(len(got)):
         while j < len(run.req_cycles) and not (
-            played["addr"][j] == addr[i] and abs(float(got["t_us"][i]) - truth[j]) < 2.0
+            played["addr"][j] == addr[i] and abs(float(got["t"][i]) - truth[j]) < 2.0
         ):
             j += 1
         assert j < len(run.req_cycles), f"decoded event {i} {got[i]} matches no played event"
         idx[i] = j
         j += 1
-    return idx, got["t_us"].astype(np.float64) - truth[idx]
+    return idx, got["t"].astype(np.float64) - truth[idx]
 
 
 def test_paced_300k_stream_every_event_exact(bridge, dvs_figures) -> None:
@@ -99,14 +99,14 @@ def test_paced_300k_stream_every_event_exact(bridge, dvs_figures) -> None:
     assert len(ev) == n and np.array_equal(idx, np.arange(n)), f"{n - len(ev)} events lost"
     assert np.array_equal(ev["x"], played["addr"] >> 1 & 0x7F)
     assert np.array_equal(ev["y"], played["addr"] >> 8 & 0x7F)
-    assert np.array_equal(ev["polarity"], played["addr"] & 1)
+    assert np.array_equal(ev["p"], played["addr"] & 1)
     assert np.max(np.abs(err)) <= 1.0, (err.min(), err.max())
     # the timestamp reset: served within 3 ms under this load (one epoch restart), and the times start
     # again from ~0 after it
     epochs = run.epoch_starts()
     assert any(0 <= c - reset_at < 48_000 for c in epochs[:, 0]), (reset_at, epochs)
     after = run.req_cycles > epochs[-1, 0]
-    assert ev["t_us"][after].min() < 5 and ev["t_us"][~after].max() > 40_000
+    assert ev["t"][after].min() < 5 and ev["t"][~after].max() > 40_000
     # sync: one word per pulse, each within 1 us of the pulse's edge
     assert len(sync_t) == pulses == len(run.sync_cycles)
     s_err = sync_t.astype(np.float64) - run.truth_us(run.sync_cycles)
@@ -177,7 +177,7 @@ def test_fifo_overflow_counted_words_intact(bridge, dvs_figures) -> None:
     lost = n - len(ev)
     assert lost > 1_000 and st.overflow == lost
     assert np.max(np.abs(err)) <= 1.0
-    assert ev["t_us"].max() > 3 * 16_384
+    assert ev["t"].max() > 3 * 16_384
     assert np.all(np.diff(idx) > 0)
     print(f"\nDVS bridge FIFO overflow: {lost} of {n} events dropped and counted (status {st.overflow}), "
           f"FIFO max {st.fifo_max} words, every delivered word exact; sync {st.sync_events} recorded + "
@@ -242,7 +242,7 @@ def test_slave_mode_zeroes_time_at_the_next_sync_pulse(bridge) -> None:
     assert len(ev) == len(cyc) and len(sync_t) == 4
     after = run.req_cycles > pulse0 + 2_000
     t_rel = (run.req_cycles[after] - pulse0) / F * 1e6  # us since the pulse
-    err = ev["t_us"][after].astype(np.float64) - t_rel
+    err = ev["t"][after].astype(np.float64) - t_rel
     assert np.max(np.abs(err)) <= 1.0, (err.min(), err.max())
     s_rel = (run.sync_cycles - pulse0) / F * 1e6
     assert np.max(np.abs(sync_t.astype(np.float64) - s_rel)) <= 1.0

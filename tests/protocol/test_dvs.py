@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from flytrack_host.protocol import DVS_EVENT_DTYPE, DvsDecoder, ProtocolError, encode_events, fmt_f32
+from flytrack_host.protocol import EVENT_DTYPE, DvsDecoder, ProtocolError, encode_events, fmt_f32
 from flytrack_host.protocol.text import decode_text, encode_text, escape_text
 
 
@@ -18,12 +18,12 @@ def word(x: int, y: int, p: int, ts: int, reset: int = 0, wrap: int = 0) -> byte
 def test_decode_by_hand() -> None:
     dec = DvsDecoder()
     ev = dec.decode(word(5, 6, 1, 100) + word(0, 0, 0, 0, wrap=1) + word(7, 8, 0, 3))
-    assert ev.dtype == DVS_EVENT_DTYPE
-    assert ev.tolist() == [(5, 6, 1, 100), (7, 8, 0, 0x4000 + 3)]
+    assert ev.dtype == EVENT_DTYPE
+    assert ev.tolist() == [(100, 5, 6, 1), (0x4000 + 3, 7, 8, 0)]  # (t, x, y, p)
     assert dec.offset == 0x4000
     # state carries to the next packet; RESET returns the offset to 0
     ev = dec.decode(word(1, 1, 1, 9) + word(0, 0, 0, 0, reset=1) + word(2, 2, 0, 4))
-    assert ev["t_us"].tolist() == [0x4000 + 9, 4]
+    assert ev["t"].tolist() == [0x4000 + 9, 4]
     assert dec.offset == 0
 
 
@@ -45,7 +45,7 @@ def test_sync_words() -> None:
     dec = DvsDecoder()
     pkt = word(5, 6, 1, 100) + word(0, 0x80, 0, 120) + word(0, 0, 0, 0, wrap=1) + word(0, 0x80, 0, 7) + word(7, 8, 0, 9)
     ev, sync = dec.decode_with_sync(pkt)
-    assert ev.tolist() == [(5, 6, 1, 100), (7, 8, 0, 0x4000 + 9)]
+    assert ev.tolist() == [(100, 5, 6, 1), (0x4000 + 9, 7, 8, 0)]  # (t, x, y, p)
     assert sync.tolist() == [120, 0x4000 + 7]
     assert dec.sync_decoded == 2 and dec.events_decoded == 2
     assert DvsDecoder().decode(pkt).tolist() == ev.tolist()  # decode() leaves them out
@@ -55,7 +55,7 @@ def test_encode_events_inserts_wraps() -> None:
     t = np.array([1, 0x4000 * 5 + 2])
     b = encode_events([1, 2], [3, 4], [1, 0], t)
     assert len(b) == 4 * (2 + 5)
-    assert DvsDecoder().decode(b)["t_us"].tolist() == t.tolist()
+    assert DvsDecoder().decode(b)["t"].tolist() == t.tolist()
     with pytest.raises(ValueError):
         encode_events([1, 2], [3, 4], [1, 0], [5, 4])  # times going backwards
 

@@ -214,7 +214,7 @@ def test_dvs_roundtrip_across_packets(events, cut: int) -> None:
     ev = np.array(sorted(events, key=lambda e: e[3]), dtype=np.int64).reshape(-1, 4)
     enc, dec = DvsEncoder(), DvsDecoder()
     got = np.concatenate([dec.decode(enc.encode(*part.T)) for part in (ev[:cut], ev[cut:])])
-    assert np.array_equal(np.stack([got["x"], got["y"], got["polarity"], got["t_us"]], 1).astype(np.int64), ev)
+    assert np.array_equal(np.stack([got["x"], got["y"], got["p"], got["t"]], 1).astype(np.int64), ev)
     assert dec.offset == enc.offset
 
 

@@ -6,14 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-static int failures;
-#define CHECK(c)                                                                                   \
-    do {                                                                                           \
-        if (!(c)) {                                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #c);                  \
-            failures++;                                                                            \
-        }                                                                                          \
-    } while (0)
+#include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
 static ft_event E(int64_t t, int x, int y) {
     ft_event e = {t, (uint16_t)x, (uint16_t)y, 1, {0, 0, 0}};
@@ -155,8 +148,8 @@ int main(void) {
     test_filters();
     test_tracker();
     test_random();
-    if (failures) {
-        fprintf(stderr, "test_event_algos: %d checks failed\n", failures);
+    if (ft_test_failures) {
+        fprintf(stderr, "test_event_algos: %d checks failed\n", ft_test_failures);
         return 1;
     }
     printf("test_event_algos: all checks passed\n");

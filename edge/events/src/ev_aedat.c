@@ -27,7 +27,7 @@ size_t ev_decode_aedat2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             base += (int64_t)1 << 32;
         last = ts;
         if (a & 0x80008000u) { /* external sync (bit 15) or special event (bit 31) */
-            ev_trigger(r, base + ts);
+            ev_trigger(r, base + ts, 1u, 0u);
             continue;
         }
         ev_put(&out[n++], base + ts, 127u - ((a >> 1) & 0x7Fu), (a >> 8) & 0x7Fu, ~a & 1u);
@@ -104,12 +104,15 @@ int ev_next_packet_aedat3(ft_ev_reader *r) {
         }
         if (type == A3_SPECIAL && size >= 8) { /* external input edges and pulses: types 2..4 */
             for (int32_t i = 0; i < number; i++) {
-                uint32_t d = ev_le32(h + A3_HEADER + (size_t)i * (size_t)size);
+                const uint8_t *e = h + A3_HEADER + (size_t)i * (size_t)size;
+                uint32_t d = ev_le32(e), ts = ev_le32(e + 4);
                 uint32_t kind = (d >> 1) & 0x7Fu;
+                /* 2 rising edge, 3 falling edge, 4 pulse; time as for polarity events */
                 if ((d & 1u) && kind >= 2 && kind <= 4)
                     ev_trigger(r,
-                               (int64_t)((uint64_t)(uint32_t)overflow << 31) +
-                                   (int64_t)ev_le32(h + A3_HEADER + (size_t)i * (size_t)size + 4));
+                               (int64_t)((uint64_t)(uint32_t)overflow << 31) |
+                                   (int64_t)(ts & 0x7FFFFFFFu),
+                               kind != 3, 0u);
             }
         } else {
             r->info.n_skipped++;

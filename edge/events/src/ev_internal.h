@@ -38,11 +38,6 @@ struct ft_ev_reader {
     uint16_t y, x_base; /* EVT3 */
     uint8_t pol;
 
-    /* times of the latest trigger / sync events (ring, indexed by info.n_triggers), for
-     * ft_ev_take_triggers; trig_taken counts those handed out or overwritten */
-    int64_t trig_t[FT_EV_TRIG_RING];
-    uint64_t trig_taken;
-
     /* AEDAT 4.0 */
     int64_t table_pos; /* -1: read packets to the end of the file */
     int32_t ev_stream; /* stream id of the events (-1 until the first event packet) */
@@ -54,6 +49,11 @@ struct ft_ev_reader {
     size_t pend_n, pend_i;
     int pend_kind; /* 3: AEDAT 3.1 polarity (8 B), 4: AEDAT 4.0 (16 B) */
     int32_t pend_overflow;
+
+    /* trigger times kept for ft_ev_triggers (keep_triggers set) */
+    int keep_triggers;
+    ft_ev_trigger *trig;
+    size_t trig_n, trig_cap;
 };
 
 static inline uint16_t ev_le16(const uint8_t *p) {
@@ -70,12 +70,6 @@ static inline uint64_t ev_le64(const uint8_t *p) {
 }
 
 /* Stores one event as two 64-bit words (t; x | y << 16 | p << 32, the pad bytes zero). */
-/* A trigger / sync event at time t (the events' time base). */
-static inline void ev_trigger(ft_ev_reader *r, int64_t t) {
-    r->trig_t[r->info.n_triggers % FT_EV_TRIG_RING] = t;
-    r->info.n_triggers++;
-}
-
 static inline void ev_put(ft_event *e, int64_t t, uint32_t x, uint32_t y, uint32_t p) {
     uint64_t rest = (uint64_t)(x & 0xFFFFu) | ((uint64_t)(y & 0xFFFFu) << 16) | ((uint64_t)p << 32);
     memcpy(&e->t, &t, 8);
@@ -91,6 +85,9 @@ void ev_fail(ft_ev_reader *r, uint64_t off, const char *fmt, ...)
 static inline uint64_t ev_pos(const ft_ev_reader *r) {
     return r->data_off + r->start;
 }
+
+/* Counts one trigger / sync event and keeps its time when asked to (see ft_ev_keep_triggers). */
+void ev_trigger(ft_ev_reader *r, int64_t t, unsigned value, unsigned channel);
 
 /* Per-format decoders: fill out[n..cap) and return the new n; stop at the end of the available
  * bytes (the caller refills) or on damage (r->failed). cap - n >= 16 on entry. */

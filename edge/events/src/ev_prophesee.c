@@ -28,7 +28,8 @@ size_t ev_decode_evt2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             r->have_t_high = 1;
             t_hi = r->t_base + ((int64_t)th << 6);
         } else if (type == EVT2_EXT_TRIGGER) {
-            ev_trigger(r, t_hi | (int64_t)((w >> 22) & 0x3Fu));
+            /* bits 27..22 time low, 12..8 channel id, 0 edge value */
+            ev_trigger(r, t_hi | (int64_t)((w >> 22) & 0x3Fu), w & 1u, (w >> 8) & 0x1Fu);
         } else {
             r->info.n_skipped++; /* OTHERS, CONTINUED, undefined */
         }
@@ -96,8 +97,8 @@ size_t ev_decode_evt3(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
             hi = r->t_base + ((int64_t)th << 12);
             break;
         }
-        case EVT3_EXT_TRIGGER:
-            ev_trigger(r, hi + tl);
+        case EVT3_EXT_TRIGGER: /* bits 11..8 channel id, 0 edge value */
+            ev_trigger(r, hi + tl, w & 1u, (w >> 8) & 0xFu);
             break;
         default: /* CONTINUED_4, OTHERS, CONTINUED_12, undefined */
             r->info.n_skipped++;

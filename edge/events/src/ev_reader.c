@@ -438,16 +438,6 @@ int ft_ev_poll(ft_ev_reader *r, int timeout_ms) {
     return poll(&pfd, 1, timeout_ms) > 0; /* readable, or the writer hung up (then the end) */
 }
 
-size_t ft_ev_take_triggers(ft_ev_reader *r, int64_t *out, size_t cap) {
-    const uint64_t n = r->info.n_triggers;
-    if (n - r->trig_taken > FT_EV_TRIG_RING) /* overwritten before they were taken */
-        r->trig_taken = n - FT_EV_TRIG_RING;
-    size_t k = 0;
-    while (r->trig_taken < n && k < cap)
-        out[k++] = r->trig_t[r->trig_taken++ % FT_EV_TRIG_RING];
-    return k;
-}
-
 void ft_ev_get_info(const ft_ev_reader *r, ft_ev_info *info) {
     *info = r->info;
     info->offset = ev_pos(r);
@@ -469,5 +459,41 @@ void ft_ev_close(ft_ev_reader *r) {
         close(r->fd);
     ev_aedat4_free(r);
     free(r->buf);
+    free(r->trig);
     free(r);
+}
+
+void ev_trigger(ft_ev_reader *r, int64_t t, unsigned value, unsigned channel) {
+    r->info.n_triggers++;
+    if (!r->keep_triggers)
+        return;
+    if (r->trig_n == r->trig_cap) {
+        size_t cap = r->trig_cap ? 2 * r->trig_cap : 256;
+        ft_ev_trigger *nt = realloc(r->trig, cap * sizeof *nt);
+        if (!nt) {
+            ev_fail(r, ev_pos(r), "out of memory keeping %zu trigger times", r->trig_n);
+            return;
+        }
+        r->trig = nt;
+        r->trig_cap = cap;
+    }
+    ft_ev_trigger *e = &r->trig[r->trig_n++];
+    memset(e, 0, sizeof *e);
+    e->t = t;
+    e->value = (uint8_t)(value != 0);
+    e->channel = (uint8_t)channel;
+}
+
+void ft_ev_keep_triggers(ft_ev_reader *r, int keep) {
+    r->keep_triggers = keep != 0;
+}
+
+size_t ft_ev_triggers(ft_ev_reader *r, ft_ev_trigger *out, size_t cap) {
+    size_t n = r->trig_n < cap ? r->trig_n : cap;
+    if (n)
+        memcpy(out, r->trig, n * sizeof *out);
+    if (n < r->trig_n)
+        memmove(r->trig, r->trig + n, (r->trig_n - n) * sizeof *out);
+    r->trig_n -= n;
+    return n;
 }

@@ -11,14 +11,7 @@
 
 #include "flytrack/events.h"
 
-static int failures;
-#define CHECK(c)                                                                                   \
-    do {                                                                                           \
-        if (!(c)) {                                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #c);                  \
-            failures++;                                                                            \
-        }                                                                                          \
-    } while (0)
+#include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
 typedef struct {
     uint8_t b[1 << 16];
@@ -80,12 +73,17 @@ static void test_evt2(void) {
     CHECK(r);
     if (!r)
         return;
+    ft_ev_keep_triggers(r, 1);
     ft_event ev[64];
     long long rc;
     size_t n = read_all(r, ev, 64, 16, &rc);
     ft_ev_info info;
     ft_ev_get_info(r, &info);
     CHECK(info.format == FT_EV_EVT2 && info.width == 1280 && info.height == 720);
+    ft_ev_trigger trig[4];
+    CHECK(ft_ev_triggers(r, trig, 4) == 1 && trig[0].t == 320 && trig[0].value == 1 &&
+          trig[0].channel == 1);
+    CHECK(ft_ev_triggers(r, trig, 4) == 0); /* moved out */
     CHECK(rc == 0 && n == 3 && info.n_triggers == 1);
     CHECK(ev[0].t == 327 && ev[0].x == 100 && ev[0].y == 200 && ev[0].p == 1);
     CHECK(ev[1].t == 383 && ev[1].x == 1279 && ev[1].y == 719 && ev[1].p == 0);
@@ -120,6 +118,7 @@ static void test_evt3(void) {
     CHECK(r);
     if (!r)
         return;
+    ft_ev_keep_triggers(r, 1);
     ft_event ev[64];
     long long rc;
     size_t n = read_all(r, ev, 64, 16, &rc);
@@ -132,6 +131,8 @@ static void test_evt3(void) {
     CHECK(ev[1].x == 100 && ev[2].x == 111 && ev[3].x == 112 && ev[4].x == 119);
     CHECK(ev[1].p == 0 && ev[4].t == t0 && ev[4].y == 33);
     CHECK(ev[5].t == (1ll << 24) + (1 << 12) + 2 && ev[5].x == 5);
+    ft_ev_trigger trig[4];
+    CHECK(ft_ev_triggers(r, trig, 4) == 1 && trig[0].t == t0 && trig[0].value == 1);
     ft_ev_close(r);
 }
 
@@ -182,6 +183,7 @@ static void test_aedat2(void) {
     CHECK(r);
     if (!r)
         return;
+    ft_ev_keep_triggers(r, 1);
     ft_event ev[64];
     long long rc;
     size_t n = read_all(r, ev, 64, 16, &rc);
@@ -191,6 +193,8 @@ static void test_aedat2(void) {
     CHECK(rc == 0 && n == 2);
     CHECK(ev[0].t == 1000 && ev[0].x == 117 && ev[0].y == 5 && ev[0].p == 0);
     CHECK(ev[1].t == 2000 && ev[1].x == 127 && ev[1].y == 127 && ev[1].p == 1);
+    ft_ev_trigger trig[4];
+    CHECK(ft_ev_triggers(r, trig, 4) == 1 && trig[0].t == 1500 && trig[0].value == 1);
     ft_ev_close(r);
 }
 
@@ -228,6 +232,7 @@ static void test_aedat3(void) {
     CHECK(r);
     if (!r)
         return;
+    ft_ev_keep_triggers(r, 1);
     ft_event ev[64];
     long long rc;
     size_t n = read_all(r, ev, 64, 16, &rc);
@@ -238,6 +243,8 @@ static void test_aedat3(void) {
     CHECK(ev[0].t == (1ll << 31) + 7 && ev[0].x == 20 && ev[0].y == 30 && ev[0].p == 1);
     CHECK(ev[1].t == (1ll << 31) + 9 && ev[1].x == 22 && ev[1].p == 0);
     CHECK(ev[3].t == 12 && ev[3].x == 2);
+    ft_ev_trigger trig[4];
+    CHECK(ft_ev_triggers(r, trig, 4) == 1 && trig[0].t == 10 && trig[0].value == 1);
     ft_ev_close(r);
     s.n -= 3;
     r = open_mem(&s, FT_EV_AUTO, "e.aedat");
@@ -351,8 +358,8 @@ int main(void) {
     test_aedat3();
     test_writers();
     test_bad_open();
-    if (failures) {
-        fprintf(stderr, "test_events: %d checks failed\n", failures);
+    if (ft_test_failures) {
+        fprintf(stderr, "test_events: %d checks failed\n", ft_test_failures);
         return 1;
     }
     printf("test_events: all checks passed\n");

@@ -84,6 +84,16 @@ static const opt_doc docs[] = {
     {"dvs-invert-polarity", "0|1",
      "dvs128: 1 for an original DVS128, whose raw polarity bit 1 means OFF (jAER, libcaer); 0 "
      "(default) for the FlyTrack bridge, whose words follow the SPEC (1 = ON)"},
+    {"wingbeat", "0|1",
+     "event sources: track the wing beats of a tethered fly (seed 002 part II: 2-means "
+     "initialisation, an EKF on a Fourier series per wing edge) and send DVS_WINGBEAT instead "
+     "of DVS_CLUSTERS (default 0)"},
+    {"wingbeat-report-us", "US", "wingbeat: a DVS_WINGBEAT every US of event time (default 5000)"},
+    {"wingbeat-harmonics", "K", "wingbeat: Fourier harmonics of the EKF, 1..4 (default 2)"},
+    {"wingbeat-events-per-update", "N", "wingbeat: events averaged per EKF update (default 4)"},
+    {"wingbeat-init-us", "US", "wingbeat: initialisation window of event time (default 100000)"},
+    {"wingbeat-start-freq", "HZ",
+     "wingbeat: starting beat frequency (default 0: found in the initialisation window)"},
 };
 
 static void usage(const char *prog) {
@@ -316,6 +326,19 @@ static int apply(edge_config *c, const char *key, const char *v) {
         c->cluster_min_mass = d;
         return 0;
     }
+    BOOL("wingbeat", wingbeat)
+    INT("wingbeat-report-us", 100, 10000000, wingbeat_report_us)
+    INT("wingbeat-harmonics", 1, 4, wingbeat_harmonics)
+    INT("wingbeat-events-per-update", 1, 1000, wingbeat_events_per_update)
+    INT("wingbeat-init-us", 20000, 10000000, wingbeat_init_us)
+    if (!strcmp(key, "wingbeat-start-freq")) {
+        if (parse_double(key, v, &d))
+            return -1;
+        if (d < 0 || d > 10000)
+            return err(key, v, "a frequency in Hz, 0..10000 (0 = found from the events)");
+        c->wingbeat_start_freq = d;
+        return 0;
+    }
     BOOL("realtime", realtime)
     BOOL("dvs-invert-polarity", dvs_invert_polarity)
     INT("reopen-ms", 10, 3600000, reopen_ms)
@@ -429,6 +452,10 @@ int edge_config_load(edge_config *c, int argc, char **argv) {
     c->slice_us = 1000;
     c->realtime = 1;
     c->reopen_ms = 500;
+    c->wingbeat_report_us = 5000;
+    c->wingbeat_harmonics = 2;
+    c->wingbeat_events_per_update = 4;
+    c->wingbeat_init_us = 100000;
     ft_fx_params_default(&c->fx, 1, 1, FT_FX_MONO8);
     for (int i = 1; i < argc; i++)
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {

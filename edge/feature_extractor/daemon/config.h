@@ -47,6 +47,13 @@ typedef struct {
     uint8_t dvs_biases[36];
     int have_dvs_biases;
     int dvs_invert_polarity; /* dvs128: raw bit 0 = 1 means OFF (an original DVS128, as jAER) */
+    /* event sources, --wingbeat 1: DVS_WINGBEAT instead of DVS_CLUSTERS (edge_wingbeat.c) */
+    int wingbeat;
+    int64_t wingbeat_report_us;
+    int wingbeat_harmonics;
+    int wingbeat_events_per_update;
+    int64_t wingbeat_init_us;
+    double wingbeat_start_freq;
 } edge_config;
 
 /* 0 = ok, 1 = --help printed, -1 = error (message printed to stderr). */

@@ -5,6 +5,8 @@
  * words of a DVS128), fps is events per second over the last second, proc_us_* the processing time
  * per slice; width/height are the sensor's; state is ERROR while a DVS128 is unplugged (RUNNING
  * again once it is back). CONTROL: START, STOP, SET_PARAM slice_us; other commands answer FAILED.
+ * With --wingbeat 1 the events go to the wing-beat tracker instead and DVS_WINGBEAT datagrams go
+ * out (edge_wingbeat.h).
  */
 #define _POSIX_C_SOURCE 200809L
 #include <arpa/inet.h>
@@ -21,6 +23,7 @@
 
 #include "config.h"
 #include "edge_dvs.h"
+#include "edge_wingbeat.h"
 #include "event_pipeline.h"
 #include "util.h"
 #include "flytrack/udp.h"
@@ -57,7 +60,8 @@ typedef struct {
     /* trigger frames from the source's sync events (SPEC 1.6 stamp); a slice is cut at each sync */
     ft_sync_clock clock;
     uint64_t syncs_taken;
-    int64_t cut_sync; /* the latest sync time a slice was cut at (or passed) */
+    int64_t cut_sync;  /* the latest sync time a slice was cut at (or passed) */
+    edge_wingbeat *wb; /* --wingbeat 1: wing beats instead of clusters */
 } dvs_edge;
 
 static void set_error(dvs_edge *e, uint32_t code, const char *text) {
@@ -113,6 +117,11 @@ static int64_t next_cut(const dvs_edge *e) {
     return best;
 }
 
+static void wb_send(void *ctx, const uint8_t *buf, size_t len) {
+    dvs_edge *e = ctx;
+    send_to(e, buf, len, &e->host);
+}
+
 /* Processes and sends the slice held, if any; its clusters are stated at t_end (the slice's last
  * event, or the sync event that closes it). */
 static void flush_slice_at(dvs_edge *e, int64_t t_end) {
@@ -156,6 +165,10 @@ static void flush_slice_at(dvs_edge *e, int64_t t_end) {
 }
 
 static void flush_slice(dvs_edge *e) {
+    if (e->wb) { /* --wingbeat 1: the wing-beat tracker reports on its own clock */
+        edge_wb_flush(e->wb);
+        return;
+    }
     if (e->n_slice)
         flush_slice_at(e, e->slice[e->n_slice - 1].t);
 }
@@ -174,6 +187,19 @@ static void cut_at_sync(dvs_edge *e) {
 }
 
 static void take_events(dvs_edge *e, const ft_event *ev, size_t n) {
+    if (e->wb) { /* the whole batch to the wing-beat tracker; its time counts as a slice's */
+        uint64_t t0 = edge_mono_ns();
+        const char *news = edge_wb_take(e->wb, ev, n);
+        double us = (double)(edge_mono_ns() - t0) / 1000.0;
+        if (news)
+            set_error(e, news[0] ? 42 : 0, news);
+        e->slices++;
+        e->win_slices++;
+        e->win_us_sum += us;
+        if (us > e->win_us_max)
+            e->win_us_max = us;
+        return;
+    }
     int64_t s = next_cut(e);
     for (size_t i = 0; i < n; i++) {
         while (ev[i].t > s) { /* a sync before this event: the slice ends there */
@@ -331,6 +357,14 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
         free(e.slice);
         return 2;
     }
+    if (cfg->wingbeat &&
+        !(e.wb = edge_wb_create(cfg, e.src.width, e.src.height, &e.seq, wb_send, &e))) {
+        e.proc.destroy(e.proc.ctx);
+        e.src.close(&e.src);
+        close(e.sock);
+        free(e.slice);
+        return 2;
+    }
     e.state = cfg->start_stopped ? FT_STATE_IDLE : FT_STATE_RUNNING;
     edge_log("%s %s: %ux%u sensor, slices of %lld us -> %s:%d, control on port %d", cfg->source,
              cfg->input, e.src.width, e.src.height, (long long)e.slice_us, cfg->host, cfg->port,
@@ -412,6 +446,10 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     edge_log("%llu events in %llu slices sent, %llu garbage words, %llu reconnects",
              (unsigned long long)e.events, (unsigned long long)e.slices,
              (unsigned long long)e.src.lost, (unsigned long long)e.src.reconnects);
+    if (e.wb) {
+        edge_wb_log_summary(e.wb);
+        edge_wb_destroy(e.wb);
+    }
     e.src.close(&e.src);
     if (e.proc.destroy)
         e.proc.destroy(e.proc.ctx);

@@ -46,13 +46,13 @@ static long file_next(ft_ev_source *s, ft_event *out, size_t cap, int timeout_ms
         if (!ft_ev_poll(p->r, timeout_ms)) /* a pipe with nothing new: back to the loop */
             return 0;
         long long n = ft_ev_read(p->r, p->buf, FILE_BUF);
-        ft_ev_info info;
-        ft_ev_get_info(p->r, &info);
-        static int64_t tt[FT_EV_TRIG_RING]; /* one source per process */
-        size_t k = ft_ev_take_triggers(p->r, tt, FT_EV_TRIG_RING);
-        for (size_t j = 0; j < k; j++) /* the latest k of info.n_triggers */
-            s->sync_t[(info.n_triggers - k + j) % FT_SRC_SYNC_RING] = tt[j];
-        s->triggers = info.n_triggers;
+        /* The frame syncs are the rising edges (or pulses) of the recorded trigger input. */
+        ft_ev_trigger tt[64];
+        size_t k;
+        while ((k = ft_ev_triggers(p->r, tt, sizeof tt / sizeof tt[0])) > 0)
+            for (size_t j = 0; j < k; j++)
+                if (tt[j].value)
+                    s->sync_t[s->triggers++ % FT_SRC_SYNC_RING] = tt[j].t;
         if (n < 0) { /* the events before the damage were delivered already */
             snprintf(s->error, sizeof s->error, "%.230s", ft_ev_error(p->r));
             p->failed = 1;
@@ -122,6 +122,7 @@ int ft_ev_source_open_file(ft_ev_source *s, const char *path, const char *format
         free(p);
         return -1;
     }
+    ft_ev_keep_triggers(p->r, 1);
     ft_ev_info info;
     ft_ev_get_info(p->r, &info);
     p->realtime = realtime;

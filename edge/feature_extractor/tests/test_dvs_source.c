@@ -13,14 +13,7 @@
 #include "dvs_stream.h"
 #include "source_events.h"
 
-static int failures;
-#define CHECK(c)                                                                                   \
-    do {                                                                                           \
-        if (!(c)) {                                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #c);                  \
-            failures++;                                                                            \
-        }                                                                                          \
-    } while (0)
+#include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
 static uint64_t rng = 88172645463325252ull;
 static uint32_t rnd(uint32_t n) {
@@ -302,8 +295,8 @@ static void test_unplug_replug(void) {
 int main(void) {
     test_stream_pieces();
     test_unplug_replug();
-    if (failures) {
-        fprintf(stderr, "test_dvs_source: %d checks failed\n", failures);
+    if (ft_test_failures) {
+        fprintf(stderr, "test_dvs_source: %d checks failed\n", ft_test_failures);
         return 1;
     }
     printf("test_dvs_source: all checks passed\n");

@@ -20,14 +20,7 @@
 #include "edge_dvs.h"
 #include "flytrack/udp.h"
 
-static int failures;
-#define CHECK(c)                                                                                   \
-    do {                                                                                           \
-        if (!(c)) {                                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #c);                  \
-            failures++;                                                                            \
-        }                                                                                          \
-    } while (0)
+#include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
 #define WORDS 30000
 static uint8_t stream_bytes[4 * WORDS];
@@ -194,9 +187,9 @@ int main(void) {
     CHECK(slices > 10 && t_back == 1);
     CHECK(failed_opens == 3);
     close(rx);
-    if (failures) {
-        fprintf(stderr, "test_edge_dvs_unplug: %d checks failed (events %llu of %llu)\n", failures,
-                (unsigned long long)last_seen, (unsigned long long)events_sent);
+    if (ft_test_failures) {
+        fprintf(stderr, "test_edge_dvs_unplug: %d checks failed (events %llu of %llu)\n",
+                ft_test_failures, (unsigned long long)last_seen, (unsigned long long)events_sent);
         return 1;
     }
     printf("test_edge_dvs_unplug: %llu events, %llu slices, unplugged and back\n",

@@ -13,14 +13,7 @@
 #include "flytrack/features.h"
 #include "source.h"
 
-static int failures;
-#define CHECK(c)                                                                                   \
-    do {                                                                                           \
-        if (!(c)) {                                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #c);                  \
-            failures++;                                                                            \
-        }                                                                                          \
-    } while (0)
+#include "check.h" /* CHECK(), ft_test_failures: protocol/tests/check.h */
 
 #define FW 64
 #define FH 48
@@ -235,8 +228,8 @@ int main(void) {
     CHECK(n == 3 && r == FT_SRC_ERROR && s.dropped == 2);
     CHECK(strstr(s.error, "camera vanished") != NULL);
     s.close(&s);
-    if (failures) {
-        fprintf(stderr, "%d check(s) failed\n", failures);
+    if (ft_test_failures) {
+        fprintf(stderr, "%d check(s) failed\n", ft_test_failures);
         return 1;
     }
     printf("test_v4l2_seam: all checks passed\n");

@@ -399,3 +399,7 @@ def convert_cmd(
     tmp.replace(dst)
     console.print(f"{len(cams)} cameras written to {dst} (largest difference from the source's projection "
                   f"{px:.2g} px)", highlight=False)
+
+
+# `dvs-points` and `dvs-sim` (DVS cameras calibrated with a blinking LED) live in their own module.
+from flytrack_host.calibration import dvs_cli as _dvs_cli  # noqa: E402, F401

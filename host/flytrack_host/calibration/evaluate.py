@@ -12,7 +12,7 @@ from flytrack_host.calibration.observations import Observations
 from flytrack_host.calibration.selfcal import refine_points
 from flytrack_host.camera import Camera
 
-__all__ = ["reprojection_error", "centre_error"]
+__all__ = ["reprojection_error", "centre_error", "errors_against_truth"]
 
 
 def reprojection_error(cameras: Mapping[str, Camera], obs: Observations, use: NDArray[np.bool_]) -> float:
@@ -36,3 +36,24 @@ def centre_error(cameras: Mapping[str, Camera], truth: Mapping[str, Camera]) -> 
     b = np.array([truth[n].center for n in names])
     sim = umeyama(a, b)
     return float(np.max(np.linalg.norm(sim.apply(a) - b, axis=1)))
+
+
+def errors_against_truth(cameras: Mapping[str, Camera], points: NDArray[np.float64],
+                         truth: Mapping[str, Camera], true_points: NDArray[np.float64]
+                         ) -> dict[str, dict[str, float]]:
+    """Per camera of `truth`: after the similarity that best maps the calibration's triangulated
+    points onto the same points' true positions (as `calibrate align` with known marks would), the
+    distance of the camera centre from the true one (world units) and how far the calibrated camera
+    projects the true points from where the true camera does (mean and 95th percentile, px; only
+    points in the true camera's view)."""
+    ok = np.all(np.isfinite(points), axis=1)  # (frames the calibration could not triangulate)
+    sim = umeyama(points[ok], true_points[ok])
+    out: dict[str, dict[str, float]] = {}
+    for name, tc in truth.items():
+        c = sim.apply_camera(cameras[name])
+        vis = tc.in_view(true_points, margin=0.0)
+        d = np.linalg.norm(c.project(true_points[vis]) - tc.project(true_points[vis]), axis=1)
+        out[name] = {"centre": float(np.linalg.norm(c.center - tc.center)),
+                     "proj_mean_px": float(np.mean(d)) if len(d) else float("nan"),
+                     "proj_p95_px": float(np.percentile(d, 95)) if len(d) else float("nan")}
+    return out

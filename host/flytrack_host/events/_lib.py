@@ -51,6 +51,10 @@ def lib() -> ctypes.CDLL:
     so.ft_ev_error_offset.restype = ctypes.c_longlong
     so.ft_ev_close.argtypes = [vp]
     so.ft_ev_close.restype = None
+    so.ft_ev_keep_triggers.argtypes = [vp, ctypes.c_int]
+    so.ft_ev_keep_triggers.restype = None
+    so.ft_ev_triggers.argtypes = [vp, vp, sz]
+    so.ft_ev_triggers.restype = sz
     so.ft_ev_writer_open.argtypes = [cp, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, cp, sz]
     so.ft_ev_writer_open.restype = vp
     so.ft_ev_write.argtypes = [vp, vp, sz]

@@ -9,6 +9,7 @@ raises EventFileError naming the byte offset.
         for chunk in r:             # structured arrays of EVENT_DTYPE
             ...
     events = read_events("rec.raw")  # everything at once
+    events, triggers = read_events_and_triggers("rec.raw")  # and the sync events' times
 
     with EventWriter("out.aedat4", width=346, height=260, compression="lz4") as w:
         w.write(events)
@@ -25,10 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from flytrack_host.events._lib import Info, lib
+from flytrack_host.protocol.dvs import EVENT_DTYPE  # noqa: F401 (the event layout; re-exported here)
 
-#: One event, 16 bytes, the C struct ft_event: t (us), x, y, p (1 = ON).
-EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "u1"],
-                        "offsets": [0, 8, 10, 12], "itemsize": 16})
+#: One external trigger / sync event, the C struct ft_ev_trigger: t (us, the events' time base),
+#: value (1 rising edge, pulse or sync; 0 falling edge), channel (trigger input id, 0 if none).
+TRIGGER_DTYPE = np.dtype({"names": ["t", "value", "channel"], "formats": ["<i8", "u1", "u1"],
+                          "offsets": [0, 8, 9], "itemsize": 16})
 
 FORMATS = ("aedat2", "aedat3", "aedat4", "evt2", "evt3", "dat")  # codes 1..6 in events.h
 COMPRESSIONS = ("none", "lz4", "lz4_high", "zstd", "zstd_high")  # AEDAT 4.0 CompressionType
@@ -72,7 +75,8 @@ class EventReader:
     `fmt` None detects the format from the header (and a `.dat` name for DAT)."""
 
     def __init__(self, path: str | os.PathLike[str] | bytes | bytearray | memoryview,
-                 fmt: str | None = None, chunk: int = DEFAULT_CHUNK, name: str | None = None) -> None:
+                 fmt: str | None = None, chunk: int = DEFAULT_CHUNK, name: str | None = None,
+                 triggers: bool = False) -> None:
         self._so = lib()
         self._chunk = max(16, int(chunk))
         self._mem: bytes | None = None
@@ -89,6 +93,8 @@ class EventReader:
             raise EventFileError(err.value.decode(errors="replace"))
         self._buf = np.empty(self._chunk, EVENT_DTYPE)
         self._done = False
+        if triggers:  # keep the sync events' times for read_triggers()
+            self._so.ft_ev_keep_triggers(self._r, 1)
 
     @property
     def info(self) -> EventFileInfo:
@@ -117,6 +123,18 @@ class EventReader:
             self._done = True
             return None
         return _copy(self._buf[:n])
+
+    def read_triggers(self) -> np.ndarray:
+        """The trigger / sync events decoded since the last call (TRIGGER_DTYPE, oldest first); only
+        with EventReader(..., triggers=True), else always empty."""
+        self._check_open()
+        parts = []
+        while True:
+            buf = np.zeros(4096, TRIGGER_DTYPE)
+            n = self._so.ft_ev_triggers(self._r, buf.ctypes.data, len(buf))
+            parts.append(buf[:n])
+            if n < len(buf):
+                return np.concatenate(parts)
 
     def __iter__(self) -> Iterator[np.ndarray]:
         while (c := self.read_chunk()) is not None:
@@ -155,7 +173,20 @@ _EVENTS_PER_BYTE = {"aedat2": 1 / 8, "aedat3": 1 / 8, "aedat4": 1 / 4, "evt2": 1
 def read_events(path: str | os.PathLike[str], fmt: str | None = None) -> np.ndarray:
     """All events of a file as one EVENT_DTYPE array, decoded straight into it. On damage raises
     EventFileError whose `events` holds every event before it."""
-    with EventReader(path, fmt, chunk=16) as r:
+    return _read_all(path, fmt, None)
+
+
+def read_events_and_triggers(path: str | os.PathLike[str],
+                             fmt: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """All events (EVENT_DTYPE) and all trigger / sync events (TRIGGER_DTYPE) of a file. On damage
+    raises EventFileError with the events before it."""
+    trig: list[np.ndarray] = []
+    ev = _read_all(path, fmt, trig)
+    return ev, np.concatenate(trig) if trig else np.zeros(0, TRIGGER_DTYPE)
+
+
+def _read_all(path: str | os.PathLike[str], fmt: str | None, triggers: list[np.ndarray] | None) -> np.ndarray:
+    with EventReader(path, fmt, chunk=16, triggers=triggers is not None) as r:
         so, handle = r._so, r._r
         size = os.path.getsize(r.path)
         cap = max(1024, int(size * _EVENTS_PER_BYTE[r.info.format]) + 64)
@@ -168,6 +199,8 @@ def read_events(path: str | os.PathLike[str], fmt: str | None = None) -> np.ndar
                 grown.view(np.uint8)[: 16 * n] = buf.view(np.uint8)[: 16 * n]
                 buf = grown
             got = so.ft_ev_read(handle, buf.ctypes.data + 16 * n, cap - n)
+            if triggers is not None:
+                triggers.append(r.read_triggers())
             if got < 0:
                 raise EventFileError(so.ft_ev_error(handle).decode(errors="replace"),
                                      int(so.ft_ev_error_offset(handle)), _trim(buf, n))

@@ -11,8 +11,8 @@ PROTOCOL_VERSION = 2
 
 from .canonical import canonical_fields, fmt_f32, fmt_f64  # noqa: E402
 from .dvs import (  # noqa: E402
-    DVS_EVENT_DTYPE,
     DVS_WORD_DTYPE,
+    EVENT_DTYPE,
     WRAP_US,
     DvsDecoder,
     DvsEncoder,
@@ -102,7 +102,7 @@ from .udp import (  # noqa: E402
 __all__ = [
     "PROTOCOL_VERSION", "ERROR_NAMES", "ProtocolError", "canonical_fields", "fmt_f32", "fmt_f64",
     # dvs
-    "DVS_EVENT_DTYPE", "DVS_WORD_DTYPE", "WRAP_US", "DvsDecoder", "DvsEncoder", "DvsPacket",
+    "EVENT_DTYPE", "DVS_WORD_DTYPE", "WRAP_US", "DvsDecoder", "DvsEncoder", "DvsPacket",
     "decode_dvs_words", "encode_dvs_words", "encode_events",
     # trigger link
     "FRAME_NOW", "MAX_BODY", "MAX_WIRE_FRAME", "PRESCALER_DIVISORS", "SERIAL_MESSAGE_TYPES",

@@ -21,7 +21,10 @@ WRAP_BIT = 0x8000
 SYNC_BIT = 0x8000  # in the u16 at bytes 0-1 (byte 1, bit 7)
 DVS_WIDTH = DVS_HEIGHT = 128
 
-DVS_EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("polarity", "u1"), ("t_us", "<u8")], align=True)
+#: One address event, 16 bytes, the C struct ft_event of edge/events: t (us), x, y, p (1 = ON). The one event
+#: layout of the project: the event-file readers (flytrack_host.events) and this decoder both give it.
+EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "u1"],
+                        "offsets": [0, 8, 10, 12], "itemsize": 16})
 # Raw fields of every word (the canonical text of §5 lists these).
 DVS_WORD_DTYPE = np.dtype(
     [("x", "u1"), ("y", "u1"), ("polarity", "u1"), ("reset", "u1"), ("wrap", "u1"), ("ts", "<u2"), ("sync", "u1")]
@@ -69,7 +72,7 @@ class DvsDecoder:
         w = _words(packet)
         n = w.size
         if n == 0:
-            return np.zeros(0, DVS_EVENT_DTYPE), np.zeros(0, np.uint64)
+            return np.zeros(0, EVENT_DTYPE), np.zeros(0, np.uint64)
         hi = (w >> 16).astype(np.uint32)
         is_reset = (hi & RESET_BIT) != 0
         is_wrap = (hi & WRAP_BIT) != 0
@@ -84,11 +87,11 @@ class DvsDecoder:
         is_sync = timed & ((w & SYNC_BIT) != 0)
         ev = timed & ~is_sync
         we = w[ev]
-        out = np.empty(int(ev.sum()), DVS_EVENT_DTYPE)
+        out = np.empty(int(ev.sum()), EVENT_DTYPE)
         out["x"] = (we >> 1) & 0x7F
         out["y"] = (we >> 8) & 0x7F
-        out["polarity"] = we & 1
-        out["t_us"] = offs[ev] + ((we >> 16) & TS_MASK)
+        out["p"] = we & 1
+        out["t"] = offs[ev] + ((we >> 16) & TS_MASK)
         sync_t = (offs[is_sync] + ((w[is_sync] >> 16) & TS_MASK)).astype(np.uint64)
         self.offset = int(offs[-1])
         self.events_decoded += out.size
@@ -189,6 +192,6 @@ def dvs_event_times(packet: DvsPacket, offset: int = 0) -> np.ndarray:
     timed = ~(wd["reset"].astype(bool) | wd["wrap"].astype(bool))
     is_sync = timed & wd["sync"].astype(bool)
     out = np.full(wd.size, -1, np.int64)
-    out[timed & ~is_sync] = ev["t_us"].astype(np.int64)
+    out[timed & ~is_sync] = ev["t"]
     out[is_sync] = sync_t.astype(np.int64)
     return out

@@ -4,7 +4,9 @@ rig, written as a FlyTrack recording with its calibration, for offline tools' te
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -12,35 +14,64 @@ from flytrack_host.recording.schema import CAM_INFO, FLAG_TRACKED
 from flytrack_host.recording.writer import Recorder
 
 
-def write_synthetic_recording(path: Path, n_cameras: int = 4, n_targets: int = 2, duration_s: float = 2.0,
-                              fps: float = 100.0, seed: int = 0) -> Path:
-    """Write a finalised recording of 2D data only (no 3D estimates) to `path`; returns its recording.h5."""
+def start_synthetic_recording(path: Path, scenario: Any, fps: float, *, flush_s: float = 0.2, on_full: str = "drop",
+                              rig_name: str = "synthetic") -> Recorder:
+    """A started Recorder holding the scenario's rig: calibration.xml, cam_info (cameras named camN) and
+    the textlog's frame-rate line, as a live run writes them before its first frame."""
     from flytrack_host.calibration.formats import save_flydra_xml
-    from flytrack_host.pipeline import data2d_rows
-    from flytrack_host.sync import CameraFrame
     from flytrack_host.tracking.params import TrackingParams
-    from flytrack_host.tracking.synthetic import make_scenario
 
-    sc = make_scenario(n_cameras=n_cameras, n_targets=n_targets, duration_s=duration_s, fps=fps,
-                       close_pass_m=None, enter_exit=False, false_positives_per_camera=0.0, seed=seed)
-    names = {i: f"cam{i}" for i in sc.cameras}
-    rec = Recorder(path, 1.0, on_full="block", meta={"rig_name": f"synthetic seed {seed}", "fps": fps,
-                                                     "tracking_params": TrackingParams().model_dump()})
+    names = {i: f"cam{i}" for i in scenario.cameras}
+    meta = {"rig_name": rig_name, "fps": fps, "tracking_params": TrackingParams().model_dump()}
+    rec = Recorder(path, flush_s, meta=meta, on_full=on_full)
     rec.start()
     with tempfile.TemporaryDirectory() as d:
         cal = Path(d) / "calibration.xml"
-        save_flydra_xml({names[i]: c for i, c in sc.cameras.items()}, cal)
+        save_flydra_xml({names[i]: c for i, c in scenario.cameras.items()}, cal)
         rec.attach("calibration.xml", cal.read_bytes())
     ci = np.zeros(len(names), dtype=CAM_INFO)
     for k, (i, n) in enumerate(names.items()):
         ci[k] = (i, n.encode(), b"127.0.0.1", n.encode())
     rec.append("cam_info", ci)
     rec.log(f"MainBrain running at {fps:g} fps")
-    rows = []
-    for b in sc.bundles:
-        t = 1000.0 + b.trigger_frame / fps
-        for cam, pts in b.detections.items():
-            fr = CameraFrame(cam, b.trigger_frame, -1, pts, t + 0.002)
-            rows.append(data2d_rows(fr, b.trigger_frame, t, FLAG_TRACKED))
-    rec.append("data2d_distorted", np.concatenate(rows))
+    return rec
+
+
+def write_scenario_frames(rec: Recorder, scenario: Any, fps: float, *, track: bool, t0: float = 1000.0,
+                          camera_frame_offset: int = 0,
+                          on_frame: Callable[[int, Any], None] | None = None) -> None:
+    """Append every bundle's 2D rows (trigger time t0 + frame / fps, arrival 2 ms later) and, with `track`,
+    the real tracker's kalman_estimates and data_association rows. Each camera frame is numbered trigger frame
+    + `camera_frame_offset`; `on_frame(n, bundle)` runs after each bundle."""
+    from flytrack_host.pipeline import data2d_rows, result_rows
+    from flytrack_host.sync import CameraFrame
+    from flytrack_host.tracking.params import TrackingParams
+    from flytrack_host.tracking.tracker import Tracker
+
+    tracker = Tracker(scenario.cameras, TrackingParams(), 1 / fps) if track else None
+    for n, b in enumerate(scenario.bundles):
+        b.timestamp = t0 + b.trigger_frame / fps
+        cam_frame = b.trigger_frame + camera_frame_offset
+        rows = [data2d_rows(CameraFrame(cam, cam_frame, -1, pts, b.timestamp + 0.002), b.trigger_frame,
+                            b.timestamp, FLAG_TRACKED) for cam, pts in b.detections.items()]
+        if rows:
+            rec.append("data2d_distorted", np.concatenate(rows))
+        if tracker is not None:
+            k, a = result_rows(tracker.process(b), b.timestamp)
+            rec.append("kalman_estimates", k)
+            rec.append("data_association", a)
+        if on_frame is not None:
+            on_frame(n, b)
+
+
+def write_synthetic_recording(path: Path, n_cameras: int = 4, n_targets: int = 2, duration_s: float = 2.0,
+                              fps: float = 100.0, seed: int = 0) -> Path:
+    """Write a finalised recording of 2D data only (no 3D estimates) to `path`; returns its recording.h5."""
+    from flytrack_host.tracking.synthetic import make_scenario
+
+    sc = make_scenario(n_cameras=n_cameras, n_targets=n_targets, duration_s=duration_s, fps=fps,
+                       close_pass_m=None, enter_exit=False, false_positives_per_camera=0.0, seed=seed)
+    rec = start_synthetic_recording(path, sc, fps, flush_s=1.0, on_full="block",
+                                    rig_name=f"synthetic seed {seed}")
+    write_scenario_frames(rec, sc, fps, track=False)
     return rec.stop(finalize=True)

@@ -94,6 +94,59 @@ class DvsRenderer:
             out += np.log1p(-self.p.contrast * g).astype(np.float32)
         return out
 
+    def fire(self, L: np.ndarray, y0: int, x0: int, t_base: float, dt: float,
+             k: int = 1, latency: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The sensor model on one window: L is the log intensity now over pixels [y0:, x0:]; each pixel
+        that has moved by the contrast threshold since its last event fires, its first event inside
+        substep k of length dt after t_base (seconds; sooner for a larger step; within `latency` of the
+        substep's start when given, as for a sudden step of light), more one refractory period apart
+        while the substep lasts. Updates the pixels' reference and last event time.
+        (t us, x, y, p) arrays, or None when nothing fired."""
+        p = self.p
+        y1, x1 = y0 + L.shape[0], x0 + L.shape[1]
+        ref = self.ref[y0:y1, x0:x1]
+        d = L - ref
+        fire = np.abs(d) >= p.contrast_threshold
+        if not np.any(fire):
+            return None
+        yy, xx = np.nonzero(fire)
+        # A step of several thresholds fires several events, one per refractory period at most.
+        n_th = np.floor(np.abs(d[yy, xx]) / p.contrast_threshold).astype(np.int64)
+        if latency is None:
+            t_first = self.to_us(t_base + (k - 1 + self.rng.random(yy.size) / n_th) * dt)
+        else:
+            t_first = self.to_us(t_base + (k - 1) * dt + self.rng.random(yy.size) / n_th * latency)
+        t_first = np.maximum(t_first, self.last_us[yy + y0, xx + x0] + p.refractory_us)
+        step_us = max(p.refractory_us, 1)
+        t_stop = self.to_us(t_base + k * dt)
+        room = np.where(t_first <= t_stop, 1 + (t_stop - t_first) // step_us, 0)
+        m = np.minimum(n_th, room)
+        if not np.any(m):
+            return None
+        rep_i = np.repeat(np.arange(yy.size), m)
+        j = np.arange(rep_i.size) - np.repeat(np.cumsum(m) - m, m)
+        t_ev = t_first[rep_i] + j * step_us
+        gy, gx = yy[rep_i] + y0, xx[rep_i] + x0
+        sign = np.sign(d[yy, xx])
+        pol = (sign[rep_i] > 0).astype(np.int64)
+        ref[yy, xx] += (sign * m * p.contrast_threshold).astype(np.float32)
+        last = np.full(yy.size, -(1 << 40), np.int64)
+        has = m > 0
+        last[has] = t_first[has] + (m[has] - 1) * step_us
+        self.last_us[yy[has] + y0, xx[has] + x0] = last[has]
+        return t_ev, gx, gy, pol
+
+    def noise(self, t_start: float, t_end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Background activity from t_start to t_end (seconds): Poisson in time, uniform over the
+        pixels, either polarity; (t us, x, y, p) arrays (not time-ordered), or None."""
+        p = self.p
+        h, w = self.camera.height, self.camera.width
+        n_noise = int(self.rng.poisson(p.noise_hz_per_px * h * w * (t_end - t_start)))
+        if not n_noise:
+            return None
+        return (self.to_us(t_start) + self.rng.integers(1, max(2, self.to_us(t_end) - self.to_us(t_start)), n_noise),
+                self.rng.integers(0, w, n_noise), self.rng.integers(0, h, n_noise), self.rng.integers(0, 2, n_noise))
+
     def period(self, t_end: float, pos: NDArray[np.float64], length: float, width: float) -> np.ndarray:
         """Events from the previous call's time to t_end (animals at `pos` (n,3) then), as a structured
         array (t us, x, y, p), time-ordered. The first call only sets the start."""
@@ -136,45 +189,19 @@ class DvsRenderer:
                 if x0 >= x1 or y0 >= y1:
                     continue
                 L = self._log_image(blobs, y0, y1, x0, x1)
-                ref = self.ref[y0:y1, x0:x1]
-                d = L - ref
-                fire = np.abs(d) >= p.contrast_threshold
-                if not np.any(fire):
+                got = self.fire(L, y0, x0, t_start, dt, k)
+                if got is None:
                     continue
-                yy, xx = np.nonzero(fire)
-                # A step of several thresholds fires several events, one per refractory period at most.
-                n_th = np.floor(np.abs(d[yy, xx]) / p.contrast_threshold).astype(np.int64)
-                t_first = self.to_us(t_start + (k - 1 + self.rng.random(yy.size) / n_th) * dt)
-                t_first = np.maximum(t_first, self.last_us[yy + y0, xx + x0] + p.refractory_us)
-                step_us = max(p.refractory_us, 1)
-                t_stop = self.to_us(t_start + k * dt)
-                room = np.where(t_first <= t_stop, 1 + (t_stop - t_first) // step_us, 0)
-                m = np.minimum(n_th, room)
-                if not np.any(m):
-                    continue
-                rep_i = np.repeat(np.arange(yy.size), m)
-                j = np.arange(rep_i.size) - np.repeat(np.cumsum(m) - m, m)
-                t_ev = t_first[rep_i] + j * step_us
-                gy, gx = yy[rep_i] + y0, xx[rep_i] + x0
-                sign = np.sign(d[yy, xx])
-                pol = (sign[rep_i] > 0).astype(np.int64)
-                ref[yy, xx] += (sign * m * p.contrast_threshold).astype(np.float32)
-                last = np.full(yy.size, -(1 << 40), np.int64)
-                has = m > 0
-                last[has] = t_first[has] + (m[has] - 1) * step_us
-                self.last_us[yy[has] + y0, xx[has] + x0] = last[has]
-                ev_t.append(t_ev)
-                ev_x.append(gx)
-                ev_y.append(gy)
-                ev_p.append(pol)
-        # Background activity: Poisson in time, uniform over the pixels, either polarity.
-        n_noise = int(self.rng.poisson(p.noise_hz_per_px * h * w * (t_end - t_start)))
-        if n_noise:
-            ev_t.append(self.to_us(t_start) + self.rng.integers(1, max(2, self.to_us(t_end) - self.to_us(t_start)),
-                                                                n_noise))
-            ev_x.append(self.rng.integers(0, w, n_noise))
-            ev_y.append(self.rng.integers(0, h, n_noise))
-            ev_p.append(self.rng.integers(0, 2, n_noise))
+                ev_t.append(got[0])
+                ev_x.append(got[1])
+                ev_y.append(got[2])
+                ev_p.append(got[3])
+        noise = self.noise(t_start, t_end)
+        if noise is not None:
+            ev_t.append(noise[0])
+            ev_x.append(noise[1])
+            ev_y.append(noise[2])
+            ev_p.append(noise[3])
         if not ev_t:
             return _pack(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
         out = _pack(np.concatenate(ev_t), np.concatenate(ev_x), np.concatenate(ev_y), np.concatenate(ev_p))

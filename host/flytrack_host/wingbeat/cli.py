@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 from dataclasses import asdict
 from pathlib import Path
@@ -42,7 +43,8 @@ def save_events(path: Path, events: np.ndarray, width: int, height: int) -> None
 
 
 def wingbeat_command(
-    file: Path = typer.Argument(..., help="Event file of a tethered fly (AEDAT 2/3.1/4, EVT 2/3, DAT, or .npy)."),
+    file: Path | None = typer.Argument(None, help="Event file of a tethered fly (AEDAT 2/3.1/4, EVT 2/3, DAT, or "
+                                       ".npy). With --live: the file a flytrack-edge started here plays."),
     method: str = typer.Option("both", "--method", help="ekf, wra, or both (side by side)."),
     harmonics: int = typer.Option(2, "--harmonics", min=1, max=6, help="EKF: Fourier harmonics (1 = the seed's "
                                   "sinusoid)."),
@@ -53,6 +55,18 @@ def wingbeat_command(
     height: int = typer.Option(128, help="Sensor height."),
     plot: Path | None = typer.Option(None, "--plot", help="Write the figure here (PNG)."),
     json_path: Path | None = typer.Option(None, "--json", help="Write the per-beat series here."),
+    csv_path: Path | None = typer.Option(None, "--csv", help="Write the series here (file: per beat and wing; live: "
+                                         "per datagram and record)."),
+    live: bool = typer.Option(False, "--live", help="Take DVS_WINGBEAT from a DVS edge (flytrack-edge --wingbeat 1) "
+                              "instead of reading FILE; with FILE, start that edge on it here."),
+    port: int | None = typer.Option(None, "--port", min=0, max=65535, help="--live: UDP port to listen on (default "
+                                    "7700, the edge's default; with FILE a free one)."),
+    seconds: float | None = typer.Option(None, "--seconds", min=0.1, help="--live: stop after this many seconds "
+                                         "(default: Ctrl-C, or the edge started here finishing)."),
+    timeout: float = typer.Option(10.0, "--timeout", min=0.1, help="--live: give up when no datagram came for this "
+                                  "many seconds."),
+    edge_bin: Path | None = typer.Option(None, "--edge-bin", help="--live with FILE: the flytrack-edge binary "
+                                         "(default: the build's)."),
     simulate: float | None = typer.Option(None, "--simulate", help="First write FILE with this many seconds of a "
                                           "simulated 200 Hz fly (a 10 % frequency rise, 20 % noise events)."),
 ) -> None:
@@ -61,7 +75,27 @@ def wingbeat_command(
     The fly is found in the first 0.1 s (2-means on the events, body between the wings, heading across
     them), then each wing's leading (OFF) and trailing (ON) edges are tracked by an EKF on a Fourier series
     and/or the weighted running average. Prints frequency and amplitude per wing over time; `--plot` draws
-    the seed's figures."""
+    the seed's figures.
+
+    Live: `--live` listens for the edge's DVS_WINGBEAT (the same tracker in C at the edge, one datagram every
+    5 ms of event time) and shows both wings on a status line; on exit it prints the table and writes
+    --csv/--plot. `--simulate S --live FILE.aedat4` simulates the fly, starts flytrack-edge on the file
+    and takes its datagrams over UDP: the whole live path, scored against the simulation."""
+    if live:
+        from flytrack_host.wingbeat.live_cli import run_live
+
+        if method not in ("both", "ekf"):
+            err.print("[red]error[/red] --live: the edge runs the EKF (--method is for event files)")
+            raise typer.Exit(code=2)
+        rc = run_live(console, err, file=file, simulate=simulate, port=port, seconds=seconds, timeout=timeout,
+                      csv_path=csv_path, plot=plot, edge_bin=edge_bin, harmonics=harmonics, per_update=per_update,
+                      start_freq=start_freq)
+        if rc:
+            raise typer.Exit(code=rc)
+        return
+    if file is None:
+        err.print("[red]error[/red] give an event FILE, or --live to take wing beats from a DVS edge")
+        raise typer.Exit(code=2)
     from flytrack_host.wingbeat.analysis import score_wings, track_wings
     from flytrack_host.wingbeat.ekf import EkfParams
     from flytrack_host.wingbeat.geometry import WingbeatError
@@ -123,3 +157,13 @@ def wingbeat_command(
             {"wing": w.wing, "t_us": w.beats.t_us.tolist(), "freq_hz": w.beats.freq_hz.tolist(),
              "amplitude_rad": w.beats.amplitude.tolist()} for w in r.wings]} for r in results}
         json_path.write_text(json.dumps(out))
+    if csv_path is not None:
+        csv_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(csv_path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["method", "wing", "t_us", "frequency_hz", "amplitude_rad"])
+            for r in results:
+                for wt in r.wings:
+                    for t, f, a in zip(wt.beats.t_us, wt.beats.freq_hz, wt.beats.amplitude, strict=True):
+                        w.writerow([r.method, wt.wing, f"{t:.0f}", f"{f:.4f}", f"{a:.6f}"])
+        console.print(f"wrote {csv_path}", highlight=False, soft_wrap=True)

@@ -74,10 +74,9 @@ def _ramp(t: NDArray[np.float64], start: float, length: float) -> NDArray[np.flo
     return 0.5 - 0.5 * np.cos(np.pi * u)
 
 
-def simulate_tethered_fly(p: FlySimParams | None = None) -> tuple[NDArray, FlyTruth]:
-    """Events (EVENT_DTYPE, time-sorted) and the ground truth of one simulated recording."""
+def fly_truth(p: FlySimParams | None = None) -> FlyTruth:
+    """The ground truth alone (what `simulate_tethered_fly` returns beside its events, without them)."""
     p = p or FlySimParams()
-    rng = np.random.default_rng(p.seed)
     n = int(p.duration_s * 1e6 / p.dt_us) + 1
     t = np.arange(n) * p.dt_us * 1e-6
     ramp = _ramp(t, p.manoeuvre_start_s, p.manoeuvre_s)
@@ -86,6 +85,18 @@ def simulate_tethered_fly(p: FlySimParams | None = None) -> tuple[NDArray, FlyTr
     amp = np.array(p.amplitude_rad)[:, None] * (1.0 + p.amplitude_change * ramp)[None, :]
     stroke = p.mean_stroke_rad + amp * np.sin(theta)[None, :]
     body = np.array(p.body_xy)[None, :] + t[:, None] * np.array(p.body_drift_px_s)[None, :]
+    return FlyTruth(t_us=np.round(t * 1e6).astype(np.int64), freq_hz=f, stroke=stroke, amplitude=amp,
+                    body_xy=body, params=p)
+
+
+def simulate_tethered_fly(p: FlySimParams | None = None) -> tuple[NDArray, FlyTruth]:
+    """Events (EVENT_DTYPE, time-sorted) and the ground truth of one simulated recording."""
+    p = p or FlySimParams()
+    rng = np.random.default_rng(p.seed)
+    truth = fly_truth(p)
+    n = len(truth.t_us)
+    t = np.arange(n) * p.dt_us * 1e-6  # as fly_truth computes it (not from the rounded t_us)
+    stroke, body = truth.stroke, truth.body_xy
 
     # Pixels that a wing can cover: each gets its angle from the heading on its wing's side.
     ys, xs = np.mgrid[0:p.height, 0:p.width]
@@ -142,6 +153,4 @@ def simulate_tethered_fly(p: FlySimParams | None = None) -> tuple[NDArray, FlyTr
     events = np.concatenate([wing_events, noise]).astype(EVENT_DTYPE)  # concatenate drops the padding
     events = events[(events["t"] >= 0) & (events["t"] < int(p.duration_s * 1e6))]
     events = events[np.argsort(events["t"], kind="stable")]
-    truth = FlyTruth(t_us=np.round(t * 1e6).astype(np.int64), freq_hz=f, stroke=stroke, amplitude=amp,
-                     body_xy=body, params=p)
     return events, truth

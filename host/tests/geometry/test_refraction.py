@@ -172,7 +172,10 @@ def test_water_in_flydra_xml_round_trip(tmp_path) -> None:  # noqa: ANN001
         save_flydra_xml(wall, tmp_path / "wall.xml")
 
 
-def test_tracker_follows_fish_under_water_on_the_numpy_path(caplog) -> None:  # noqa: ANN001
+def test_tracker_follows_fish_under_water_on_the_numpy_path(caplog, monkeypatch) -> None:  # noqa: ANN001
+    import flytrack_host.tracking.tracker as tracker_mod
+
+    monkeypatch.setattr(tracker_mod, "_logged", set())  # the reason is logged once per process: as in a fresh one
     water = FlatInterface.water_surface(1.333, z=0.3)  # the arena's top is the surface
     sc = make_scenario(n_cameras=5, n_targets=3, duration_s=3.0, noise_px=0.5, p_miss=0.05,
                        false_positives_per_camera=0.3, close_pass_m=None, seed=4, interface=water)

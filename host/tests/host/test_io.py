@@ -12,7 +12,6 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.calibration.formats import save_flydra_xml
 from flytrack_host.cli import app
 from flytrack_host.io.braidz import (
     ASSOC_COLUMNS,
@@ -26,13 +25,11 @@ from flytrack_host.io.braidz import (
 )
 from flytrack_host.io.csv_export import export_csv
 from flytrack_host.io.retrack import cameras_for, load_2d, params_with, retrack
-from flytrack_host.pipeline import data2d_rows, result_rows
-from flytrack_host.recording import Recorder, load_recording
-from flytrack_host.recording.schema import CAM_INFO, FLAG_TRACKED, TRIGGER_CLOCK
-from flytrack_host.sync import CameraFrame
+from flytrack_host.recording import load_recording
+from flytrack_host.recording.schema import TRIGGER_CLOCK
+from flytrack_host.recording.synthetic import start_synthetic_recording, write_scenario_frames
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario
-from flytrack_host.tracking.tracker import Tracker
 
 FPS = 100.0
 
@@ -47,34 +44,14 @@ def scenario():
 def recording(scenario, tmp_path_factory):
     """A FlyTrack recording of the scenario, tracked live-style by the real tracker."""
     d = tmp_path_factory.mktemp("rec")
-    names = {i: f"cam{i}" for i in scenario.cameras}
-    cal = d / "cal.xml"
-    save_flydra_xml({names[i]: c for i, c in scenario.cameras.items()}, cal)
-    rec = Recorder(d / "run.flytrack", 0.2, meta={"rig_name": "synthetic", "fps": FPS,
-                                                   "tracking_params": TrackingParams().model_dump()})
-    rec.start()
-    rec.attach("calibration.xml", cal.read_bytes())
-    ci = np.zeros(len(names), dtype=CAM_INFO)
-    for k, (i, n) in enumerate(names.items()):
-        ci[k] = (i, n.encode(), b"127.0.0.1", n.encode())
-    rec.append("cam_info", ci)
+    rec = start_synthetic_recording(d / "run.flytrack", scenario, FPS)
     clk = np.zeros(3, dtype=TRIGGER_CLOCK)
     clk["framecount"] = [0, 50, 100]
     clk["fraction"] = 0.5
     clk["start_timestamp"] = 1000.0 + clk["framecount"] / FPS
     clk["stop_timestamp"] = clk["start_timestamp"] + 0.001
     rec.append("trigger_clock_info", clk)
-    rec.log("MainBrain running at 100 fps")
-    tracker = Tracker(scenario.cameras, TrackingParams(), 1 / FPS)
-    for b in scenario.bundles:
-        b.timestamp = 1000.0 + b.trigger_frame / FPS
-        for cam, pts in b.detections.items():
-            fr = CameraFrame(cam, 500 + b.trigger_frame, -1, pts, b.timestamp + 0.002)
-            rec.append("data2d_distorted", data2d_rows(fr, b.trigger_frame, b.timestamp, FLAG_TRACKED))
-        res = tracker.process(b)
-        k, a = result_rows(res, b.timestamp)
-        rec.append("kalman_estimates", k)
-        rec.append("data_association", a)
+    write_scenario_frames(rec, scenario, FPS, track=True, camera_frame_offset=500)
     rec.stop()
     return d / "run.flytrack"
 

@@ -1,17 +1,21 @@
 """The recorder under faults: a failing disk is reported at once and never corrupts a table, the
 queue is bounded (drops counted and written into the recording), files are fsynced every flush
-interval (GitHub issue 5, A4 and A7). The full disk is faked at the one write seam
-(`writer._write_all`): this machine has no small file system to fill."""
+interval (GitHub issue 5, A4 and A7). The full disk is real: a 4 MB tmpfs mounted by the test and filled
+with a ballast file (root only; skipped with the reason otherwise). A hanging disk is the one fault that
+is simulated, at the write seam `writer._write_all`."""
 
 from __future__ import annotations
 
 import errno
 import logging
 import os
+import subprocess
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.recording import Recorder, load_recording
@@ -35,57 +39,81 @@ def _wait(cond, timeout: float = 3.0) -> bool:
     return cond()
 
 
-class _FullDisk:
-    """Fails writes to one file with ENOSPC while `on`, after writing part of the data (as a disk
-    filling up mid-write does)."""
-
-    def __init__(self, real):
-        self.real = real
-        self.on = False
-        self.fd: int | None = None
-        self.failures = 0
-
-    def __call__(self, fd, data):
-        if self.on and fd == self.fd:
-            self.failures += 1
-            half = memoryview(data)[: max(1, len(data) // 2 + 3)]  # not a whole number of rows
-            os.write(fd, half)
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        return self.real(fd, data)
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 4 MB tmpfs (finalising wants 1 MB of slack), unmounted afterwards."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-def test_disk_full_is_reported_at_once_and_the_table_stays_whole(tmp_path, monkeypatch, caplog):
-    disk = _FullDisk(writer_mod._write_all)
-    monkeypatch.setattr(writer_mod, "_write_all", disk)
-    rec = Recorder(tmp_path / "r", flush_interval_s=0.05)
+def _fill(disk, leave: int = 0) -> Path:
+    """Fill the file system with a ballast file, then give back `leave` bytes (tmpfs frees whole pages)."""
+    ballast = disk / "ballast"
+    fd = os.open(ballast, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+    try:
+        for chunk in (1 << 16, 4096, 1):
+            block = b"\0" * chunk
+            while True:
+                try:
+                    if os.write(fd, block) < chunk:
+                        break
+                except OSError as e:
+                    assert e.errno == errno.ENOSPC
+                    break
+        if leave:
+            os.ftruncate(fd, max(0, os.fstat(fd).st_size - leave))
+    finally:
+        os.close(fd)
+    return ballast
+
+
+def test_disk_full_is_reported_at_once_and_the_table_stays_whole(small_disk, caplog):
+    rec = Recorder(small_disk / "r", flush_interval_s=0.05)
     rec.start()
-    disk.fd = rec._fds["data2d_distorted"]
     with caplog.at_level(logging.ERROR, logger="flytrack.recording"):
         for k in range(10):
             rec.append("data2d_distorted", _rows(k, 1))
         assert _wait(lambda: rec.stats.rows.get("data2d_distorted") == 10)
-        disk.on = True
-        for k in range(10, 20):
+        assert _wait(lambda: rec.queue_bytes == 0)
+        # One page free: the rows that follow fill it, one write stops part-way through a row, then every
+        # write fails.
+        ballast = _fill(small_disk, leave=4096)
+        for k in range(10, 200):
             rec.append("data2d_distorted", _rows(k, 1))
-            time.sleep(0.01)  # several writer turns, several failed writes
+            if k % 10 == 0:
+                time.sleep(0.01)  # several writer turns, several failed writes
         # Surfaced while running, not at stop():
-        assert _wait(lambda: sum(rec.stats.dropped_rows.values()) == 10)
-        assert rec.stats.write_errors >= 2 and disk.failures == rec.stats.write_errors
+        assert _wait(lambda: rec.stats.write_errors >= 2)
+        assert _wait(lambda: rec.stats.rows["data2d_distorted"] + rec.stats.dropped_rows["data2d_distorted"] == 200)
         assert "No space left" in (rec.last_error or "")
         errors = [r for r in caplog.records if r.name == "flytrack.recording" and r.levelno >= logging.ERROR]
         assert len(errors) == 1  # logged once per episode, not once per write
-        disk.on = False
-        for k in range(20, 30):
+        ballast.unlink()
+        for k in range(200, 210):
             rec.append("data2d_distorted", _rows(k, 1))
         h5 = rec.stop()
     assert h5 is not None
-    back = load_recording(tmp_path / "r")
+    back = load_recording(small_disk / "r")
+    frames = back.table("data2d_distorted")["trigger_frame"].tolist()
+    kept = frames[:-10]
+    # Everything before the disk filled and after it was freed is there; in between, some rows fitted (in the
+    # freed page, or in room a rolled-back write gave back) and the rest are counted as lost. A row cut by
+    # the full disk was undone, so every row is whole, in order and aligned.
+    assert frames[-10:] == list(range(200, 210)) and kept[:10] == list(range(10))
+    assert 10 < len(kept) < 200 and kept == sorted(set(kept))
     d2 = back.table("data2d_distorted")
-    # The partial writes were undone: the rows around the failure are intact and aligned.
-    assert d2["trigger_frame"].tolist() == list(range(10)) + list(range(20, 30))
     assert np.allclose(d2["x_dist"], d2["trigger_frame"] * 0.5)
     lost = [r["message"] for r in back.textlog if r["message"].startswith("DATA LOST")]
-    assert sum(int(m.split()[2]) for m in lost) == 10 and all("data2d_distorted rows" in m for m in lost)
+    assert sum(int(m.split()[2]) for m in lost) == 200 - len(kept) and all("data2d_distorted rows" in m for m in lost)
     assert "No space left" in lost[0]
 
 
@@ -138,16 +166,14 @@ def test_files_are_fsynced_every_flush_interval(tmp_path, monkeypatch):
     assert times[0] < 0.35
 
 
-def test_pipeline_status_shows_write_errors_and_goes_on(helpers, tmp_path, monkeypatch):
-    disk = _FullDisk(writer_mod._write_all)
-    monkeypatch.setattr(writer_mod, "_write_all", disk)
+def test_pipeline_status_shows_write_errors_and_goes_on(helpers, small_disk):
     fps = 200.0
     pipe = HostPipeline(helpers.make_rig(2, fps=fps), cameras={0: None, 1: None}, tracker_factory=helpers.factory,
-                        recording_path=tmp_path / "r", bind="127.0.0.1:0", keep_results=True)
+                        recording_path=small_disk / "r", bind="127.0.0.1:0", keep_results=True)
     pipe.start()
     assert "rec queue" in pipe.status_line()
-    disk.fd = pipe.recorder._fds["data2d_distorted"]
-    disk.on = True
+    assert _wait(lambda: pipe.recorder.queue_bytes == 0)
+    ballast = _fill(small_disk)
     edges = [helpers.EdgeSim(i, pipe.address, edge_trigger=True) for i in range(2)]
     try:
         t0 = time.monotonic()
@@ -158,12 +184,18 @@ def test_pipeline_status_shows_write_errors_and_goes_on(helpers, tmp_path, monke
         assert _wait(lambda: pipe.recorder.stats.write_errors > 0)
         status = pipe.status_line()
         running = pipe.running
+        ballast.unlink()  # room again for the tables written from here on and the final file
     finally:
         summary = pipe.stop()
     assert running and "WRITE ERRORS" in status and "No space left" in status and "LOST" in status
     assert summary["frames_tracked"] == 40
     assert summary["recorder"]["write_errors"] > 0
-    assert summary["recorder"]["dropped_rows"]["data2d_distorted"] == 2 * 2 * 40
     rec = load_recording(summary["recording"])
-    assert len(rec.table("kalman_estimates")) == 40  # the other tables were written
+    d2 = summary["recorder"]["dropped_rows"]
+    assert d2.get("data2d_distorted", 0) > 0
+    # Nothing silently lost: every 2D row is either in the recording or counted as dropped.
+    assert len(rec.table("data2d_distorted")) + d2["data2d_distorted"] == 2 * 2 * 40
+    estimates = sum(len(r.estimates) for r in pipe.results)
+    assert estimates >= 30
+    assert len(rec.table("kalman_estimates")) + d2.get("kalman_estimates", 0) == estimates
     assert any(r["message"].startswith("DATA LOST") for r in rec.textlog)

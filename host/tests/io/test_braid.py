@@ -12,18 +12,17 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.calibration.formats import save_flydra_xml
 from flytrack_host.camera import Camera
 from flytrack_host.cli import app
 from flytrack_host.io.braidz import export_braidz, read_braidz
 from flytrack_host.io.hdr import Histogram, decode
-from flytrack_host.pipeline import data2d_rows, result_rows
-from flytrack_host.recording import Recorder, load_recording
-from flytrack_host.recording.schema import CAM_INFO, FLAG_REJECTED, FLAG_TRACKED, LATENCY
+from flytrack_host.pipeline import data2d_rows
+from flytrack_host.recording import load_recording
+from flytrack_host.recording.schema import FLAG_REJECTED, LATENCY
+from flytrack_host.recording.synthetic import start_synthetic_recording, write_scenario_frames
 from flytrack_host.sync import CameraFrame
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario
-from flytrack_host.tracking.tracker import Tracker
 
 FPS = 100.0
 
@@ -39,32 +38,15 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     sc = make_scenario(n_cameras=4, n_targets=2, duration_s=1.5, fps=FPS, close_pass_m=None, enter_exit=False,
                        false_positives_per_camera=0.0, seed=5)
     d = tmp_path_factory.mktemp("braid")
-    names = {i: f"cam{i}" for i in sc.cameras}
-    cal = d / "cal.xml"
-    save_flydra_xml({names[i]: c for i, c in sc.cameras.items()}, cal)
-    rec = Recorder(d / "run.flytrack", 0.2, meta={"rig_name": "synthetic", "fps": FPS,
-                                                   "tracking_params": TrackingParams().model_dump()})
-    rec.start()
-    rec.attach("calibration.xml", cal.read_bytes())
+    rec = start_synthetic_recording(d / "run.flytrack", sc, FPS)
     rec.attach("background_cam0.png", PNG)
-    ci = np.zeros(len(names), dtype=CAM_INFO)
-    for k, (i, n) in enumerate(names.items()):
-        ci[k] = (i, n.encode(), b"127.0.0.1", n.encode())
-    rec.append("cam_info", ci)
-    rec.log("MainBrain running at 100 fps")
-    tracker = Tracker(sc.cameras, TrackingParams(), 1 / FPS)
     lat = np.zeros(len(sc.bundles), dtype=LATENCY)
-    for n, b in enumerate(sc.bundles):
-        b.timestamp = 1000.0 + b.trigger_frame / FPS
-        for cam, pts in b.detections.items():
-            fr = CameraFrame(cam, 500 + b.trigger_frame, -1, pts, b.timestamp + 0.002)
-            rec.append("data2d_distorted", data2d_rows(fr, b.trigger_frame, b.timestamp, FLAG_TRACKED))
-        res = tracker.process(b)
-        k, a = result_rows(res, b.timestamp)
-        rec.append("kalman_estimates", k)
-        rec.append("data_association", a)
+
+    def stamp_latency(n: int, b) -> None:
         lat[n]["trigger_frame"], lat[n]["trigger_time"] = b.trigger_frame, b.timestamp
         lat[n]["estimate_time"] = b.timestamp + 0.001 + 0.0002 * (n % 7)
+
+    write_scenario_frames(rec, sc, FPS, track=True, camera_frame_offset=500, on_frame=stamp_latency)
     rec.append("latency", lat)
     # Rows Braid has no place for: 2D rows never mapped to a trigger frame, and rejected ones.
     pts = sc.bundles[0].detections[0][:1]
@@ -153,7 +135,6 @@ def test_retrack_with_a_calibration_xml_cannot_hold_says_so(braidz: tuple[Path, 
     carries the source's calibration instead of the one used."""
     from flytrack_host.io.retrack import cameras_for, load_2d, retrack
     from flytrack_host.refraction import FlatInterface
-    from flytrack_host.tracking.params import TrackingParams
 
     path, _ = braidz
     data = load_2d(path)

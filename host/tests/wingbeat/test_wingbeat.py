@@ -139,7 +139,7 @@ def test_cli_simulates_tracks_prints_and_plots(tmp_path):
 
     f = tmp_path / "fly.npy"
     r = CliRunner().invoke(app, ["wingbeat", str(f), "--simulate", "0.5", "--plot", str(tmp_path / "wb.png"),
-                                 "--json", str(tmp_path / "wb.json")])
+                                 "--json", str(tmp_path / "wb.json"), "--csv", str(tmp_path / "wb.csv")])
     assert r.exit_code == 0, r.output
     assert "EKF wing 0" in r.output and "WRA wing 1" in r.output
     assert "wing 0 against the simulation: frequency error" in r.output
@@ -148,5 +148,10 @@ def test_cli_simulates_tracks_prints_and_plots(tmp_path):
 
     beats = json.loads((tmp_path / "wb.json").read_text())["ekf"]["wings"][0]
     assert len(beats["freq_hz"]) > 80 and abs(np.median(beats["freq_hz"]) - 200.0) < 1.0
+    import csv
+
+    rows = list(csv.DictReader(open(tmp_path / "wb.csv")))  # the same series, one row per beat and wing
+    ekf0 = [float(x["frequency_hz"]) for x in rows if x["method"] == "ekf" and x["wing"] == "0"]
+    assert ekf0 == pytest.approx(beats["freq_hz"], abs=1e-3) and {x["method"] for x in rows} == {"ekf", "wra"}
     bad = CliRunner().invoke(app, ["wingbeat", str(tmp_path / "missing.npy")])
     assert bad.exit_code == 2 and "missing.npy" in bad.output

@@ -83,15 +83,24 @@ long long ft_ev_read(ft_ev_reader *r, ft_event *out, size_t cap);
  * do (always for files and memory), 0 on timeout. */
 int ft_ev_poll(ft_ev_reader *r, int timeout_ms);
 void ft_ev_get_info(const ft_ev_reader *r, ft_ev_info *info);
-/* Times (us, the events' time base) of the trigger / sync events read so far and not yet taken,
- * oldest first: up to cap written, returns how many. The reader keeps the latest FT_EV_TRIG_RING;
- * older ones not taken in time are dropped (they stay counted in n_triggers). A trigger's time
- * may run ahead of the events ft_ev_read has returned (it is decoded with its chunk). */
-#define FT_EV_TRIG_RING 1024
-size_t ft_ev_take_triggers(ft_ev_reader *r, int64_t *out, size_t cap);
 const char *ft_ev_error(const ft_ev_reader *r);      /* "" when none */
 long long ft_ev_error_offset(const ft_ev_reader *r); /* -1 when none */
 void ft_ev_close(ft_ev_reader *r);
+
+/* External trigger / sync events (the frame trigger recorded by the camera: EVT 2.0/3.0
+ * EXT_TRIGGER, AEDAT 2.0 sync bit 15 and special bit 31, AEDAT 3.1 external input edges and
+ * pulses; AEDAT 4.0 keeps them in another stream, skipped). Counted always; their times are kept
+ * only after ft_ev_keep_triggers(r, 1), and ft_ev_triggers moves them out oldest first, so
+ * memory grows only by what the caller has not collected (16 bytes a trigger). */
+typedef struct {
+    int64_t t;       /* microseconds, the events' time base */
+    uint8_t value;   /* 1: rising edge, pulse or sync; 0: falling edge */
+    uint8_t channel; /* trigger input id where the format has one, else 0 */
+    uint8_t pad[6];
+} ft_ev_trigger;
+void ft_ev_keep_triggers(ft_ev_reader *r, int keep);
+/* Moves up to cap kept triggers into out; returns how many. */
+size_t ft_ev_triggers(ft_ev_reader *r, ft_ev_trigger *out, size_t cap);
 
 const char *ft_ev_format_name(int format); /* "aedat2", "aedat3", "aedat4", "evt2", "evt3", "dat" */
 int ft_ev_format_from_name(const char *name); /* the reverse, -1 if unknown */
