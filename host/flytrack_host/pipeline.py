@@ -235,6 +235,9 @@ class HostPipeline:
         dvs_idx = [c.index for c in rig.cameras if c.kind == "dvs"]
         self.dvs_obs = (DvsObservations({i: self.cameras.get(i) for i in dvs_idx}, self.fps)
                         if dvs_idx and self.fps else None)
+        # Every bundle of the run with the event cameras' points, for eventcam.comparison (with and
+        # without them, side by side); off (maxlen 0) unless a caller sets a bound, e.g. the demo.
+        self.dvs_bundles: deque[FrameBundle] = deque(maxlen=0)
         self.events: deque[str] = deque(maxlen=200)
         self.frames_tracked = 0
         self.tracker_errors = 0
@@ -523,7 +526,7 @@ class HostPipeline:
             return math.nan
         return (t - t0) / ((t1 - t0) / 1000.0)
 
-    def _add_dvs(self, sb: SyncedBundle) -> None:
+    def _add_dvs(self, sb: SyncedBundle, count: bool = True) -> None:
         """Event cameras' observations join the bundle of frame cameras (a rig may mix them)."""
         if self.dvs_obs is None:
             return
@@ -532,7 +535,8 @@ class HostPipeline:
             got = self.dvs_obs.frame(ci, tf)
             if got is not None:
                 fr, cov = got
-                self.dvs_obs.count(ci, len(fr.points))
+                if count:
+                    self.dvs_obs.count(ci, len(fr.points))
                 sb.frames[ci] = fr
                 sb.bundle.detections[ci] = fr.points
                 # their own covariance is their measurement noise, and they never start a track
@@ -615,8 +619,12 @@ class HostPipeline:
             if self.recorder is not None:
                 self.recorder.append_many([("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp,
                                                                            FLAG_LATE)) for fr in sb.frames.values()])
+            if self.dvs_bundles.maxlen:  # tracked later, by the comparison, with its event points
+                self._add_dvs(sb, count=False)
+                self.dvs_bundles.append(bundle)
             return
         self._add_dvs(sb)
+        self.dvs_bundles.append(bundle)
         if self.tracker is not None:
             try:
                 result = self.tracker.process(bundle)

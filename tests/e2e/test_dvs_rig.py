@@ -64,3 +64,26 @@ def test_dvs_clusters_reach_the_tracker_and_the_recording_flags_them(dvs_demo):
     dvs_rows = d[(d["flags"] & FLAG_DVS) != 0]
     assert set(np.unique(dvs_rows["camera_index"])) <= {2, 3} and len(dvs_rows) > 0
     assert not np.any((d["flags"][np.isin(d["camera_index"], [0, 1])] & FLAG_DVS) != 0)
+
+
+@pytest.mark.slow
+def test_with_and_without_dvs_side_by_side(dvs_demo, tmp_path):
+    """The run's bundles tracked again with and without the DVS cameras' points (eventcam.comparison):
+    both are in the report and its JSON, the DVS points reached the tracker with their covariance as
+    R (they were gated and used), and they do not cost accuracy beyond a few percent."""
+    _, r = dvs_demo
+    c = r.dvs_comparison
+    w, wo = c["with_dvs"], c["without_dvs"]
+    print(f"RMSE with {w['rmse_mm']:.3f} mm, without {wo['rmse_mm']:.3f} mm, DVS points used "
+          f"{w['dvs_points_used']}/{w['dvs_points']}, MOTA {w['mota']:.4f}/{wo['mota']:.4f}")
+    assert c["bundles"] >= 140  # 1.5 s at 100 fps: every bundle of the run
+    assert w["dvs_points"] > 100 and w["dvs_points_used"] > 0.8 * w["dvs_points"]
+    assert wo["dvs_points"] == 0
+    # (the 2 mm goal of the live run is test_every_dvs_event_reaches_the_host's; here the two re-runs
+    # of the same bundles are compared, which a loaded machine moves together)
+    assert w["rmse_mm"] <= 1.05 * wo["rmse_mm"] + 0.02  # measured: 0.754-0.759 with, 0.771-0.775 without
+    assert w["false_positives"] == 0
+    path = tmp_path / "demo.json"
+    write_json(r, path)
+    data = json.loads(path.read_text())
+    assert data["dvs_comparison"]["with_dvs"]["rmse_mm"] == pytest.approx(w["rmse_mm"])

@@ -21,7 +21,8 @@ typedef struct {
     float px, py;   /* centre at the last tick, for the velocity */
     uint32_t events;
     /* the events taken since the last tick: count and sums (kf_centroid's measurement) */
-    uint32_t nk;
+    uint32_t nk, nall; /* gated for the centroid, all */
+    uint32_t misses;   /* ticks in a row with events but none in the centroid's gate */
     double sx, sy, sxx, syy;
     /* Kalman filter, state (y, y', x, x') as the seed writes it */
     int tracking;
@@ -59,12 +60,15 @@ void ft_ct_defaults(ft_ct_params *p, uint32_t width, uint32_t height) {
     p->max_meas_var = 1.0f;
     p->min_proc_var = 2500.0f;
     p->kf_centroid = 1;
+    p->centroid_var = 0.5f;
+    p->centroid_gate_px = 4.0f;
 }
 
 ft_cluster_tracker *ft_ct_create(const ft_ct_params *p) {
     if (!p || p->max_clusters == 0 || p->max_clusters > FT_CT_MAX_CLUSTERS || !(p->radius_px > 0) ||
         !(p->mixing > 0 && p->mixing <= 1) || p->mass_decay_us == 0 || p->kf_interval_us == 0 ||
-        !(p->max_meas_var > 0) || !(p->min_proc_var > 0) || !(p->velocity_tau_us > 0))
+        !(p->max_meas_var > 0) || !(p->min_proc_var > 0) || !(p->velocity_tau_us > 0) ||
+        !(p->centroid_var >= 0))
         return NULL;
     ft_cluster_tracker *t = calloc(1, sizeof *t);
     if (!t)
@@ -253,17 +257,38 @@ static void tick(ft_cluster_tracker *t, int64_t now) {
             cluster *c = &t->c[i];
             if (!c->alive || c->mass < t->p.min_mass)
                 continue;
-            if (!c->tracking)
+            /* the filter lost its animal (events keep coming, none near it): start again at the
+             * cluster's centre */
+            c->misses = c->nall && !c->nk ? c->misses + 1 : 0;
+            if (!c->tracking || (t->p.kf_centroid && c->misses >= 3)) {
                 kf_start(t, c);
-            else
+                c->misses = 0;
+            } else {
                 kf_step(t, c, dt);
+            }
         }
     }
     for (uint32_t i = 0; i < n; i++) {
-        t->c[i].nk = 0;
+        t->c[i].nk = t->c[i].nall = 0;
         t->c[i].sx = t->c[i].sy = t->c[i].sxx = t->c[i].syy = 0.0;
     }
     t->last_tick = now;
+}
+
+/* kf_centroid's measurement gate: once a cluster's filter runs, only the events near where the
+ * filter puts the animal at the event's time count towards the centroid (3 sigma of its position,
+ * at least centroid_gate_px). The a priori radius is many animals wide: without the gate a second
+ * animal inside it pulls the centroid between the two. The events outside still move the cluster
+ * (eq. 1) and feed its mass. */
+static int centroid_gate(const ft_cluster_tracker *t, const cluster *c, float ex, float ey,
+                         int64_t t_us) {
+    if (!c->tracking || !(t->p.centroid_gate_px > 0))
+        return 1;
+    const float dt = t_us > t->last_tick ? (float)(t_us - t->last_tick) * 1e-6f : 0.0f;
+    const float dy = ey - (c->s[0] + dt * c->s[1]), dx = ex - (c->s[2] + dt * c->s[3]);
+    const float g0 = t->p.centroid_gate_px * t->p.centroid_gate_px;
+    const float g = 4.5f * (c->P[0][0] + c->P[2][2]); /* 3 sigma, both axes' mean variance */
+    return dx * dx + dy * dy <= (g > g0 ? g : g0);
 }
 
 void ft_ct_feed(ft_cluster_tracker *t, const ft_event *ev, size_t n) {
@@ -306,11 +331,14 @@ void ft_ct_feed(ft_cluster_tracker *t, const ft_event *ev, size_t n) {
             best->mass = best->mass * decay(e.t - best->t_mass, t->p.mass_decay_us) + 1.0f;
             best->t_mass = e.t;
             best->events++;
-            best->nk++;
-            best->sx += ex;
-            best->sy += ey;
-            best->sxx += (double)ex * ex;
-            best->syy += (double)ey * ey;
+            best->nall++;
+            if (centroid_gate(t, best, ex, ey, e.t)) {
+                best->nk++;
+                best->sx += ex;
+                best->sy += ey;
+                best->sxx += (double)ex * ex;
+                best->syy += (double)ey * ey;
+            }
         } else if (free_slot >= 0) {
             cluster *c = &t->c[free_slot];
             memset(c, 0, sizeof *c);
@@ -359,6 +387,10 @@ size_t ft_ct_clusters(ft_cluster_tracker *t, int64_t t_us, ft_ct_cluster *out, s
             o->var_y = P[0][0] + 2.0f * dt * P[0][1] + dt * dt * P[1][1];
             o->var_x = P[2][2] + 2.0f * dt * P[2][3] + dt * dt * P[3][3];
             o->cov_xy = P[0][2] + dt * (P[0][3] + P[1][2]) + dt * dt * P[1][3];
+            if (t->p.kf_centroid) {
+                o->var_x += t->p.centroid_var;
+                o->var_y += t->p.centroid_var;
+            }
         } else {
             o->x = c->x;
             o->y = c->y;

@@ -69,6 +69,13 @@ static const opt_doc docs[] = {
     {"verbose", "0|1", "log every control message and source event"},
     {"event-format", "FMT", "events: aedat2, aedat3, aedat4, evt2, evt3, dat or auto (default)"},
     {"slice-us", "US", "event sources: event time per DVS_CLUSTERS slice (default 1000)"},
+    {"ba-window-us", "US",
+     "event sources: background-activity filter window (default 2000, libcaer's; a smaller sensor "
+     "sees an animal's events sparser: e.g. 346/128 x 2000 for a DVS128)"},
+    {"cluster-min-mass", "M",
+     "event sources: support (events decayed over 10 ms) a cluster needs to be reported (default "
+     "5; "
+     "a smaller sensor gets fewer events of an animal: e.g. 5 x 128/346 for a DVS128)"},
     {"realtime", "0|1",
      "events: play the file at its recorded pace (1, default) or at once (0); with --input - "
      "(stdin, e.g. a live producer) events are taken as they arrive"},
@@ -310,6 +317,15 @@ static int apply(edge_config *c, const char *key, const char *v) {
         return 0;
     }
     INT("slice-us", 1, 10000000, slice_us)
+    INT("ba-window-us", 1, 10000000, ba_window_us)
+    if (!strcmp(key, "cluster-min-mass")) {
+        if (parse_double(key, v, &d))
+            return -1;
+        if (!(d >= 0.5 && d <= 1e6)) /* under 0.5 a cluster would never die (DEATH_MASS) */
+            return err(key, v, "must be 0.5 .. 1000000");
+        c->cluster_min_mass = d;
+        return 0;
+    }
     BOOL("wingbeat", wingbeat)
     INT("wingbeat-report-us", 100, 10000000, wingbeat_report_us)
     INT("wingbeat-harmonics", 1, 4, wingbeat_harmonics)

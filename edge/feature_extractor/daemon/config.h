@@ -38,10 +38,12 @@ typedef struct {
     int control_allow_any;      /* "any": every sender */
     int control_allow_loopback; /* "loopback": 127.0.0.0/8 */
     /* event sources (edge_dvs.c) */
-    char event_format[16]; /* events: auto, aedat2, aedat3, aedat4, evt2, evt3, dat */
-    int64_t slice_us;      /* events per DVS_CLUSTERS slice, in event time */
-    int realtime;          /* events: play the file at its recorded pace */
-    int reopen_ms;         /* dvs128: retry period while unplugged */
+    char event_format[16];   /* events: auto, aedat2, aedat3, aedat4, evt2, evt3, dat */
+    int64_t slice_us;        /* events per DVS_CLUSTERS slice, in event time */
+    int64_t ba_window_us;    /* background-activity window; 0: the library's (2 ms) */
+    double cluster_min_mass; /* a cluster's support to be reported; 0: the library's (5) */
+    int realtime;            /* events: play the file at its recorded pace */
+    int reopen_ms;           /* dvs128: retry period while unplugged */
     uint8_t dvs_biases[36];
     int have_dvs_biases;
     int dvs_invert_polarity; /* dvs128: raw bit 0 = 1 means OFF (an original DVS128, as jAER) */

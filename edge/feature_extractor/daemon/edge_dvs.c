@@ -348,7 +348,9 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
         return 3;
     }
     e.slice = malloc(SLICE_CAP * sizeof *e.slice);
-    if (!e.slice || ft_event_processor_create(&e.proc, e.src.width, e.src.height) != 0) {
+    if (!e.slice ||
+        ft_event_processor_create(&e.proc, e.src.width, e.src.height, (uint32_t)cfg->ba_window_us,
+                                  (float)cfg->cluster_min_mass) != 0) {
         edge_log("cannot set up the event processor");
         e.src.close(&e.src);
         close(e.sock);

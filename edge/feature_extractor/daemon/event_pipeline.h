@@ -22,7 +22,12 @@ typedef struct {
     void (*destroy)(void *ctx);
 } ft_event_processor;
 
-/* The processor flytrack-edge runs (width, height: the sensor). 0 or -1. */
-int ft_event_processor_create(ft_event_processor *p, uint32_t width, uint32_t height);
+/* The processor flytrack-edge runs (width, height: the sensor). ba_window_us and min_mass (a
+ * cluster's support to be reported) override the library's defaults when > 0: those (libcaer's
+ * 2 ms, jAER-like 5 events over 10 ms) suit a DAVIS346-class sensor; on a smaller one an animal
+ * crosses fewer pixels and gives fewer, sparser events (--ba-window-us, --cluster-min-mass). 0 or
+ * -1. */
+int ft_event_processor_create(ft_event_processor *p, uint32_t width, uint32_t height,
+                              uint32_t ba_window_us, float min_mass);
 
 #endif

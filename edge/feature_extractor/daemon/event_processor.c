@@ -58,11 +58,16 @@ static void destroy(void *ctx) {
     free(p);
 }
 
-int ft_event_processor_create(ft_event_processor *proc, uint32_t width, uint32_t height) {
+int ft_event_processor_create(ft_event_processor *proc, uint32_t width, uint32_t height,
+                              uint32_t ba_window_us, float min_mass) {
     ft_nf_params np;
     ft_ct_params cp;
     ft_nf_defaults(&np, width, height);
     ft_ct_defaults(&cp, width, height);
+    if (ba_window_us > 0)
+        np.ba_window_us = ba_window_us;
+    if (min_mass > 0)
+        cp.min_mass = min_mass;
     processor *p = calloc(1, sizeof *p);
     if (!p)
         return -1;

@@ -31,6 +31,7 @@ typedef struct {
     size_t n;
     ft_event expect[MAXW];
     size_t n_expect, n_garbage, n_sync;
+    int64_t sync_t[MAXW];
 } stream;
 
 static void put_word(stream *s, uint8_t b0, uint8_t b1, uint16_t t) {
@@ -55,7 +56,7 @@ static void make_stream(stream *s, size_t words) {
 #ifdef FT_DVS_SYNC
         if (kind == 2) { /* a sync pulse (protocol versions with the SYNC word) */
             put_word(s, 0, 0x80, (uint16_t)ts);
-            s->n_sync++;
+            s->sync_t[s->n_sync++] = (int64_t)(offset + ts);
             continue;
         }
 #endif
@@ -111,7 +112,14 @@ static void test_stream_pieces(void) {
         for (size_t k = 0; k < n && k < s.n_expect; k++)
             bad += !same_event(&out[k], &s.expect[k]);
         CHECK(bad == 0);
-        CHECK(st.resets >= 1 && st.wraps >= 1 && st.syncs == s.n_sync);
+        CHECK(st.resets >= 1 && st.wraps >= 1 && st.syncs == s.n_sync && s.n_sync > 10);
+        /* each SYNC word's time is kept (the latest FT_DVS_STREAM_SYNCS): the trigger-frame stamp
+         */
+        size_t wrong = 0;
+        for (size_t k = s.n_sync > FT_DVS_STREAM_SYNCS ? s.n_sync - FT_DVS_STREAM_SYNCS : 0;
+             k < s.n_sync; k++)
+            wrong += st.sync_t[k % FT_DVS_STREAM_SYNCS] != s.sync_t[k];
+        CHECK(wrong == 0);
     }
 }
 

@@ -42,7 +42,8 @@ class _CtParams(ctypes.Structure):
                 ("kalman", ctypes.c_int), ("kf_interval_us", ctypes.c_uint32), ("feedback", ctypes.c_int),
                 ("dynamic_variances", ctypes.c_int), ("kf_ramp", ctypes.c_uint32),
                 ("events_until_track", ctypes.c_uint64), ("max_meas_var", ctypes.c_float),
-                ("min_proc_var", ctypes.c_float), ("kf_centroid", ctypes.c_int)]
+                ("min_proc_var", ctypes.c_float), ("kf_centroid", ctypes.c_int),
+                ("centroid_var", ctypes.c_float), ("centroid_gate_px", ctypes.c_float)]
 
 
 class _CtStats(ctypes.Structure):

@@ -10,7 +10,7 @@ import numpy as np
 
 from flytrack_host.camera import Camera
 from flytrack_host.protocol import POINT_DTYPE
-from flytrack_host.recording.schema import DATA2D, FLAG_REJECTED
+from flytrack_host.recording.schema import DATA2D, FLAG_DVS, FLAG_REJECTED
 from flytrack_host.tracking.types import FrameBundle
 
 _PT_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff", "orientation", "eccentricity",
@@ -59,8 +59,10 @@ def fill_undistorted(rows: np.ndarray, cameras: Mapping[int, Camera]) -> int:
 
 def iter_bundles(rows: np.ndarray, fps: float, camera_indices: list[int] | None = None) -> Iterator[FrameBundle]:
     """One FrameBundle per trigger frame present, in frame order. Rows never given to the tracker
-    live (rejected ones) are left out; late rows are used: offline nothing is late."""
-    ok = (rows["trigger_frame"] >= 0) & ((rows["flags"] & FLAG_REJECTED) == 0)
+    live (rejected ones) are left out; late rows are used: offline nothing is late. Event cameras'
+    rows (FLAG_DVS) are left out too: the tracker weighs them by their covariance (SPEC 1.6), which
+    the recording does not keep, and as frame points they could start targets."""
+    ok = (rows["trigger_frame"] >= 0) & ((rows["flags"] & (FLAG_REJECTED | FLAG_DVS)) == 0)
     rows = rows[ok]
     order = np.lexsort((rows["frame_pt_idx"], rows["camera_index"], rows["trigger_frame"]))
     rows = rows[order]
@@ -88,5 +90,5 @@ def iter_bundles(rows: np.ndarray, fps: float, camera_indices: list[int] | None 
 
 
 def n_frames(rows: np.ndarray) -> int:
-    ok = (rows["trigger_frame"] >= 0) & ((rows["flags"] & FLAG_REJECTED) == 0)
+    ok = (rows["trigger_frame"] >= 0) & ((rows["flags"] & (FLAG_REJECTED | FLAG_DVS)) == 0)
     return int(len(np.unique(rows["trigger_frame"][ok])))

@@ -71,6 +71,14 @@ def summary_table(r: DemoReport) -> Table:
                   f"received/sent, {d['slices_received']} slices, {d['clusters_received']} clusters")
         t.add_row(f"DVS {d['name']} points used", f"{d['points_used']}/{d['points_observed']}",
                   f"by the 3D tracker / given, {d['frames_observed']} frames")
+    cmp_ = r.dvs_comparison
+    if cmp_.get("with_dvs") and cmp_.get("without_dvs"):
+        w, wo = cmp_["with_dvs"], cmp_["without_dvs"]
+        t.add_row("3D RMSE with / without DVS", f"{_f(w['rmse_mm'], '.2f')} / {_f(wo['rmse_mm'], '.2f')} mm",
+                  f"the run's {cmp_['bundles']} bundles tracked again, {w['dvs_points_used']}/{w['dvs_points']} "
+                  "DVS points used")
+        t.add_row("MOTA with / without DVS", f"{_f(w['mota'], '.4f')} / {_f(wo['mota'], '.4f')}",
+                  f"false pos. {w['false_positives']} / {wo['false_positives']}")
     if r.actuation:
         from flytrack_host.sim.closed_loop import closed_loop_line
 

@@ -15,6 +15,7 @@ and every camera's next frame.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import math
@@ -161,6 +162,8 @@ class DemoReport:
     cpu_seconds: dict[str, float] = field(default_factory=dict)  # per part of the simulated rig
     actuation: dict[str, Any] = field(default_factory=dict)  # closed loop vs ground truth (with --rules)
     dvs: list[dict[str, Any]] = field(default_factory=list)  # per DVS camera: events sent and received
+    # the same bundles tracked with and without the DVS cameras' points (eventcam.comparison)
+    dvs_comparison: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -222,7 +225,20 @@ def dvs_edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int,
         "--camera-index", str(cam_index), "--camera-name", cam.name,
         "--host", "127.0.0.1", "--port", str(port), "--control-port", "0", "--slice-us", str(slice_us),
         "--realtime", "0",  # the events come as they happen: no pacing by their times on top
-    ]
+    ] + dvs_support_options(cam.width, cam.height)
+
+
+def dvs_support_options(width: int, height: int) -> list[str]:
+    """The edge's noise-filter window and cluster support for a sensor smaller than a DAVIS346 (the
+    library defaults' class): an animal crosses s = 346 / side times fewer pixels, so it gives s times
+    fewer events (support / s) and each pixel's neighbours fire sparser and later (window x s^2; the
+    simulated background activity, 0.05 Hz per pixel, lets 8 x 0.05 Hz x 14.6 ms = 0.6 % of the noise
+    through at 128 px). With the defaults a 128 x 128 sensor found 6 clusters in 2 s."""
+    side = max(int(width), int(height))
+    if side <= 0 or side >= 346:
+        return []
+    s = 346.0 / side
+    return ["--ba-window-us", str(round(2000 * s * s)), "--cluster-min-mass", f"{5.0 / s:.3f}"]
 
 
 class EdgeFleet:
@@ -399,6 +415,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
                             hold_until_synchronized=True,
                             on_result=on_result, rig_text=rig_path.read_text(),
                             recording_path=out / "recording.flytrack")
+        if dvs_cams:  # every bundle, for the side-by-side with and without the DVS cameras
+            host.dvs_bundles = collections.deque(maxlen=gt.n_frames + 16)
         if lab is not None:
             try:
                 engine = lab.engine(rig, fps, session)
@@ -478,12 +496,36 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     if any(d["events_lost"] for d in report.dvs):
         report.notes.append("DVS events lost between the simulated sensors and the host: "
                             + ", ".join(f"{d['name']} {d['events_lost']}" for d in report.dvs))
+    if dvs_cams and host is not None and host.dvs_bundles:
+        report.dvs_comparison = _dvs_comparison(cfg, gt, cams, warmup, host,
+                                                range(len(cams), len(cams) + len(dvs_cams)))
     if lab is not None and engine is not None:
         try:
             report.actuation = lab.report(engine, gt, fs.pulse_frames if trig.mode == "simavr" else None)
         finally:
             lab.close()
     return report
+
+
+def _dvs_comparison(cfg: DemoConfig, gt: GroundTruth, cams: list[Camera], warmup: int, host: Any,
+                    dvs_indices: range) -> dict[str, Any]:
+    """The run's bundles tracked again, with and without the DVS cameras' points, scored alike."""
+    from flytrack_host.eventcam.comparison import with_and_without
+
+    runs = with_and_without(list(host.dvs_bundles), host.cameras, host.params, 1.0 / cfg.fps, dvs_indices)
+    scored = _scored_mask(gt, cams)
+    scored[:warmup] = False
+    out: dict[str, Any] = {"bundles": len(host.dvs_bundles)}
+    for name, run in runs.items():
+        hyps = [FrameTracks(f, ids, pos) for f, ids, pos in run.frames if 0 <= f < gt.n_frames]
+        sc = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
+                          match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
+        out[name] = {"rmse_mm": sc.rmse_mm, "mota": sc.mota, "idf1": sc.idf1, "id_switches": sc.id_switches,
+                     "false_positives": sc.false_positives, "misses": sc.misses,
+                     "dvs_points": int(run.stats.get("own_cov_points", 0)),
+                     "dvs_points_used": int(run.stats.get("own_cov_used", 0)),
+                     "dvs_points_gated_out": int(run.stats.get("own_cov_gated_out", 0))}
+    return out
 
 
 def _dvs_counts(dvs_cams: list[Camera], first: int, fs: Any, host_summary: dict[str, Any],

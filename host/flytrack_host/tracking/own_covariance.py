@@ -63,10 +63,11 @@ def gate_and_pick(d2: F64, gate: float) -> list[tuple[int, int]]:
 
 def own_covariance_update(
     x: F64, P: F64, cams: CameraArray, detections: Mapping[int, np.ndarray], covariances: Mapping[int, np.ndarray],
-    gate: float = GATE_CHI2,
+    gate: float = GATE_CHI2, scale: float = 1.0,
 ) -> tuple[list[tuple[int, int, int]], dict[str, int]]:
     """Updates x (T, 6) and P (T, 6, 6) in place with the points of the cameras in `covariances`
-    (camera index -> (n, 3) var_x, var_y, cov_xy of detections[camera] in distorted pixels).
+    (camera index -> (n, 3) var_x, var_y, cov_xy of detections[camera] in distorted pixels); each
+    point's R is `scale` x its covariance (TrackingParams.own_cov_scale), for the gate and the update.
 
     Returns the pairs used, (target row, camera index, point index), and counts: `points` offered,
     `bad_covariance` (not a finite positive-definite covariance: not used), `gated_out`, `used`,
@@ -90,7 +91,7 @@ def own_covariance_update(
         if T == 0 or not good.any():
             stats["gated_out"] += int(good.sum())
             continue
-        R = covariance_matrices(cov)
+        R = covariance_matrices(cov) * float(scale)
         R[~good] = np.eye(2)  # placeholders, never used (their d2 is inf)
         uv_all, J_all, front_all = cams.project_jacobian(x[:, :3])
         uv, J, front = uv_all[s], J_all[s], front_all[s]  # (T, 2), (T, 2, 3), (T,)

@@ -615,7 +615,8 @@ class Tracker:
         b = self._own_cov_bundle
         if b is None:
             return
-        pairs, st = own_covariance_update(self._x, self._P, self.cams, b.detections, b.point_cov)
+        pairs, st = own_covariance_update(self._x, self._P, self.cams, b.detections, b.point_cov,
+                                          scale=self.params.own_cov_scale)
         s = self.stats
         s["own_cov_points"] += st["points"]
         s["own_cov_used"] += st["used"]
