@@ -43,7 +43,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--port", type=int, default=7300, help="UDP port the pose stream is sent to")
     ap.add_argument("--host", default="127.0.0.1", help="address to listen on")
     ap.add_argument("--distance", type=float, default=0.05, help="post distance ahead of the animal, m")
-    ap.add_argument("--seconds", type=float, default=None, help="stop after this long (default: Ctrl-C)")
+    ap.add_argument("--seconds", type=float, default=None,
+                    help="stop this long after the first pose (default: Ctrl-C)")
+    ap.add_argument("--wait", type=float, default=120.0,
+                    help="give up (exit 2) when no pose came within this long of the start; 0 = wait for ever")
     ap.add_argument("--print-hz", type=float, default=4.0, help="status lines per second")
     ap.add_argument("--json", action="store_true", help="print every post update as a JSON line")
     a = ap.parse_args(argv)
@@ -55,13 +58,23 @@ def main(argv: list[str] | None = None) -> int:
     heading: float | None = None
     n = n_posts = n_none = 0
     ages: list[float] = []
-    t0 = time.monotonic()
+    # --seconds counts from the first pose: the rig (a demo still starting, a run not yet triggered) may
+    # start sending well after this program started.
+    started = time.monotonic()
+    t0: float | None = None
     last_print = 0.0
     try:
-        while a.seconds is None or time.monotonic() - t0 < a.seconds:
+        while t0 is None or a.seconds is None or time.monotonic() - t0 < a.seconds:
             m = client.recv(timeout=0.5)
             if m is None:
+                if t0 is None and a.wait > 0 and time.monotonic() - started > a.wait:
+                    print(f"error: no pose datagram on {a.host}:{a.port} within {a.wait:.0f} s "
+                          f"(is the rig sending to it? flytrack run/demo --pose {a.host}:{a.port})",
+                          file=sys.stderr)
+                    return 2
                 continue
+            if t0 is None:
+                t0 = time.monotonic()
             n += 1
             if m.no_object:
                 n_none += 1
@@ -84,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         pass
     finally:
         client.close()
-    dt = time.monotonic() - t0
+    dt = max(time.monotonic() - (t0 if t0 is not None else started), 1e-9)
     ages.sort()
     age = f"{ages[len(ages) // 2] * 1e3:.1f} ms" if ages else "-"
     print(f"summary: {n} poses in {dt:.1f} s ({n / dt:.0f}/s), {n_posts} post updates, {n_none} without an "

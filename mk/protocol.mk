@@ -27,4 +27,4 @@ test-protocol: cbuild
 	  echo "test-protocol: FAIL (both codecs must pass every vector, the same number)"; exit 1; fi; \
 	echo "test-protocol: OK, both codecs pass all $$py_n vectors"
 
-PART_TARGETS += test-protocol
+PART_TARGETS += test-protocol protocol-vectors

@@ -209,12 +209,14 @@ def check_recovered(out: Path, stdout: str, lens_tol_px: float) -> Camera:
     truth = true_camera()
     stdout = " ".join(stdout.split())  # rich wraps long lines
     rms = float(re.search(r"RMS reprojection error ([0-9.]+) px", stdout).group(1))  # type: ignore[union-attr]
-    assert rms < 0.3, stdout
+    # Bounds near what is measured (checkerboard / ChArUco): RMS 0.073 / 0.068 px, fx fy 0.04 / 0.10 %,
+    # cx cy 0.52 / 0.75 px, k1 0.0011 / 0.0004, lens 0.65 / 1.28 px (the README quotes them).
+    assert rms < 0.1, stdout
     cam = load_calibration(out)["cam1"]
     assert (cam.width, cam.height) == (W, H)
-    assert np.allclose(np.diag(cam.K)[:2], np.diag(truth.K)[:2], rtol=0.01), cam.K
-    assert np.allclose(cam.K[:2, 2], truth.K[:2, 2], atol=3.0), cam.K
-    assert abs(cam.dist[0] - truth.dist[0]) < 0.03, cam.dist
+    assert np.allclose(np.diag(cam.K)[:2], np.diag(truth.K)[:2], rtol=0.002), cam.K
+    assert np.allclose(cam.K[:2, 2], truth.K[:2, 2], atol=1.2), cam.K
+    assert abs(cam.dist[0] - truth.dist[0]) < 0.004, cam.dist
     assert lens_error_px(cam, truth) < lens_tol_px  # worst at the image corners, where the fit extrapolates
     return cam
 

@@ -76,3 +76,13 @@ def test_bad_arguments_are_clear_errors(kw, msg):
 def test_bad_arena_is_an_error():
     with pytest.raises(ValueError, match="arena length"):
         Arena(length=0.0)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_a_ten_second_run_has_a_landing_and_a_close_pass(n):
+    # The README: a run of 10 s (the demo's length) has at least one landing and one pass closer than
+    # 3 cm, whatever the seed (the scripted landing at a quarter and meeting at half of the run).
+    for seed in range(5):
+        gt = simulate_flight(n, 10.0, 100.0, seed=seed)
+        assert gt.landed.any() and gt.meta["takeoffs"] >= 1, seed
+        assert gt.pair_distances().min() < 0.03, seed

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import socket
 import struct
 import sys
 import time
@@ -95,7 +96,6 @@ def test_bad_settings_and_datagrams_get_clear_errors():
 
 
 def test_udp_sender_keeps_its_rate_and_the_client_counts_garbage():
-    import socket
 
     with PoseClient(port=0) as client:
         s = PoseStream([("127.0.0.1", client.port)], rate_hz=200.0, lock="auto")
@@ -123,7 +123,6 @@ def test_udp_sender_keeps_its_rate_and_the_client_counts_garbage():
 def test_virtual_post_example_holds_the_post_ahead_of_the_animal():
     """examples/virtual_post.py, run as a user runs it, fed by a real PoseStream over UDP."""
     import json
-    import socket
     import subprocess
 
     root = Path(__file__).resolve().parents[3]
@@ -152,3 +151,32 @@ def test_virtual_post_example_holds_the_post_ahead_of_the_animal():
         v = d["velocity"]  # ahead: along the horizontal velocity
         assert (p[0] - a[0]) * v[0] + (p[1] - a[1]) * v[1] > 0.999 * 0.1 * math.hypot(v[0], v[1])
     assert "summary:" in out and "0 malformed" in out
+
+
+def test_virtual_post_example_counts_its_seconds_from_the_first_pose():
+    """The README starts it beside a demo that may take longer than --seconds to start sending."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[3]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    cmd = [sys.executable, str(root / "examples" / "virtual_post.py"), "--port", str(port)]
+    proc = subprocess.Popen(cmd + ["--seconds", "1.0", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    time.sleep(2.0)  # longer than --seconds: the sender starts late
+    assert proc.poll() is None, proc.communicate()
+    s = PoseStream([("127.0.0.1", port)], rate_hz=200.0, lock="auto")
+    try:
+        for f in range(60):
+            now = time.time()
+            s.on_frame(make_result(f, 1, t=now), now, now)
+            time.sleep(0.01)
+    finally:
+        s.close()
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert sum(x.startswith("{") for x in out.splitlines()) > 20, out[-500:]
+    # Nothing ever sent: one clear line and exit 2 after --wait.
+    r = subprocess.run(cmd + ["--seconds", "1", "--wait", "1"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and f"no pose datagram on 127.0.0.1:{port}" in r.stderr, (r.stdout, r.stderr)
