@@ -139,7 +139,7 @@ def test_clock_model_recovers_a_crystal_off_by_37_ppm_and_drifting(built, figure
           f"{m.short_rtt} shorter than the wire); trigger edge host time error over {f['edges']:.0f} edges: "
           f"mean {f['edge_mean_us']:+.1f} us, sd {f['edge_sd_us']:.1f} us, worst {f['edge_max_us']:.1f} us; "
           f"harness at nice -5: {run.priority_raised}, simulator behind the wall clock by up to "
-          f"{f['sim_behind_max_ms']:.2f} ms")
+          f"{f['sim_behind_max_ms']:.2f} ms; {run.timeouts} replies lost to the timeout")
     figures["crystal +37 ppm, 0.5 ppm/s: gain error (ppm)"] = (
         f"{f['gain_err_ppm']:+.3f} (se {f['gain_se_ppm']:.3f}; {f['used']:.0f} of {f['queries']:.0f} queries, "
         f"{f['span_s']:.1f} s)")

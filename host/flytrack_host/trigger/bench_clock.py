@@ -63,7 +63,8 @@ def main() -> None:
           f"{np.percentile(rtt, 90):.2f} ms, max {rtt.max():.2f} ms (wire alone "
           f"{clock_link_timing(115200).min_rtt_s * 1e3:.2f} ms); load average {load0:.1f} -> {load1:.1f}; "
           f"harness at nice -5: {run.priority_raised}; simulator behind the wall clock (its truth void) in "
-          f"{np.mean(run.sim_behind_s > 0) * 100:.1f} % of queries, by up to {run.sim_behind_s.max() * 1e3:.2f} ms")
+          f"{np.mean(run.sim_behind_s > 0) * 100:.1f} % of queries, by up to {run.sim_behind_s.max() * 1e3:.2f} ms; "
+          f"{run.timeouts} replies later than 2 s (lost)")
     print(f"{'fit':<34} {'queries':>7} {'used':>5} {'span s':>6} {'gain err ppm':>10} {'se ppm':>8} "
           f"{'edge mean us':>8} {'sd us':>7} {'worst us':>8} {'sim behind ms':>13}")
     whole = score_fit(run, robust_model(args.keep))

@@ -28,11 +28,18 @@ agree with each other; they then seed the new window, so the model is fitted aga
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs i < j of n samples (cached: the Theil-Sen start runs on every fit)."""
+    return np.triu_indices(n, 1)
 
 
 @dataclass(frozen=True)
@@ -186,7 +193,7 @@ class ClockModel:
         """Indices of the samples a fit uses: in each group of about 1/keep_fraction consecutive
         samples the one with the smallest round trip, never one shorter than the wire allows."""
         n = len(samples)
-        rtts = np.array([s.rtt_s for s in samples])
+        rtts = np.fromiter((s.host_t1 - s.host_t0 for s in samples), dtype=np.float64, count=n)
         ok = np.ones(n, dtype=bool)
         if self.link is not None and np.median(rtts) >= self.link.min_rtt_s:
             ok = rtts >= self.link.min_rtt_s
@@ -208,8 +215,8 @@ class ClockModel:
         idx = self.select(samples)
         if len(idx) < self.min_samples:
             return False
-        dev = np.array([samples[i].device_time_s for i in idx])
-        host = np.array([samples[i].host_sample for i in idx])
+        dev = np.fromiter((samples[i].device_time_s for i in idx), dtype=np.float64, count=len(idx))
+        host = np.fromiter((samples[i].host_sample for i in idx), dtype=np.float64, count=len(idx))
         if np.ptp(dev) <= 0:
             return False
         mask = np.ones(len(dev), dtype=bool)
@@ -239,7 +246,7 @@ class ClockModel:
         return True
 
     @staticmethod
-    def _theil_sen(dev: np.ndarray, host: np.ndarray, max_points: int = 200) -> tuple[float, float]:
+    def _theil_sen(dev: np.ndarray, host: np.ndarray, max_points: int = 64) -> tuple[float, float]:
         """Median of the pairwise slopes (of at most max_points spread over the samples), and the
         median offset through it."""
         if len(dev) > max_points:
@@ -247,7 +254,7 @@ class ClockModel:
             dev, host = dev[pick], host[pick]
         d0, h0 = float(dev.mean()), float(host.mean())
         dc, hc = dev - d0, host - h0  # centred: epoch host times keep their precision
-        i, j = np.triu_indices(len(dev), 1)
+        i, j = _pairs(len(dev))
         dd = dc[j] - dc[i]
         ok = dd > 0
         if not ok.any():

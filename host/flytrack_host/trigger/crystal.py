@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clock_model import ClockModel
+from .common import TriggerError
 from .device import TriggerDevice
 from .simulator import SimulatedTrigger, host_time_of_cycle, read_pacing, rising
 
@@ -36,6 +37,7 @@ class CrystalRun:
     true_sample: np.ndarray  # true host time of the device's sample
     edge_true: np.ndarray  # true host time of every trigger rising edge (frame n begins at edge n)
     priority_raised: bool = False  # the harness ran at nice -5
+    timeouts: int = 0  # queries whose reply came too late (lost)
 
     @property
     def sim_behind_s(self) -> np.ndarray:
@@ -61,16 +63,21 @@ def record_crystal_run(seconds: float, ppm: float = 37.0, drift_ppm_per_s: float
         # Starved (nice 10 at load 8), it fell up to 140 ms behind the wall clock, and the truth with it.
         priority_raised = raise_priority(sim.proc.pid)
         # The device's own model is not scored here (score_fit refits): a small window keeps it cheap.
-        dev = TriggerDevice(sim.pty, reset_wait_s=0, model=ClockModel(window=20, max_rtt_s=0.05))
+        dev = TriggerDevice(sim.pty, reset_wait_s=0, timeout_s=2.0, model=ClockModel(window=20, max_rtt_s=0.05))
         try:
             dev.set_rate(fps)
             assert dev.rate is not None
             divisor, period = dev.rate.divisor, dev.rate.period_s
             dev.start()
             readings = []
+            timeouts = 0
             t_end = time.monotonic() + seconds
             while time.monotonic() < t_end:
-                readings.append(dev.query_clock())
+                try:
+                    readings.append(dev.query_clock())
+                except TriggerError:
+                    # A reply later than the timeout (a starved host): lost, as the clock thread loses it.
+                    timeouts += 1
                 time.sleep(query_period_s)
             dev.stop()
         finally:
@@ -89,7 +96,8 @@ def record_crystal_run(seconds: float, ppm: float = 37.0, drift_ppm_per_s: float
         host_t0=np.array([q.host_t0 for q in run]), host_t1=np.array([q.host_t1 for q in run]),
         device_s=np.array([q.device_time_s for q in run]), frame=np.array([q.frame_count for q in run]),
         true_sample=np.asarray(host_time_of_cycle(cycles, f_cpu, pacing)),
-        edge_true=np.asarray(host_time_of_cycle(rises, f_cpu, pacing)), priority_raised=priority_raised)
+        edge_true=np.asarray(host_time_of_cycle(rises, f_cpu, pacing)), priority_raised=priority_raised,
+        timeouts=timeouts)
 
 
 def score_fit(run: CrystalRun, model: ClockModel, start: int = 0, stop: int | None = None) -> dict[str, float]:
