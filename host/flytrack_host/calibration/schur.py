@@ -149,6 +149,10 @@ def levenberg_marquardt(R: F64, cp: F64, aspect: F64, fixed_dist: F64, X: F64, c
         return 0.5 * fs2 * float(np.sum(rho)), r_, Jc_, Jp_
 
     cost, r, Jc, Jp = evaluate(R, cp, X, True)
+    if not np.isfinite(cost):
+        bad = int(np.sum(~np.all(np.isfinite(r), axis=1)))
+        raise ValueError(f"bundle adjustment: {bad} of {len(r)} residuals are not finite at the start "
+                         "(NaN/inf in the observations, the points or the cameras, or a point on a camera's plane)")
     nfev = 1
     lam, nu = 1e-4, 2.0  # damping, and its growth after a rejected step (Nielsen's rule)
     newton = loss == "linear"

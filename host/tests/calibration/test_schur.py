@@ -145,6 +145,10 @@ def test_bad_arguments_are_clear_errors() -> None:
         bundle_adjust(start, X0, rig.obs.cam, inv, rig.obs.uv, solver="magic")
     with pytest.raises(ValueError, match="loss"):
         bundle_adjust(start, X0, rig.obs.cam, inv, rig.obs.uv, loss="cauchy")
+    uv = rig.obs.uv.copy()
+    uv[7, 0] = np.nan
+    with pytest.raises(ValueError, match="1 of .* residuals are not finite"):
+        bundle_adjust(start, X0, rig.obs.cam, inv, uv)
     R, cp, aspect, fixed, X, cam, pt = _random_problem(2)
     with pytest.raises(ValueError, match="loss"):
         levenberg_marquardt(R, cp, aspect, fixed, X, cam, pt, np.zeros((len(cam), 2)), 2,
