@@ -24,3 +24,12 @@ bench-trigger-sim: cbuild firmware-avr
 
 BENCH_TARGETS += bench-trigger-sim
 PART_TARGETS += bench-trigger-sim
+
+# The host's clock model against a crystal +37 ppm off drifting 0.5 ppm/s (paced simavr, ~40 s):
+# prints the gain error against the harness's truth, its standard error, the trigger-edge time error.
+.PHONY: bench-trigger-clock
+bench-trigger-clock: cbuild firmware-avr
+	@$(PY) -m flytrack_host.trigger.bench_clock $(if $(BENCH_JSON),--json $(BENCH_JSON))
+
+BENCH_TARGETS += bench-trigger-clock
+PART_TARGETS += bench-trigger-clock

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from flytrack_host.protocol import trigger_link as tl
+from flytrack_host.sim.frames import raise_priority
 from flytrack_host.trigger.clock_model import ClockModel
-from flytrack_host.trigger.device import TriggerDevice, TriggerError
+from flytrack_host.trigger.crystal import record_crystal_run, score_fit
+from flytrack_host.trigger.device import TriggerDevice, TriggerError, clock_link_timing
 from flytrack_host.trigger.simulator import (
     SimulatedTrigger,
-    host_time_of_cycle,
-    read_pacing,
     read_pacing_anchor,
     rising,
 )
@@ -73,6 +73,7 @@ def test_clock_model_residual_and_bias_realtime(built, figures) -> None:
     cycle placed on the host clock by the harness's pacing anchor (cycle c due at t0 + c / f_cpu)."""
     harness, elf = built
     with SimulatedTrigger(elf=elf, harness=harness, realtime=True) as sim:
+        raise_priority(sim.proc.pid)  # silicon's clock is not delayed by a busy host (crystal.py)
         dev = TriggerDevice(sim.pty, reset_wait_s=0, model=ClockModel(window=200, max_rtt_s=0.02))
         dev.set_rate(100.0)
         dev.start()
@@ -108,7 +109,7 @@ def test_clock_model_residual_and_bias_realtime(built, figures) -> None:
     figures["clock residual (us)"] = f"{m.residual_s * 1e6:.1f} (gain {m.gain:.6f}, {m.n_samples} samples, 3 s paced)"
     figures["trigger edge host time error (us)"] = (
         f"mean {err.mean() * 1e6:+.1f}, sd {err.std() * 1e6:.1f} over {len(frames)} edges (paced, 100 fps)")
-    assert m.fitted and m.n_samples >= 20
+    assert m.fitted and m.n_samples >= 15  # one in 5 of ~170-200 queries kept, a few dropped as outliers
     assert abs(m.gain - 1) < 2e-3
     assert m.residual_s < 100e-6
     assert abs(err.mean()) < 100e-6
@@ -119,53 +120,44 @@ def test_clock_model_residual_and_bias_realtime(built, figures) -> None:
 
 def test_clock_model_recovers_a_crystal_off_by_37_ppm_and_drifting(built, figures) -> None:
     """The harness paces the MCU as a crystal 37 ppm fast and drifting by 0.5 ppm/s: the device clock
-    really runs off the host's, so a gain of 1 would be wrong. The fitted gain (host s per device s)
-    must match the crystal's true rate over the fit's window within 1 ppm, and every trigger edge's
-    host time the harness's truth."""
+    really runs off the host's, so a gain of 1 would be 37 ppm wrong. 12 s of clock queries at
+    ~100 Hz over the pty, fitted by the model with its delay filter (the tightest round trip of
+    each 10, none shorter than the wire): the gain must match the crystal's true rate at the middle
+    of the span within 1 ppm, or 3 of the fit's own standard errors when the load scatters the
+    round trips more, and that standard error must itself stay small; every trigger edge's host
+    time must match the harness's truth."""
     ppm, drift = 37.0, 0.5
     harness, elf = built
-    with SimulatedTrigger(elf=elf, harness=harness, realtime=True, ppm=ppm, drift_ppm_per_s=drift) as sim:
-        dev = TriggerDevice(sim.pty, reset_wait_s=0, model=ClockModel(window=200, max_rtt_s=0.02))
-        dev.set_rate(100.0)
-        dev.start()
-        t_end = time.monotonic() + 4.0
-        readings = []
-        while time.monotonic() < t_end:
-            readings.append(dev.query_clock())
-            time.sleep(0.01)
-        m = dev.model
-        dev.stop()
-        dev.close()
-    f_cpu, edges = sim.edges()
-    pacing = read_pacing(sim.edge_log)
-    assert pacing is not None and pacing[1:] == (ppm, drift)
-    anchor = pacing[0]
-    # The fit spans about its last `window` samples: for a linearly drifting rate the chord slope is
-    # the rate at the span's middle.
-    used = [q for q in readings if q.running][-m.n_samples:]
-    t_mid = 0.5 * (used[0].host_t0 + used[-1].host_t1) - anchor
-    true_gain = 1.0 / (1.0 + (ppm + drift * t_mid) * 1e-6)
-    gain_err_ppm = (m.gain - true_gain) * 1e6
-    rises = np.array(rising(edges, "trigger"), dtype=np.float64)
-    frames = np.arange(used[0].frame_count, readings[-1].frame_count)
-    err = np.array([m.frame_to_host_time(int(n)) for n in frames]) - host_time_of_cycle(rises[frames], f_cpu, pacing)
+    run = record_crystal_run(12.0, ppm, drift, elf=elf, harness=harness)
+    m = ClockModel(window=100_000, max_rtt_s=0.05, keep_fraction=0.1, link=clock_link_timing(115200))
+    f = score_fit(run, m)
+    true_gain = run.true_gain(0.5 * (run.host_t0[0] + run.host_t1[-1]))
     print(f"\ncrystal +{ppm:.0f} ppm drifting {drift} ppm/s: fitted gain {m.gain:.9f}, true {true_gain:.9f} "
-          f"(error {gain_err_ppm:+.3f} ppm; a gain of 1 would be {(1 - true_gain) * 1e6:+.1f} ppm off); "
-          f"trigger edge host time error over {len(frames)} edges: mean {err.mean() * 1e6:+.1f} us, "
-          f"sd {err.std() * 1e6:.1f} us, worst {np.abs(err).max() * 1e6:.1f} us")
-    figures["crystal +37 ppm, 0.5 ppm/s: gain error (ppm)"] = f"{gain_err_ppm:+.3f} ({m.n_samples} samples)"
+          f"(error {f['gain_err_ppm']:+.3f} ppm, standard error {f['gain_se_ppm']:.3f} ppm; a gain of 1 would be "
+          f"{(1 - true_gain) * 1e6:+.1f} ppm off); {f['used']:.0f} of {f['queries']:.0f} queries over "
+          f"{f['span_s']:.1f} s (round trip median {f['rtt_median_ms']:.2f} ms, P90 {f['rtt_p90_ms']:.2f} ms, "
+          f"{m.short_rtt} shorter than the wire); trigger edge host time error over {f['edges']:.0f} edges: "
+          f"mean {f['edge_mean_us']:+.1f} us, sd {f['edge_sd_us']:.1f} us, worst {f['edge_max_us']:.1f} us; "
+          f"harness at nice -5: {run.priority_raised}, simulator behind the wall clock by up to "
+          f"{f['sim_behind_max_ms']:.2f} ms; {run.timeouts} replies lost to the timeout")
+    figures["crystal +37 ppm, 0.5 ppm/s: gain error (ppm)"] = (
+        f"{f['gain_err_ppm']:+.3f} (se {f['gain_se_ppm']:.3f}; {f['used']:.0f} of {f['queries']:.0f} queries, "
+        f"{f['span_s']:.1f} s)")
     figures["crystal +37 ppm: trigger edge host time error (us)"] = (
-        f"mean {err.mean() * 1e6:+.1f}, sd {err.std() * 1e6:.1f}, worst {np.abs(err).max() * 1e6:.1f}")
-    # The goal is 1 ppm; on a loaded host the round trips (and so the samples' placement) scatter, and
-    # a straight-line fit's gain cannot be better than its standard error, residual x sqrt(12 / n) /
-    # span: the bound is the larger of the two (on an idle host that error is far below 1 ppm).
-    span = used[-1].host_t1 - used[0].host_t0
-    se_ppm = m.residual_s * np.sqrt(12.0 / m.n_samples) / span * 1e6
-    print(f"fit: {m.n_samples} samples over {span:.2f} s, residual {m.residual_s * 1e6:.1f} us, "
-          f"gain standard error {se_ppm:.3f} ppm")
-    assert m.fitted and m.n_samples >= 5
-    assert abs(gain_err_ppm) < max(1.0, 4.0 * se_ppm)
-    assert abs(err.mean()) < max(100e-6, 4.0 * m.residual_s)
+        f"mean {f['edge_mean_us']:+.1f}, sd {f['edge_sd_us']:.1f}, worst {f['edge_max_us']:.1f}")
+    assert f["used"] >= 0.05 * f["queries"] and f["span_s"] > 10.0  # half of the groups of 10 at least
+    # Measured over 10-12 s at load 5-13: standard error 0.3-0.9 ppm, error -1.4..+0.8 ppm (within 2.5
+    # standard errors); with the delay filter removed the standard error was 2.5 ppm, edges +135 us.
+    assert f["gain_se_ppm"] < 1.5
+    if f["sim_behind_max_ms"] < 1.0:
+        assert abs(f["gain_err_ppm"]) < max(1.0, 3.0 * f["gain_se_ppm"])
+    else:
+        # The starved harness fell behind the wall clock (its device answered before it was asked), so
+        # its truth is void there: at load 14 a 10 s fit was then 1.6 ppm (4.4 standard errors) off.
+        assert abs(f["gain_err_ppm"]) < max(2.0, 5.0 * f["gain_se_ppm"])
+    # Measured: edges +20 us (the host's read latency is longer than its write latency, and the
+    # model splits the excess evenly), sd 2-5 us (a straight line over a drifting rate).
+    assert abs(f["edge_mean_us"]) < 80.0 and f["edge_sd_us"] < 25.0
 
 
 def test_pulse_at_frame_has_its_width(built, figures) -> None:

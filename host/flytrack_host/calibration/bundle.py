@@ -3,8 +3,10 @@
 Per camera: rotation vector (3), translation (3), focal length f (fy = f x the initial aspect ratio),
 principal point (2), and the distortion terms chosen by `distortion`:
 "none", "k1", "k1k2" (default) or "k1k2p1p2" (radial + tangential). Per point: its 3D position.
-The Jacobian is estimated by finite differences, made cheap by its sparsity pattern (jac_sparsity):
-a residual depends only on its camera's parameters and its point.
+Two solvers: "schur" (default; schur.py: Levenberg-Marquardt with an analytic Jacobian, the points
+eliminated by the Schur complement and the camera system solved exactly) and "trf" (scipy's
+least_squares: trust region, LSMR on the sparse Jacobian, estimated by finite differences made cheap
+by its sparsity pattern: a residual depends only on its camera's parameters and its point).
 Cameras named in `fixed_intrinsics` (e.g. measured with a calibration board) keep K and all five
 distortion terms exactly as given: only their pose is refined, and their intrinsic parameters get no
 Jacobian column at all.
@@ -20,6 +22,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
+from flytrack_host.calibration.schur import levenberg_marquardt
 from flytrack_host.camera import Camera
 
 __all__ = ["DISTORTION_MODELS", "BundleResult", "bundle_adjust", "project_params"]
@@ -83,14 +86,18 @@ def project_params(cp: F64, aspect: F64, fixed_dist: F64, X: F64, cam: NDArray[n
 def bundle_adjust(cameras: list[Camera], points: F64, cam: NDArray[np.intp], pt: NDArray[np.intp], uv: F64,
                   distortion: str = "k1k2", loss: str = "huber", f_scale: float = 1.0, max_nfev: int = 100,
                   fix_intrinsics: bool = False, ftol: float = 1e-4, gauge: tuple[int, int] | None = None,
-                  fixed_intrinsics: set[str] | None = None, lsmr_tol: float = 1e-6) -> BundleResult:
+                  fixed_intrinsics: set[str] | None = None, lsmr_tol: float = 1e-6,
+                  solver: str = "schur") -> BundleResult:
     """Refine cameras and points so that projections of points[pt] in cameras[cam] match uv (N, 2).
 
     fix_intrinsics holds every camera's K and distortion; fixed_intrinsics only those of the cameras named
     (names that are not among `cameras` are ignored). gauge=(a, b) removes the similarity freedom, which
     otherwise slows the sparse solver: camera a's pose and one translation component of camera b are held
     fixed. lsmr_tol: LSMR's atol and btol for each trust-region step (scipy's default 1e-6 is cheap but leaves
-    the ill-conditioned directions, e.g. focal length vs distance, under-solved; 1e-10 converges them)."""
+    the ill-conditioned directions, e.g. focal length vs distance, under-solved; 1e-10 converges them); used by
+    solver="trf" only: the "schur" solver solves each step exactly."""
+    if solver not in ("schur", "trf"):
+        raise ValueError(f"solver {solver!r} unknown; use 'schur' or 'trf'")
     if distortion not in DISTORTION_MODELS:
         raise ValueError(f"distortion model {distortion!r} unknown; use one of {sorted(DISTORTION_MODELS)}")
     nd = DISTORTION_MODELS[distortion]
@@ -125,6 +132,18 @@ def bundle_adjust(cameras: list[Camera], points: F64, cam: NDArray[np.intp], pt:
     def fun(x: F64) -> F64:
         cp, X = unpack(x)
         return (project_params(cp, aspect, fixed_dist, X[pt], cam, nd) - uv).ravel()
+
+    if solver == "schur":
+        R0 = np.stack([c.R for c in cameras]).astype(np.float64)
+        sr = levenberg_marquardt(R0, cp0, aspect, fixed_dist, np.asarray(points, dtype=np.float64), cam, pt,
+                                 np.asarray(uv, dtype=np.float64), nd, free, loss=loss, f_scale=f_scale,
+                                 max_iter=max_nfev, ftol=ftol)
+        cp = sr.cp.copy()
+        cp[:, :3] = Rotation.from_matrix(sr.R).as_rotvec()
+        out = [_unpack_camera(cp[i], c, distortion) for i, c in enumerate(cameras)]
+        for i in held if not fix_intrinsics else range(nc):
+            out[i].K, out[i].dist = cameras[i].K.copy(), cameras[i].dist.copy()
+        return BundleResult(out, sr.X, sr.residuals, sr.cost, sr.nfev, sr.success, sr.message)
 
     A = lil_matrix((2 * nobs, n_cam_cols + 3 * npnt), dtype=np.int8)
     rows = np.arange(nobs)

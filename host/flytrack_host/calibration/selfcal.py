@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 from flytrack_host.calibration.align import Similarity
 from flytrack_host.calibration.bundle import DISTORTION_MODELS, bundle_adjust
 from flytrack_host.calibration.observations import Observations
+from flytrack_host.calibration.schur import project_jacobian
 from flytrack_host.camera import Camera
 
 __all__ = ["INIT_METHODS", "SelfCalError", "SelfCalResult", "self_calibrate", "initial_cameras",
@@ -145,25 +146,25 @@ def triangulate_frames(Ps: list[F64 | None], cam: NDArray[np.intp], pt: NDArray[
     cam, pt, xy = cam[use], pt[use], xy[use]
     if not len(cam):
         return out
-    order = np.argsort(pt, kind="stable")
-    cam, pt, xy = cam[order], pt[order], xy[order]
     Pst = np.stack([P if P is not None else np.zeros((3, 4)) for P in Ps])
-    rows_a = xy[:, 0:1] * Pst[cam, 2] - Pst[cam, 0]
-    rows_b = xy[:, 1:2] * Pst[cam, 2] - Pst[cam, 1]
-    bounds = np.flatnonzero(np.diff(pt)) + 1
-    starts = np.concatenate([[0], bounds])
-    ends = np.concatenate([bounds, [len(pt)]])
-    for s, e in zip(starts, ends, strict=True):
-        if e - s < 2:
-            continue
-        A = np.empty((2 * (e - s), 4))
-        A[0::2] = rows_a[s:e]
-        A[1::2] = rows_b[s:e]
-        A /= np.linalg.norm(A, axis=1, keepdims=True)
-        _, _, vt = np.linalg.svd(A)
-        X = vt[-1]
-        if abs(X[3]) > 1e-12:
-            out[pt[s]] = X[:3] / X[3]
+    rows = np.concatenate([xy[:, 0:1] * Pst[cam, 2] - Pst[cam, 0], xy[:, 1:2] * Pst[cam, 2] - Pst[cam, 1]])
+    rows /= np.linalg.norm(rows, axis=1, keepdims=True)
+    owner = np.concatenate([pt, pt])
+    # Each point's X is the null vector of its stacked rows A: the eigenvector of A^T A (4x4, summed per
+    # point) with the smallest eigenvalue, for all points at once.
+    outer = (rows[:, :, None] * rows[:, None, :]).reshape(len(rows), 16)
+    AtA = np.empty((n_points, 16))
+    for k in range(16):
+        AtA[:, k] = np.bincount(owner, weights=outer[:, k], minlength=n_points)
+    views = np.bincount(pt, minlength=n_points)
+    ok = views >= 2
+    if not ok.any():
+        return out
+    _, vecs = np.linalg.eigh(AtA[ok].reshape(-1, 4, 4))
+    X = vecs[:, :, 0]
+    good = np.abs(X[:, 3]) > 1e-12
+    idx = np.flatnonzero(ok)[good]
+    out[idx] = X[good, :3] / X[good, 3:4]
     return out
 
 
@@ -479,14 +480,18 @@ def factorization_cameras(obs: Observations, focal_px: float | Mapping[str, floa
 def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | None = None,
                    intrinsics: Mapping[str, Camera] | None = None, distortion: str = "k1k2",
                    ransac_px: float | None = None, max_nfev: int = 60, seed: int = 0,
-                   max_ba_points: int = 1500, final_ftol: float = 1e-5, init: str = "factorization",
+                   max_ba_points: int = 1500, final_ftol: float = 1e-8, init: str = "factorization",
                    refine_intrinsics: bool = False, final_lsmr_tol: float = 1e-10,
-                   final_ba_points: int | None = None) -> SelfCalResult:
+                   final_ba_points: int | None = None, solver: str = "schur") -> SelfCalResult:
     """Calibrate all cameras of obs (up to a similarity). init: "factorization" (Svoboda: projective
     factorisation + Euclidean upgrade) or "pairwise" (essential matrices + PnP from approximate intrinsics).
 
     The cameras of `intrinsics` (a board calibration) keep its K and distortion exactly, only their poses
-    are refined; refine_intrinsics=True makes them a starting point that the bundle adjustment refines."""
+    are refined; refine_intrinsics=True makes them a starting point that the bundle adjustment refines.
+    solver: the bundle adjustment's, "schur" (exact Levenberg-Marquardt steps, points eliminated; default)
+    or "trf" (scipy's trust region with LSMR; final_lsmr_tol applies to it). final_ftol: the final stage
+    runs until the cost changes by less than this (1e-8: exact steps make the last iterations cheap, and
+    1e-5 stopped up to 0.1 mm short of the converged camera centres)."""
     if distortion not in DISTORTION_MODELS:
         raise SelfCalError(f"distortion model {distortion!r} unknown; choose one of {', '.join(DISTORTION_MODELS)}.")
     if init not in INIT_METHODS:
@@ -534,7 +539,7 @@ def self_calibrate(obs: Observations, focal_px: float | Mapping[str, float] | No
                              # The final stage solves each step's linear system to high accuracy: with scipy's
                              # default (1e-6) LSMR stops early along the weakly determined directions (focal
                              # length vs depth), so the solver creeps there and ftol stops it short (issue 6).
-                             lsmr_tol=final_lsmr_tol if stage == 2 else 1e-6)
+                             lsmr_tol=final_lsmr_tol if stage == 2 else 1e-6, solver=solver)
         cams = bres.cameras
         sigma = float(np.median(np.linalg.norm(bres.residuals, axis=1)) / 1.1774)  # 2D Gaussian: 1.1774 sigma
         # Every frame (also those outside the bundle sample) is triangulated from the current inliers and
@@ -582,13 +587,30 @@ def refine_points(cams: list[Camera], obs: Observations, inv: NDArray[np.int64],
         return out
 
     h = 1e-6 * max(1.0, float(np.nanmax(np.abs(X))))
+    # Pinhole + OpenCV distortion cameras without skew, refraction or a separate distortion frame (all
+    # that self-calibration produces): one vectorised pass with the analytic Jacobian.
+    plain = all(c.interface is None and c.K_dist is None and c.K[0, 1] == 0.0 for c in cams)
+    if plain:
+        Rs = np.stack([c.R for c in cams])
+        cps = np.zeros((len(cams), 9))
+        cps[:, 3:6] = [c.t for c in cams]
+        cps[:, 6:9] = [[c.K[0, 0], c.K[0, 2], c.K[1, 2]] for c in cams]
+        aspect = np.array([c.K[1, 1] / c.K[0, 0] for c in cams])
+        dists = np.stack([c.dist for c in cams])
     for _ in range(iterations):
-        r = proj(X) - uv
-        J = np.empty((len(idx), 2, 3))
-        for k in range(3):
-            Xk = X.copy()
-            Xk[:, k] += h
-            J[:, :, k] = (proj(Xk) - uv - r) / h
+        if plain:
+            pred, _, J = project_jacobian(Rs, cps, aspect, dists, X, c_i, p_i, 0)
+            assert J is not None
+            z = np.einsum("nj,nj->n", Rs[c_i, 2], X[p_i]) + cps[c_i, 5]
+            pred[z <= 0] = np.nan  # behind the camera, as Camera.project
+            r = pred - uv
+        else:
+            r = proj(X) - uv
+            J = np.empty((len(idx), 2, 3))
+            for k in range(3):
+                Xk = X.copy()
+                Xk[:, k] += h
+                J[:, :, k] = (proj(Xk) - uv - r) / h
         ok = np.all(np.isfinite(J), axis=(1, 2)) & np.all(np.isfinite(r), axis=1)
         JtJ = np.zeros((n_points, 3, 3))
         Jtr = np.zeros((n_points, 3))

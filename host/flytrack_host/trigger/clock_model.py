@@ -4,27 +4,42 @@ Each clock query gives a device time (frame count and timer ticks -> seconds sin
 bracketed by two host times (request sent, reply received). The device time belongs somewhere in
 that round trip. Where: on a serial link the bytes take their wire time (10 bits a byte at the
 baud rate: ~0.8 ms for a 9-byte request at 115200 baud, ~1.5 ms for a 17-byte reply) and the
-device samples its clock once the request's last byte is in (plus its own processing), so the
-sample instant is host_t0 + request wire time + processing; the round trip's midpoint would be
-(reply - request) / 2 late, ~0.35 ms here (LinkTiming). Without a known link (bytes that arrive at
-once, as on the SoftwareTrigger's pty) the midpoint is the estimate, good to half the round trip.
-Latency outside the wire (a USB adapter's, the host's scheduling) lengthens the round trip; the
-model keeps only
-samples whose round trip is small (an absolute bound, then the better part of the window), fits
-gain and offset by least squares over a window of recent samples, drops outliers (beyond a few
-robust standard deviations) and refits. A device time that goes backwards, or a run of samples far
-off the model, means the device restarted (or was reset): the window starts afresh. The far samples
-are held back until `jump_count` of them agree with each other; they then seed the new window, so the
-model is fitted again at once (not `min_samples` queries later).
+device samples its clock once the request's last byte is in (plus its own processing). What the
+wire does not explain (the host's write and read latency, a USB adapter's) is split evenly between
+the way out and the way back (LinkTiming.sample_time); the round trip's plain midpoint would be
+(reply - request) / 2 late, ~0.35 ms here. Without a known link (bytes that arrive at once, as on
+the SoftwareTrigger's pty) the midpoint is the estimate, good to half the round trip.
+
+The fit is NTP's clock filter and a least-squares line, made robust to a loaded host:
+- a round trip shorter than the wire allows is impossible on that link: the device side was behind
+  (a simulator that lags the wall clock) and its time is dropped (only while most round trips do
+  respect the wire time: a link faster than its stated baud keeps everything);
+- of every group of 1/keep_fraction consecutive samples only the one with the smallest round trip
+  is kept (the lower envelope of the delay: its placement error is at most half its own excess
+  latency), so the kept samples spread over the whole window, and a long window gives the gain
+  its lever;
+- gain and offset by least squares over those, outliers (beyond a few robust standard deviations)
+  dropped and refitted; `gain_se` is the gain's standard error from the fit's residuals.
+A device time that goes backwards, or a run of samples far off the model, means the device restarted
+(or was reset): the window starts afresh. The far samples are held back until `jump_count` of them
+agree with each other; they then seed the new window, so the model is fitted again at once (not
+`min_samples` queries later).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs i < j of n samples (cached: the Theil-Sen start runs on every fit)."""
+    return np.triu_indices(n, 1)
 
 
 @dataclass(frozen=True)
@@ -49,11 +64,14 @@ class LinkTiming:
         return self.request_s + self.device_s + self.reply_s
 
     def sample_time(self, host_t0: float, host_t1: float) -> float:
-        """Host time of the device's clock sample: the request's last byte in, then processing.
-        The rest of the round trip (reply wire time, latency on the way back) comes after it.
-        The sample also came at least the reply's wire time before host_t1: a round trip shorter
-        than the wire allows (a link faster than its stated baud) is bounded by that, and by t0."""
-        return max(host_t0, min(host_t0 + self.request_s + self.device_s, host_t1 - self.reply_s))
+        """Host time of the device's clock sample: the request's last byte in, then processing,
+        plus half of the latency the wire does not explain (host write/read scheduling, split
+        evenly between the two ways: the error is then at most half that excess). The sample also
+        came at least the reply's wire time before host_t1: a round trip shorter than the wire
+        allows (a link faster than its stated baud) is bounded by that, and by t0."""
+        excess = max(0.0, (host_t1 - host_t0) - self.min_rtt_s)
+        at = host_t0 + self.request_s + self.device_s + 0.5 * excess
+        return max(host_t0, min(at, host_t1 - self.reply_s))
 
 
 @dataclass(frozen=True)
@@ -82,9 +100,9 @@ class ClockModel:
     def __init__(
         self,
         frame_period_s: float | None = None,
-        window: int = 100,
+        window: int = 200,
         max_rtt_s: float = 0.010,
-        keep_fraction: float = 0.5,
+        keep_fraction: float = 0.2,
         outlier_sigmas: float = 4.0,
         jump_threshold_s: float = 0.020,
         jump_count: int = 3,
@@ -110,6 +128,9 @@ class ClockModel:
         self.offset = 0.0
         self.residual_s = math.nan
         self.n_samples = 0  # samples used by the last fit
+        self.gain_se = math.nan  # standard error of the fitted gain (host s per device s)
+        self.span_s = math.nan  # device-time span of the samples used by the last fit
+        self.short_rtt = 0  # samples of the window dropped for a round trip shorter than the wire allows
         self.fitted = False
         self.rejected_rtt = 0
         self.restarts = 0
@@ -129,6 +150,8 @@ class ClockModel:
         self.fitted = False
         self.n_samples = 0
         self.residual_s = math.nan
+        self.gain_se = math.nan
+        self.span_s = math.nan
 
     def add_sample(self, host_t0: float, host_t1: float, device_time_s: float) -> bool:
         """Adds one clock query; returns False when it was rejected (round trip too long, not finite)."""
@@ -166,34 +189,78 @@ class ClockModel:
 
     # ------------------------------------------------------------------ fit
 
+    def select(self, samples: list[ClockSample]) -> np.ndarray:
+        """Indices of the samples a fit uses: in each group of about 1/keep_fraction consecutive
+        samples the one with the smallest round trip, never one shorter than the wire allows."""
+        n = len(samples)
+        rtts = np.fromiter((s.host_t1 - s.host_t0 for s in samples), dtype=np.float64, count=n)
+        ok = np.ones(n, dtype=bool)
+        if self.link is not None and np.median(rtts) >= self.link.min_rtt_s:
+            ok = rtts >= self.link.min_rtt_s
+        self.short_rtt = int(n - ok.sum())
+        groups = min(n, max(self.min_samples, int(math.ceil(self.keep_fraction * n))))
+        group = (np.arange(n) * groups) // n
+        key = np.where(ok, rtts, np.inf)
+        order = np.lexsort((key, group))
+        first = np.ones(n, dtype=bool)
+        first[1:] = group[order][1:] != group[order][:-1]
+        idx = order[first]
+        return np.sort(idx[np.isfinite(key[idx])])
+
     def fit(self) -> bool:
         """Refits gain and offset; False while there are too few samples."""
         samples = list(self._samples)
         if len(samples) < self.min_samples:
             return False
-        rtts = np.array([s.rtt_s for s in samples])
-        keep_n = max(self.min_samples, int(math.ceil(self.keep_fraction * len(samples))))
-        idx = np.argsort(rtts, kind="stable")[:keep_n]
-        dev = np.array([samples[i].device_time_s for i in idx])
-        host = np.array([samples[i].host_sample for i in idx])
+        idx = self.select(samples)
+        if len(idx) < self.min_samples:
+            return False
+        dev = np.fromiter((samples[i].device_time_s for i in idx), dtype=np.float64, count=len(idx))
+        host = np.fromiter((samples[i].host_sample for i in idx), dtype=np.float64, count=len(idx))
         if np.ptp(dev) <= 0:
             return False
         mask = np.ones(len(dev), dtype=bool)
-        for _ in range(3):
-            gain, offset, resid = self._lstsq(dev[mask], host[mask])
+        # A robust start (median of pairwise slopes): a few kept samples can still be far off (a
+        # device side that lagged just enough to look tight), and a least-squares start tilted by
+        # them could make the outlier test drop good samples instead.
+        gain, offset = self._theil_sen(dev, host)
+        for _ in range(4):
             full = host - (gain * dev + offset)
             mad = float(np.median(np.abs(full[mask] - np.median(full[mask]))))
             sigma = max(1.4826 * mad, 1e-6)
-            new_mask = np.abs(full) <= self.outlier_sigmas * sigma
+            new_mask = np.abs(full - np.median(full[mask])) <= self.outlier_sigmas * sigma
             if new_mask.sum() < self.min_samples or np.array_equal(new_mask, mask):
                 break
             mask = new_mask
+            gain, offset, _ = self._lstsq(dev[mask], host[mask])
         gain, offset, resid = self._lstsq(dev[mask], host[mask])
         self.gain, self.offset = gain, offset
         self.residual_s = float(np.sqrt(np.mean(resid**2)))
         self.n_samples = int(mask.sum())
+        used = dev[mask]
+        self.span_s = float(np.ptp(used))
+        sxx = float(np.sum((used - used.mean()) ** 2))
+        dof = self.n_samples - 2
+        self.gain_se = float(np.sqrt(np.sum(resid**2) / dof / sxx)) if dof > 0 and sxx > 0 else math.nan
         self.fitted = True
         return True
+
+    @staticmethod
+    def _theil_sen(dev: np.ndarray, host: np.ndarray, max_points: int = 64) -> tuple[float, float]:
+        """Median of the pairwise slopes (of at most max_points spread over the samples), and the
+        median offset through it."""
+        if len(dev) > max_points:
+            pick = np.linspace(0, len(dev) - 1, max_points).round().astype(np.intp)
+            dev, host = dev[pick], host[pick]
+        d0, h0 = float(dev.mean()), float(host.mean())
+        dc, hc = dev - d0, host - h0  # centred: epoch host times keep their precision
+        i, j = _pairs(len(dev))
+        dd = dc[j] - dc[i]
+        ok = dd > 0
+        if not ok.any():
+            return 1.0, h0 - d0
+        gain = float(np.median((hc[j] - hc[i])[ok] / dd[ok]))
+        return gain, h0 + float(np.median(hc - gain * dc)) - gain * d0
 
     @staticmethod
     def _lstsq(dev: np.ndarray, host: np.ndarray) -> tuple[float, float, np.ndarray]:
@@ -238,6 +305,8 @@ class ClockModel:
             "offset": self.offset,
             "residual_us": self.residual_s * 1e6,
             "n_samples": float(self.n_samples),
+            "gain_se_ppm": self.gain_se * 1e6,
+            "span_s": self.span_s,
             "rejected_rtt": float(self.rejected_rtt),
             "restarts": float(self.restarts),
         }

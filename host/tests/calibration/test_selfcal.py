@@ -31,12 +31,14 @@ def test_selfcal_reaches_noise_floor_and_true_centres(n_cams: int, seed: int, fo
     truth_inliers = ~rig.outlier
     floor = reprojection_error(rig.cameras, rig.obs, truth_inliers)  # the true cameras' own error
     ours = reprojection_error(res.cameras, rig.obs, truth_inliers)
-    assert abs(ours / floor - 1.0) < 0.2, (ours, floor)
-    # After a similarity onto the true centres, every centre within 1 % of the arena size.
-    assert centre_error(res.cameras, rig.cameras) < 0.01 * rig.arena_size
+    # Measured (Schur bundle adjustment, converged): 0.9983, 0.9979, 0.9979 of the floor (the fit absorbs a
+    # little of the noise); centres 6.24, 2.96, 5.45 mm; outliers kept 0, 0, 0.6 %; inliers kept 96.7-99.6 %.
+    assert abs(ours / floor - 1.0) < 0.005, (ours, floor)
+    # After a similarity onto the true centres, every centre within 7.5 mm (the arena is 1 m).
+    assert centre_error(res.cameras, rig.cameras) < 0.0075 * rig.arena_size
     # Gross outliers are rejected, and few good detections are.
-    assert np.mean(res.inlier[rig.outlier]) < 0.05
-    assert np.mean(res.inlier[truth_inliers]) > 0.85
+    assert np.mean(res.inlier[rig.outlier]) < 0.01
+    assert np.mean(res.inlier[truth_inliers]) > 0.95
 
 
 def test_points_file_round_trip(tmp_path: Path) -> None:

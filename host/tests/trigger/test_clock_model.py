@@ -76,7 +76,7 @@ def test_far_samples_that_disagree_do_not_restart() -> None:
     _feed(m, np.arange(50) * 0.05, noise=1e-6)
     for i, step in enumerate((0.5, -0.3, 0.9)):
         _feed(m, [2.5 + i * 0.05], offset=1.7e9 + step, noise=1e-6)
-    assert m.restarts == 0 and m.n_samples >= 20
+    assert m.restarts == 0 and m.n_samples >= 10  # the window kept: one sample in 5 of its 50
     assert m.device_to_host(2.6) == pytest.approx(1.00002 * 2.6 + 1.7e9, abs=1e-4)
 
 
@@ -101,8 +101,11 @@ def test_link_timing_from_the_wire() -> None:
     assert link.device_s == FIRMWARE_SAMPLE_DELAY_S
     sl = strawlab_timing(115200)
     assert (sl.request_s, sl.reply_s) == (pytest.approx(2 * 10 / 115200), pytest.approx(10 * 10 / 115200))
-    # The sample: request in, processing; never later than the reply's start, never before t0.
-    assert link.sample_time(100.0, 100.003) == pytest.approx(100.0 + link.request_s + link.device_s)
+    # The sample: request in, processing, half the latency the wire does not explain; never later than
+    # the reply's start, never before t0.
+    assert link.sample_time(100.0, 100.003) == pytest.approx(
+        100.0 + link.request_s + link.device_s + 0.5 * (0.003 - link.min_rtt_s))
+    assert link.sample_time(100.0, 100.0 + link.min_rtt_s) == pytest.approx(100.0 + link.request_s + link.device_s)
     assert link.sample_time(100.0, 100.0015) == pytest.approx(100.0015 - link.reply_s)
     assert link.sample_time(100.0, 100.0002) == 100.0
     with pytest.raises(ValueError):
@@ -111,8 +114,8 @@ def test_link_timing_from_the_wire() -> None:
 
 def test_wire_timing_removes_the_midpoint_bias() -> None:
     """Device samples at t0 + request wire time + processing, the reply takes longer than the
-    request and the way back has extra latency: the midpoint puts device times late, the link
-    timing does not."""
+    request and both ways have extra latency (write and read scheduling): the midpoint puts device
+    times late, the link timing does not."""
     from flytrack_host.trigger.device import clock_link_timing
 
     link = clock_link_timing(115200)
@@ -121,14 +124,16 @@ def test_wire_timing_removes_the_midpoint_bias() -> None:
     for i in range(200):
         d = i * 0.05
         sample = 1000.0 + d
-        t0 = sample - link.request_s - link.device_s
-        t1 = sample + link.reply_s + rng.uniform(20e-6, 300e-6)  # reader wake-up, scheduling
+        t0 = sample - link.request_s - link.device_s - rng.uniform(10e-6, 150e-6)  # writer, harness wake-up
+        t1 = sample + link.reply_s + rng.uniform(10e-6, 150e-6)  # reader wake-up, scheduling
         for m in (with_link, midpoint):
             m.add_sample(t0, t1, d)
-    assert with_link.device_to_host(5.0) == pytest.approx(1005.0, abs=5e-6)
+    # The kept (tightest) round trips have ~20-60 us of excess, half of it the placement's bound.
+    assert with_link.device_to_host(5.0) == pytest.approx(1005.0, abs=10e-6)
     late = midpoint.device_to_host(5.0) - 1005.0
-    assert 0.3e-3 < late < 0.5e-3  # (reply - request) / 2 plus half the extra latency
-    assert with_link.sample_host_time(1.0, 1.01) == pytest.approx(1.0 + link.request_s + link.device_s)
+    assert 0.3e-3 < late < 0.5e-3  # (reply - request) / 2 plus the extra latency's asymmetry
+    assert with_link.sample_host_time(1.0, 1.01) == pytest.approx(
+        1.0 + link.request_s + link.device_s + 0.5 * (0.01 - link.min_rtt_s))
     assert midpoint.sample_host_time(1.0, 1.01) == pytest.approx(1.005)
 
 
@@ -157,3 +162,56 @@ def test_recorded_samples_with_the_early_frame_error_are_corrected() -> None:
     assert clean.early_fixed == 0 and np.array_equal(clean.frames, count + frac)
     few = correct_clock_counts(count_rec[:3], frac[:3], host[:3])
     assert few.early_fixed == 0
+
+
+def _loaded_link_queries(seconds: float, rate_hz: float, seed: int, ppm: float = 37.0):
+    """Clock queries over a 115200-baud link from a loaded host, shaped as measured in simavr at load
+    6-9 (tests/firmware): write latency ~30 us, read latency ~80 us, each with a few us of jitter,
+    and in a third of the queries (half of them, for the read) a scheduling delay of ~1-2 ms more;
+    now and then (5 %) a device side up to 3 ms behind, which shortens the round trip below the
+    wire time. Returns (t0, t1, device time, true host time of each sample)."""
+    from flytrack_host.trigger.device import clock_link_timing
+
+    link = clock_link_timing(115200)
+    rng = np.random.default_rng(seed)
+    n = int(seconds * rate_hz)
+    dev = np.arange(n) / rate_hz
+    true = 1.0e4 + dev / (1 + ppm * 1e-6)  # host seconds per device second: 1 / (1 + ppm)
+    d_in = 30e-6 + rng.exponential(10e-6, n) + (rng.random(n) < 0.3) * rng.exponential(1e-3, n)
+    d_out = 80e-6 + rng.exponential(20e-6, n) + (rng.random(n) < 0.5) * rng.exponential(2e-3, n)
+    behind = np.where(rng.random(n) < 0.05, rng.uniform(0.1e-3, 3e-3, n), 0.0)
+    t0 = true - link.request_s - link.device_s - d_in + behind
+    t1 = np.maximum(true + link.reply_s + d_out - behind, t0 + 50e-6)
+    return link, t0, t1, dev, true
+
+
+def test_delay_filter_recovers_the_gain_within_1_ppm_on_a_loaded_link() -> None:
+    """The NTP-style filter (tightest round trip of each group, none shorter than the wire) against
+    every query fitted alike: over 10 s of queries at 100 Hz the filtered gain is within 1 ppm of
+    the truth and within 3 of its own standard errors; every query alone is several ppm off."""
+    errs, errs_all, offs, offs_all = [], [], [], []
+    for seed in range(4):
+        link, t0, t1, dev, true = _loaded_link_queries(10.0, 100.0, seed)
+        robust = ClockModel(window=5000, keep_fraction=0.1, link=link)
+        every = ClockModel(window=5000, keep_fraction=1.0, link=link)
+        for a, b, d in zip(t0, t1, dev, strict=True):
+            robust.add_sample(a, b, d)
+            every.add_sample(a, b, d)
+        true_gain = 1 / (1 + 37e-6)
+        err = (robust.gain - true_gain) * 1e6
+        errs.append(err)
+        errs_all.append((every.gain - true_gain) * 1e6)
+        offs.append((robust.device_to_host(5.0) - (1.0e4 + 5.0 / (1 + 37e-6))) * 1e6)
+        offs_all.append((every.device_to_host(5.0) - (1.0e4 + 5.0 / (1 + 37e-6))) * 1e6)
+        assert robust.n_samples >= 80 and robust.span_s > 9.5
+        assert robust.short_rtt > 0  # the device-behind queries were noticed and dropped
+        assert abs(err) < max(0.3, 3 * robust.gain_se * 1e6)
+        assert robust.gain_se * 1e6 < 0.5
+        # The kept samples are placed within ~50 us of their true time.
+        assert abs(robust.device_to_host(5.0) - (1.0e4 + 5.0 / (1 + 37e-6))) < 50e-6
+    print(f"\nloaded link, 10 s at 100 Hz: gain error with the filter {np.round(errs, 3)} ppm, "
+          f"every query {np.round(errs_all, 2)} ppm; placement at 5 s {np.round(offs, 1)} us, every query "
+          f"{np.round(offs_all, 1)} us")
+    assert max(np.abs(errs)) < 1.0
+    rms, rms_all = np.sqrt(np.mean(np.square(errs))), np.sqrt(np.mean(np.square(errs_all)))
+    assert rms_all > 3 * rms  # what the filter is for
