@@ -60,12 +60,16 @@ class FishTracker:
         self.models = list(models)
         self.models_mm = [F.model_in_mm(m) for m in models]
         self.cfg = cfg or TrackerConfig()
+        self.dt = 1.0 / fps
         self.filters = []
         for X in np.atleast_2d(X0):
             flt = TrackFilter(1.0 / fps, self.cfg.smoother)
             flt.start(X)
             self.filters.append(flt)
         self.est = np.atleast_2d(X0).copy()
+        # per fish: the frame (count of steps) of its filter's first entry; -1 for the fish the tracker
+        # starts with (their start state precedes the first step and is not output)
+        self.offsets = [-1] * len(self.filters)
         self.rng = np.random.default_rng(self.cfg.fit.rng_seed)
         self.frames = 0
         self.last_costs: dict[int, tuple[F.FishCost, F64]] = {}
@@ -73,6 +77,18 @@ class FishTracker:
     @property
     def n_fish(self) -> int:
         return len(self.models)
+
+    def add_fish(self, model: ShapeModel, X: F64) -> int:
+        """A fish modelled in the frame just stepped (state X in that frame) joins the tracker; it is
+        predicted and fitted from the next step on. Returns its index."""
+        self.models.append(model)
+        self.models_mm.append(F.model_in_mm(model))
+        flt = TrackFilter(self.dt, self.cfg.smoother)
+        flt.start(np.asarray(X, float))
+        self.filters.append(flt)
+        self.est = np.vstack([self.est, np.asarray(X, float)[None]])
+        self.offsets.append(self.frames - 1)
+        return self.n_fish - 1
 
     def step(self, sils: Sequence[Silhouettes]) -> FrameResult:
         t0 = time.perf_counter()
@@ -182,11 +198,21 @@ class FishTracker:
                 self.last_costs[f] = (cost, r0)
         return evals, out
 
+    def _stack(self, per_fish: list[tuple[F64, F64]]) -> tuple[F64, F64]:
+        """Per-fish (states, covariances) from their filters onto the frames stepped: NaN before a fish's
+        model was made."""
+        T = self.frames
+        X = np.full((T, self.n_fish, 11), np.nan)
+        P = np.full((T, self.n_fish, 11, 11), np.nan)
+        for f, ((xs, Ps), off) in enumerate(zip(per_fish, self.offsets, strict=True)):
+            skip = max(0, -off)
+            X[off + skip:, f] = xs[skip:]
+            P[off + skip:, f] = Ps[skip:]
+        return X, P
+
     def smoothed(self) -> tuple[F64, F64]:
         """(T, F, 11) smoothed states and (T, F, 11, 11) covariances over the frames stepped so far."""
-        xs, Ps = zip(*(f.smoothed() for f in self.filters), strict=True)
-        return np.stack(xs, axis=1)[1:], np.stack(Ps, axis=1)[1:]
+        return self._stack([f.smoothed() for f in self.filters])
 
     def filtered(self) -> tuple[F64, F64]:
-        xs, Ps = zip(*(f.filtered() for f in self.filters), strict=True)
-        return np.stack(xs, axis=1)[1:], np.stack(Ps, axis=1)[1:]
+        return self._stack([f.filtered() for f in self.filters])
