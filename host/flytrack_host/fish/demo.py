@@ -164,7 +164,10 @@ def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[
              side_size: tuple[int, int] = (512, 384), out: Path | None = None, noise: float = 3.0,
              progress: bool = False, plots: bool = True, cross_frame: int | None = None,
              top_zoom: float = 1.0, cfg: TrackerConfig | None = None, water: float | None = None,
-             incremental: bool = True) -> dict:
+             incremental: bool = True, claims: bool = True, track_fish: int | None = None) -> dict:
+    """Render, track and score a synthetic school of `n_fish`. `track_fish` caps the fish that get a model
+    (the others stay unmodelled silhouettes: the case the claims are for); `incremental`, `claims`: see
+    pipeline.track."""
     cv2.setNumThreads(1)  # one core, as the figure is quoted
     school = make_school(n_fish, frames, seed=seed, cross_frame=cross_frame)
     rig = tank_rig(top_size, side_size, top_zoom=top_zoom, water=water)
@@ -185,7 +188,8 @@ def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[
         bar.start()
         task = bar.add_task("tracking", total=frames)
     try:
-        res = track(stream, views, school.fps, n_background=n_bg, n_fish=n_fish, cfg=cfg, incremental=incremental,
+        res = track(stream, views, school.fps, n_background=n_bg, n_fish=track_fish or n_fish, cfg=cfg,
+                    incremental=incremental, claims=claims,
                     progress=(lambda n: bar.advance(task, n)) if bar else None)
     finally:
         if bar:

@@ -38,6 +38,7 @@ class ModelResult:
     tail_px: F64
     midline_cost_px: float  # eq. 3.3's mean q* at the solution
     iekf_iterations: int
+    blobs: tuple[int, int] = (-1, -1)  # the top and side blobs it was made from
 
 
 def _contour_curvature(c: F64, k: int) -> F64:
@@ -246,4 +247,4 @@ def generate_model(top: View, side: View, sil_top: Silhouettes, sil_side: Silhou
 
     length = float(arclength(p[None])[0])
     model = ShapeModel(s_all, a_all, b_all, d_all, length, base.n_u)
-    return ModelResult(model, X, head_px, nose_px, tail_px, float(c), res_k.iterations)
+    return ModelResult(model, X, head_px, nose_px, tail_px, float(c), res_k.iterations, (blob_top, blob_side))

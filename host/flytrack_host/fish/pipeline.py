@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from flytrack_host.fish.claims import Claims
 from flytrack_host.fish.model_init import ModelError, ModelResult, generate_model, landmarks, lift, side_line
 from flytrack_host.fish.shape import ShapeModel, midline_world
 from flytrack_host.fish.silhouette import BackgroundModel, Silhouettes
@@ -118,7 +119,7 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
           background: Sequence[NDArray[np.uint8]] | None = None, n_fish: int | None = None,
           zrange: tuple[float, float] = (0.0, 0.4), cfg: TrackerConfig | None = None, model_retry: int = 5,
           progress: Callable[[int], None] | None = None, log: Callable[[str], None] | None = None,
-          incremental: bool = True) -> TrackResult:
+          incremental: bool = True, claims: bool = True) -> TrackResult:
     """Track the fish in `frames` (each item: one image per view, top first, then the side view used for
     the models, then any other tracking views). The first `n_background` items are fish-free frames for the
     background (alpha 0.05); `background` gives B_0 directly instead.
@@ -128,6 +129,8 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
     explains (in the top and in the side view) are paired and each fish found there in clear view gets its
     model in that frame and joins the running tracker, until `n_fish` are tracked (default: no limit). A
     candidate that gave no model is tried again after `model_retry` frames (model generation is costly).
+    Blobs that no tracked fish explains are claimed (claims.py) until their fish is modelled, and tracked
+    fish do not fit the contour inside a claim when such a blob merges with theirs (`claims=False`: off).
     `incremental=False` models only in the first frame (for comparison)."""
     messages: list[str] = []
 
@@ -168,6 +171,7 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
     k = -1
     next_try = 0  # frame from which unexplained blobs are tried again after a try that gave no model
     no_fish = 0
+    claim_sets: list[Claims] = []
 
     def models_in(k: int, sils: list[Silhouettes], top_blobs: list[int] | None = None,
                   side_blobs: list[int] | None = None) -> list[ModelResult]:
@@ -201,7 +205,9 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
             note(f"frame {k}: {len(got)} fish modelled")
             # the model frame itself is tracked as well, starting from the model's state
         t = k - first
-        res = tracker.step(sils)
+        if claims and not claim_sets:
+            claim_sets = [Claims(s_.mask.shape) for s_ in sils]
+        res = tracker.step(sils, [c.mask(k) for c in claim_sets] if claim_sets else None)
         if t % 10 == 0:  # the multi-exposure image of Figure 9
             exposure = [im.copy() for im in imgs] if t == 0 else [np.minimum(e, im) for e, im in
                                                                    zip(exposure, imgs, strict=True)]
@@ -212,20 +218,24 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
             for f in g:
                 sh[f] = len(g)
         want = n_fish is None or tracker.n_fish < n_fish
+        new: list[ModelResult] = []
         if incremental and want and k >= next_try:
             new = _new_fish(k, sils, res.assoc, tracker, models_in)
             if n_fish is not None:
                 new = new[: n_fish - tracker.n_fish]
-            for m in new:
-                tracker.add_fish(m.model, m.X)
-                models.append(m)
-                model_frame.append(t)
-                X = np.vstack([X, m.X[None]])
-                sn = np.vstack([sn, np.ones((1, len(views)), np.int8)])
-                sh = np.append(sh, np.int8(1))
-                note(f"frame {k}: fish {tracker.n_fish - 1} modelled (in clear view in the top and side views)")
             if not new:
                 next_try = k + model_retry
+        for m in new:
+            tracker.add_fish(m.model, m.X)
+            models.append(m)
+            model_frame.append(t)
+            X = np.vstack([X, m.X[None]])
+            sn = np.vstack([sn, np.ones((1, len(views)), np.int8)])
+            sh = np.append(sh, np.int8(1))
+            note(f"frame {k}: fish {tracker.n_fish - 1} modelled (in clear view in the top and side views)")
+        for ci, cs in enumerate(claim_sets):
+            used = [m.blobs[ci] for m in new] if ci < 2 else []
+            cs.update(k, sils[ci].blobs, _unexplained(views[ci], sils[ci], res.assoc[ci], tracker, used), used)
         raw.append(X)
         seen.append(sn)
         shared.append(sh)
@@ -254,6 +264,23 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
             note(f"fish {f}: no silhouette in {n_missing} frames (left the view or hidden); predicted there")
     return TrackResult(fps, first, [m.model for m in models], raw_a, fl, sm, cov, seen_a, shared_a, wall,
                        cpu, messages, models, exposure, model_frame=mf)
+
+
+def _unexplained(view: View, sil: Silhouettes, assoc: list[int], tracker: FishTracker, used: list[int]) -> list[int]:
+    """Blobs of one camera that no tracked fish explains: not associated with one, not just modelled, and
+    with no tracked fish's midline inside (its association may have failed this frame)."""
+    taken = set(assoc) | set(used)
+    free = [j for j in range(len(sil.blobs)) if j not in taken]
+    if not free:
+        return free
+    H, W = sil.labels.shape
+    inside: set[int] = set()
+    for f in range(tracker.n_fish):
+        m, _ = midline_world(tracker.est[f], np.linspace(0.0, 1.0, 7))
+        uv = np.round(view.project(m[0])).astype(int)
+        ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        inside.update(int(v) for v in sil.labels[uv[ok, 1], uv[ok, 0]])
+    return [j for j in free if sil.blobs[j].label not in inside]
 
 
 def _new_fish(k: int, sils: list[Silhouettes], assoc: list[list[int]], tracker: FishTracker,

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from flytrack_host.fish import fit as F
 from flytrack_host.fish.association import associate
+from flytrack_host.fish.claims import unclaimed
 from flytrack_host.fish.shape import ShapeModel, midline_world
 from flytrack_host.fish.silhouette import Silhouettes
 from flytrack_host.fish.smoother import SmootherConfig, TrackFilter
@@ -32,6 +33,8 @@ class TrackerConfig:
     rounds: int = 2  # passes over the fish of an occlusion group
     min_cameras: int = 1  # fit only with lines in at least this many cameras
     # a fish sharing a silhouette may be partly or wholly hidden in it: the prediction then weighs more
+    # a fish touching an unmodelled one has lost the contour inside its claim: the prediction weighs more
+    claimed_prior_weight: float = 10.0  # 2 fish crossing, one unmodelled: heading max 26 -> 13 deg
     occluded_prior_weight: float = 3.0  # 3-fish crossing: midline max 4.6 -> 3.0 px, heading max 3.6 -> 2.4 deg
 
 
@@ -90,7 +93,10 @@ class FishTracker:
         self.offsets.append(self.frames - 1)
         return self.n_fish - 1
 
-    def step(self, sils: Sequence[Silhouettes]) -> FrameResult:
+    def step(self, sils: Sequence[Silhouettes],
+             claimed: Sequence[NDArray[np.uint8] | None] | None = None) -> FrameResult:
+        """One frame. `claimed` (per camera, or None): pixels of fish not yet modelled (claims.py); the
+        contour points of a tracked fish's blob inside them are left out of its fit."""
         t0 = time.perf_counter()
         cfg = self.cfg
         Xp = np.array([f.predict() for f in self.filters])
@@ -123,7 +129,7 @@ class FishTracker:
         costs = np.full(self.n_fish, np.nan)
         evals = 0
         for members in groups.values():
-            ev, got = self._fit_group(members, Xp, assoc, sils)
+            ev, got = self._fit_group(members, Xp, assoc, sils, claimed)
             evals += ev
             for f, (X, c) in got.items():
                 Xout[f] = X
@@ -134,17 +140,25 @@ class FishTracker:
         self.frames += 1
         return FrameResult(Xout, assoc, costs, evals, time.perf_counter() - t0, list(groups.values()))
 
-    def _fit_group(self, members: list[int], Xp: F64, assoc: list[list[int]],
-                   sils: Sequence[Silhouettes]) -> tuple[int, dict[int, tuple[F64, float]]]:
+    def _fit_group(self, members: list[int], Xp: F64, assoc: list[list[int]], sils: Sequence[Silhouettes],
+                   claimed: Sequence[NDArray[np.uint8] | None] | None = None
+                   ) -> tuple[int, dict[int, tuple[F64, float]]]:
         cfg = self.cfg
         r0 = Xp[members, 0:3].mean(axis=0)
         # lines of every (camera, blob) used by the group, once
         lines: dict[tuple[int, int], F.LineSet] = {}
+        clipped: set[tuple[int, int]] = set()  # blobs an unmodelled fish's claim took contour points from
         for ci, a in enumerate(assoc):
             for f in members:
                 j = a[f]
                 if j >= 0 and (ci, j) not in lines:
-                    lines[(ci, j)] = F.contour_lines(self.views[ci], sils[ci].blobs[j].contour, r0,
+                    contour = sils[ci].blobs[j].contour
+                    if claimed is not None and claimed[ci] is not None:
+                        n0 = len(contour)
+                        contour = unclaimed(contour, claimed[ci])
+                        if len(contour) < n0:
+                            clipped.add((ci, j))
+                    lines[(ci, j)] = F.contour_lines(self.views[ci], contour, r0,
                                                      cfg.fit.max_lines * sum(1 for g in members if a[g] == j), ci)
         fields = {}
         for ci, sil in enumerate(sils):
@@ -189,6 +203,8 @@ class FishTracker:
                 cost = F.make_cost(self.models_mm[f], r0, sets, others, cfg.fit, z_prior=zp, outside=oms)
                 if any(o is not None for o in others):
                     cost.prior_weight = max(cost.prior_weight, cfg.occluded_prior_weight)
+                if any(key in clipped for key in keys):
+                    cost.prior_weight = max(cost.prior_weight, cfg.claimed_prior_weight)
                 z0 = F.z_from_state(cur[f], r0)[0]
                 levels = cfg.fit.max_levels if rnd == 0 else max(2, cfg.fit.max_levels // 3)
                 z, c, n = F.fit_fish(cost, z0, cfg.fit, self.rng, sa_levels=levels)
