@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 from flytrack_host.fish.claims import Claims
 from flytrack_host.fish.model_init import ModelError, ModelResult, generate_model, landmarks, lift, side_line
 from flytrack_host.fish.shape import ShapeModel, midline_world
-from flytrack_host.fish.silhouette import BackgroundModel, Silhouettes
-from flytrack_host.fish.tracker import FishTracker, TrackerConfig
+from flytrack_host.fish.silhouette import BackgroundModel, Blob, Silhouettes
+from flytrack_host.fish.tracker import FishTracker, TrackerConfig, mm_per_px
 from flytrack_host.fish.views import View
 
 F64 = NDArray[np.float64]
@@ -119,7 +119,7 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
           background: Sequence[NDArray[np.uint8]] | None = None, n_fish: int | None = None,
           zrange: tuple[float, float] = (0.0, 0.4), cfg: TrackerConfig | None = None, model_retry: int = 5,
           progress: Callable[[int], None] | None = None, log: Callable[[str], None] | None = None,
-          incremental: bool = True, claims: bool = True) -> TrackResult:
+          incremental: bool = True, claims: bool = True, max_area_ratio: float = 1.35) -> TrackResult:
     """Track the fish in `frames` (each item: one image per view, top first, then the side view used for
     the models, then any other tracking views). The first `n_background` items are fish-free frames for the
     background (alpha 0.05); `background` gives B_0 directly instead.
@@ -129,6 +129,8 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
     explains (in the top and in the side view) are paired and each fish found there in clear view gets its
     model in that frame and joins the running tracker, until `n_fish` are tracked (default: no limit). A
     candidate that gave no model is tried again after `model_retry` frames (model generation is costly).
+    A candidate whose top-view area (mm^2, at its depth) is over `max_area_ratio` times that of one fish
+    (the median of the fish tracked alone in their blobs, or of the candidates) is several fish and waits.
     Blobs that no tracked fish explains are claimed (claims.py) until their fish is modelled, and tracked
     fish do not fit the contour inside a claim when such a blob merges with theirs (`claims=False`: off).
     `incremental=False` models only in the first frame (for comparison)."""
@@ -174,14 +176,27 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
     claim_sets: list[Claims] = []
 
     def models_in(k: int, sils: list[Silhouettes], top_blobs: list[int] | None = None,
-                  side_blobs: list[int] | None = None) -> list[ModelResult]:
+                  side_blobs: list[int] | None = None, ref_area: float | None = None) -> list[ModelResult]:
         got = []
         for jt, js in match_side_blobs(views[0], views[1], sils[0], sils[1], zrange, top_blobs, side_blobs):
             try:
                 got.append(generate_model(views[0], views[1], sils[0], sils[1], jt, js, zrange))
             except ModelError as exc:
                 note(f"frame {k}: top blob {jt}: {exc}")
-        return got
+        # several fish lying along each other can make one thin blob that passes the clear-view test: in a
+        # school of similar fish such a blob has a larger top-view area (mm^2, at its depth) than one fish
+        areas = [top_area_mm2(views[0], sils[0].blobs[m.blobs[0]], m.X) for m in got]
+        ref = ref_area if ref_area is not None else (float(np.median(areas)) if len(areas) >= 3 else None)
+        if ref is None:
+            return got
+        keep = []
+        for m, a in zip(got, areas, strict=True):
+            if a > max_area_ratio * ref:
+                note(f"frame {k}: top blob {m.blobs[0]}: {a / ref:.2f} x the top-view area of one fish: several "
+                     "fish touching, not modelled")
+            else:
+                keep.append(m)
+        return keep
 
     for k, imgs in enumerate(it):
         if len(imgs) != len(views):
@@ -266,6 +281,11 @@ def track(frames: Iterable[list[NDArray[np.uint8]]], views: Sequence[View], fps:
                        cpu, messages, models, exposure, model_frame=mf)
 
 
+def top_area_mm2(view: View, blob: Blob, X: F64) -> float:
+    """A top-view blob's area in mm^2 at the depth of state X (so near and far fish compare)."""
+    return float(blob.area) * mm_per_px(view, X) ** 2
+
+
 def _unexplained(view: View, sil: Silhouettes, assoc: list[int], tracker: FishTracker, used: list[int]) -> list[int]:
     """Blobs of one camera that no tracked fish explains: not associated with one, not just modelled, and
     with no tracked fish's midline inside (its association may have failed this frame)."""
@@ -292,8 +312,13 @@ def _new_fish(k: int, sils: list[Silhouettes], assoc: list[list[int]], tracker: 
     free_side = [j for j in range(len(sils[1].blobs)) if j not in set(assoc[1])]
     if not free_top or not free_side:
         return []
+    alone = [j for j in set(assoc[0]) if j >= 0 and assoc[0].count(j) == 1]
+    ref = None
+    if alone:
+        ref = float(np.median([top_area_mm2(tracker.views[0], sils[0].blobs[j], tracker.est[assoc[0].index(j)])
+                               for j in alone]))
     out = []
-    for m in models_in(k, sils, free_top, free_side):
+    for m in models_in(k, sils, free_top, free_side, ref):
         d = np.linalg.norm(tracker.est[:, :3] - m.X[:3], axis=1)
         if d.size and float(d.min()) < 0.3 * m.model.length:
             continue
