@@ -34,7 +34,9 @@ class TrackerConfig:
     min_cameras: int = 1  # fit only with lines in at least this many cameras
     # a fish sharing a silhouette may be partly or wholly hidden in it: the prediction then weighs more
     # a fish touching an unmodelled one has lost the contour inside its claim: the prediction weighs more
-    claimed_prior_weight: float = 10.0  # 2 fish crossing, one unmodelled: heading max 26 -> 13 deg
+    # a blob shared with an unmodelled fish: its contour lines farther than this from the model do not pull
+    # (2 fish crossing, one unmodelled: heading max 26 -> 1 deg)
+    claimed_line_cap_mm: float = 1.5
     occluded_prior_weight: float = 3.0  # 3-fish crossing: midline max 4.6 -> 3.0 px, heading max 3.6 -> 2.4 deg
 
 
@@ -184,12 +186,16 @@ class FishTracker:
                     ls = lines[key]
                     sets.append(ls)
                     sharers = [g for g in seen if g != f and assoc[key[0]][g] == key[1]]
+                    D = None
                     if sharers:
                         D = np.min([F.line_distances(F.surface_mm(self.models_mm[g], cur[g], r0), ls)[0]
                                     for g in sharers], axis=0)
-                        others.append(D)
-                    else:
-                        others.append(None)
+                    if key in clipped:
+                        # what the claim missed of an unmodelled fish's contour must not pull: a line
+                        # farther than this from the model counts as explained by something else
+                        cap = np.full(len(ls.p), cfg.claimed_line_cap_mm)
+                        D = cap if D is None else np.minimum(D, cap)
+                    others.append(D)
                 oms = []
                 for ci in {k[0] for k in keys}:
                     fm = fields[ci]
@@ -201,10 +207,8 @@ class FishTracker:
                     oms.append(F.OutsideMap(view, fm.field, scale, r0, fm.origin, fm.beyond))
                 zp = F.z_from_state(Xp[f], r0)[0]
                 cost = F.make_cost(self.models_mm[f], r0, sets, others, cfg.fit, z_prior=zp, outside=oms)
-                if any(o is not None for o in others):
+                if any(o is not None for o in others):  # shared with a tracked fish or an unmodelled one
                     cost.prior_weight = max(cost.prior_weight, cfg.occluded_prior_weight)
-                if any(key in clipped for key in keys):
-                    cost.prior_weight = max(cost.prior_weight, cfg.claimed_prior_weight)
                 z0 = F.z_from_state(cur[f], r0)[0]
                 levels = cfg.fit.max_levels if rnd == 0 else max(2, cfg.fit.max_levels // 3)
                 z, c, n = F.fit_fish(cost, z0, cfg.fit, self.rng, sa_levels=levels)
