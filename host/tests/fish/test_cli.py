@@ -123,4 +123,4 @@ def test_fewer_fish_in_clear_view_than_asked_tracks_those_and_says_so(scene: dic
     flat = " ".join(text.split())  # rich wraps long lines
     assert "only 1 of 2 fish were seen in clear view" in flat and "the first modelled in frame 2" in flat
     tr = read_tracks(d / "two.h5")
-    assert len(tr["fish"]) == 1 and tr["frame"][0] == 2
+    assert len(tr["fish"]) == 1 and tr["frame"][0] == 2 and tr["fish"][0]["model_frame"] == 2

@@ -116,11 +116,11 @@ def test_an_unmodelled_fish_does_not_pull_a_tracked_one_off_its_silhouette() -> 
     assert s["heading_deg_mean"] < 1.5  # 0.41
 
 
-def test_eight_fish_each_modelled_in_its_own_first_clear_frame() -> None:
+def test_eight_fish_each_modelled_in_its_own_first_clear_frame(tmp_path: Path) -> None:
     """The first 34 frames of the README's 8-fish school (half-size top view): six fish are in clear view at
     frame 0; fish 1 and 3 are one blob in the top view until about frame 28. They get their models when they
     part and join the running tracker; the frames before are "not yet modelled", not errors."""
-    s = run_demo(8, 34, 0, (640, 512), (512, 384), out=None, cross_frame=70, plots=False,
+    s = run_demo(8, 34, 0, (640, 512), (512, 384), out=tmp_path, cross_frame=70, plots=False,
                  cfg=TrackerConfig(fit=FitConfig(max_levels=2, qn_maxiter=8)))
     assert s["fish"] == 8 and s["never_modelled_fish"] == []
     late = {p["truth_fish"]: p["model_frame"] for p in s["per_fish"] if p["model_frame"] > 0}
@@ -132,3 +132,10 @@ def test_eight_fish_each_modelled_in_its_own_first_clear_frame() -> None:
     assert s["midline_mean_px"] < 0.3  # measured 0.10 (half-size pixels)
     assert s["head_mm_mean"] < 2.0  # 1.38
     assert s["heading_deg_mean"] < 2.0  # 0.89
+    # the HDF5 file: a late fish has NaN states and seen 0 before its model frame, and says which frame
+    tracks = read_tracks(tmp_path / "tracks.h5")
+    for p in s["per_fish"]:
+        g, k = tracks["fish"][p["fish"]], p["model_frame"]
+        assert g["model_frame"] == k
+        assert np.all(np.isnan(g["position"][:k])) and np.all(g["seen"][:k] == 0)
+        assert np.all(np.isfinite(g["position"][k:])) and np.all(np.isfinite(g["total_curvature"][k:]))
