@@ -136,6 +136,9 @@ def score(res: TrackResult, school: School, views: list[View], validation: View)
         "fish_in_school": int(school.truth.shape[1]),
         "frames": T,
         "first_frame": k0,
+        "scoring": "each fish is scored from the frame its model was made in (per_fish model_frame); its frames "
+                   "before are counted in not_yet_modelled_fish_frames, not as errors; never_modelled_fish: "
+                   "fish of the school that never got a model",
         "fish_frames": fish_frames,
         "not_yet_modelled_fish_frames": int(np.sum(mf)),
         "never_modelled_fish": never,
