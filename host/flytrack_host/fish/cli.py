@@ -185,9 +185,9 @@ def demo_command(
     console.print(f"fish {s['fish']}, frames {s['frames']}, occluded fish-frames {s['occluded_fish_frames']} "
                   f"(largest group {s['max_occlusion_group']})", highlight=False)
     late = [p for p in s["per_fish"] if p["not_yet_modelled_frames"] > 0]
-    console.print(f"modelled {s['fish']} of {s['fish_in_school']} fish, {len(late)} after the first frame ("
-                  + ", ".join(f"fish {p['truth_fish']} at frame {p['model_frame']}" for p in late)
-                  + f"); scored from each fish's model frame: {s['fish_frames']} fish-frames, "
+    when = (" (" + ", ".join(f"fish {p['truth_fish']} at frame {p['model_frame']}" for p in late) + ")") if late else ""
+    console.print(f"modelled {s['fish']} of {s['fish_in_school']} fish, {len(late)} after the first frame{when}; "
+                  f"scored from each fish's model frame: {s['fish_frames']} fish-frames, "
                   f"{s['not_yet_modelled_fish_frames']} not yet modelled (not errors)", highlight=False)
     if s["never_modelled_fish"]:
         console.print(f"never modelled (never in clear view): fish {s['never_modelled_fish']}", highlight=False)
