@@ -101,7 +101,8 @@ def track_command(
     plots: Path | None = typer.Option(None, help="Folder for the plots (seed's Figures 5, 9, 11)."),
     background_frames: int = typer.Option(0, help="Fish-free frames at the start of every video for the "
                                            "background (0: median of frames spread over the video)."),
-    fish: int | None = typer.Option(None, help="Number of fish (default: as many as are in clear view)."),
+    fish: int | None = typer.Option(None, help="Number of fish: stop making models at N (default: each fish "
+                                    "that comes into clear view in the top and side views gets a model)."),
     zmin: float = typer.Option(0.0, help="Lowest height (m) a fish can be at, in the calibration's frame."),
     zmax: float = typer.Option(0.4, help="Highest height (m) a fish can be at."),
     sa_levels: int = typer.Option(6, help="Simulated-annealing temperature levels per fish and frame."),
