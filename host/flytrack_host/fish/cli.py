@@ -101,7 +101,8 @@ def track_command(
     plots: Path | None = typer.Option(None, help="Folder for the plots (seed's Figures 5, 9, 11)."),
     background_frames: int = typer.Option(0, help="Fish-free frames at the start of every video for the "
                                            "background (0: median of frames spread over the video)."),
-    fish: int | None = typer.Option(None, help="Number of fish (default: as many as are in clear view)."),
+    fish: int | None = typer.Option(None, help="Number of fish: stop making models at N (default: each fish "
+                                    "that comes into clear view in the top and side views gets a model)."),
     zmin: float = typer.Option(0.0, help="Lowest height (m) a fish can be at, in the calibration's frame."),
     zmax: float = typer.Option(0.4, help="Highest height (m) a fish can be at."),
     sa_levels: int = typer.Option(6, help="Simulated-annealing temperature levels per fish and frame."),
@@ -149,8 +150,9 @@ def track_command(
     except (TrackingError, VideoError) as exc:
         raise _fail(str(exc)) from None
     write_tracks(out, res, names)
+    fish_frames = int(np.sum(np.isfinite(res.smoothed[:, :, 0])))  # from each fish's model frame on
     console.print(f"{res.n_fish} fish tracked over {res.smoothed.shape[0]} frames "
-                  f"({res.smoothed.shape[0] * res.n_fish / res.seconds:.1f} fish-frames/s) -> {out}", highlight=False)
+                  f"({fish_frames / res.seconds:.1f} fish-frames/s) -> {out}", highlight=False)
     if plots is not None:
         from flytrack_host.fish.plots import write_plots
 
@@ -183,6 +185,13 @@ def demo_command(
     s = run_demo(fish, frames, seed, top, side, out=out, progress=True, water=water)
     console.print(f"fish {s['fish']}, frames {s['frames']}, occluded fish-frames {s['occluded_fish_frames']} "
                   f"(largest group {s['max_occlusion_group']})", highlight=False)
+    late = [p for p in s["per_fish"] if p["not_yet_modelled_frames"] > 0]
+    when = (" (" + ", ".join(f"fish {p['truth_fish']} at frame {p['model_frame']}" for p in late) + ")") if late else ""
+    console.print(f"modelled {s['fish']} of {s['fish_in_school']} fish, {len(late)} after the first frame{when}; "
+                  f"scored from each fish's model frame: {s['fish_frames']} fish-frames, "
+                  f"{s['not_yet_modelled_fish_frames']} not yet modelled (not errors)", highlight=False)
+    if s["never_modelled_fish"]:
+        console.print(f"never modelled (never in clear view): fish {s['never_modelled_fish']}", highlight=False)
     console.print(f"midline error, top view: mean {s['midline_mean_px']:.2f} px, max {s['midline_max_px']:.2f} px",
                   highlight=False)
     console.print(f"head position error: mean {s['head_mm_mean']:.2f} mm, max {s['head_mm_max']:.2f} mm",

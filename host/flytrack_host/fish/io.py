@@ -1,6 +1,7 @@
 """HDF5 output of fish tracks: per fish per frame the raw fit, the filtered and the smoothed state
 (position, heading, midline parameters), its covariance, curvature along the body and in total (eq. 5.2),
-which cameras saw it, and each fish's shape model (cross-sections a, b, d at s)."""
+which cameras saw it, the frame its model was made in (states before it are NaN: not yet modelled),
+and each fish's shape model (cross-sections a, b, d at s)."""
 
 from __future__ import annotations
 
@@ -29,8 +30,13 @@ def write_tracks(path: Path, res: TrackResult, cameras: Sequence[str]) -> None:
         T = res.smoothed.shape[0]
         f["frame"] = res.first_frame + np.arange(T)
         f["time_s"] = (res.first_frame + np.arange(T)) / res.fps
+        mf = np.asarray(res.model_frame, np.int64)
+        if mf.size != res.n_fish:
+            mf = np.zeros(res.n_fish, np.int64)
         for i, model in enumerate(res.models):
             g = f.create_group(f"fish_{i}")
+            # frames before the fish's model was made: not yet modelled, NaN states and seen 0
+            g.attrs["model_frame"] = int(res.first_frame + mf[i])
             sm = res.smoothed[:, i]
             g["position"] = sm[:, 0:3]
             g["heading"] = sm[:, 3:6]
@@ -49,8 +55,8 @@ def write_tracks(path: Path, res: TrackResult, cameras: Sequence[str]) -> None:
             m["b"] = model.b
             m["d"] = model.d
             m.attrs["length"] = model.length
-            starts = detect_fast_starts(sm[:, 6:11], res.fps, model.length, i)
-            g["fast_start_onset"] = np.array([s.onset + res.first_frame for s in starts], dtype=np.int64)
+            starts = detect_fast_starts(sm[mf[i]:, 6:11], res.fps, model.length, i)
+            g["fast_start_onset"] = np.array([s.onset + mf[i] + res.first_frame for s in starts], dtype=np.int64)
             g["fast_start_kind"] = np.array([s.kind for s in starts], dtype="S7")
     tmp.replace(path)
 
@@ -66,5 +72,7 @@ def read_tracks(path: Path) -> dict:
         out["fish"] = []
         for name in sorted(k for k in f if k.startswith("fish_")):
             g = f[name]
-            out["fish"].append({k: g[k][()] for k in g if not isinstance(g[k], h5py.Group)})
+            fish = {k: g[k][()] for k in g if not isinstance(g[k], h5py.Group)}
+            fish["model_frame"] = int(g.attrs.get("model_frame", f.attrs["first_frame"]))
+            out["fish"].append(fish)
     return out

@@ -38,6 +38,7 @@ class ModelResult:
     tail_px: F64
     midline_cost_px: float  # eq. 3.3's mean q* at the solution
     iekf_iterations: int
+    blobs: tuple[int, int] = (-1, -1)  # the top and side blobs it was made from
 
 
 def _contour_curvature(c: F64, k: int) -> F64:
@@ -122,7 +123,10 @@ def _midline_cost(views_top: View, X_base: F64, P: F64, pix: F64, tail_px: F64, 
     X[:, 6:11] = P
     m, _ = midline_world(X, s)
     uv = views_top.project(m)  # (B, Ns, 2)
-    d = np.linalg.norm(pix[None, :, None, :] - uv[:, None, :, :], axis=3).min(axis=2)
+    # nearest midline point of each pixel: squared distances, the root only of the minimum
+    dx = pix[None, :, None, 0] - uv[:, None, :, 0]
+    dy = pix[None, :, None, 1] - uv[:, None, :, 1]
+    d = np.sqrt((dx * dx + dy * dy).min(axis=2))
     tail = np.linalg.norm(uv[:, -1] - tail_px[None], axis=1)
     c = d.mean(axis=1) + w_tail * tail**2
     return np.where(np.isfinite(c), c, 1e9)
@@ -192,7 +196,13 @@ def generate_model(top: View, side: View, sil_top: Silhouettes, sil_side: Silhou
     sa_cfg = FitConfig(tau0=1.0, tau_f=1e-3, kc=0.8, n_max=cfg.batch, batch=cfg.batch)
     z0 = np.array([50.0, 0, 0, 0, 0])
     z, c, _ = anneal(cost, z0, sa_cfg, rng, levels=30)
-    res = minimize(lambda q: float(cost(q[None])[0]), z, method="BFGS", options={"maxiter": 200})
+    def cost_grad(q: F64) -> tuple[float, F64]:
+        # the forward-difference gradient (scipy's default step) scored in one batch with the value
+        h = 1.4901161193847656e-08 * np.maximum(1.0, np.abs(q))
+        C = cost(np.vstack([q, q + np.diag(h)]))
+        return float(C[0]), (C[1:] - C[0]) / h
+
+    res = minimize(cost_grad, z, jac=True, method="BFGS", options={"maxiter": 200})
     if res.fun < c:
         z, c = res.x, float(res.fun)
     p = z * scale
@@ -246,4 +256,4 @@ def generate_model(top: View, side: View, sil_top: Silhouettes, sil_side: Silhou
 
     length = float(arclength(p[None])[0])
     model = ShapeModel(s_all, a_all, b_all, d_all, length, base.n_u)
-    return ModelResult(model, X, head_px, nose_px, tail_px, float(c), res_k.iterations)
+    return ModelResult(model, X, head_px, nose_px, tail_px, float(c), res_k.iterations, (blob_top, blob_side))

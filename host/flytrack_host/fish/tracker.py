@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from flytrack_host.fish import fit as F
 from flytrack_host.fish.association import associate
+from flytrack_host.fish.claims import unclaimed
 from flytrack_host.fish.shape import ShapeModel, midline_world
 from flytrack_host.fish.silhouette import Silhouettes
 from flytrack_host.fish.smoother import SmootherConfig, TrackFilter
@@ -32,6 +33,10 @@ class TrackerConfig:
     rounds: int = 2  # passes over the fish of an occlusion group
     min_cameras: int = 1  # fit only with lines in at least this many cameras
     # a fish sharing a silhouette may be partly or wholly hidden in it: the prediction then weighs more
+    # a fish touching an unmodelled one has lost the contour inside its claim: the prediction weighs more
+    # a blob shared with an unmodelled fish: its contour lines farther than this from the model do not pull
+    # (2 fish crossing, one unmodelled: heading max 26 -> 1 deg)
+    claimed_line_cap_mm: float = 1.5
     occluded_prior_weight: float = 3.0  # 3-fish crossing: midline max 4.6 -> 3.0 px, heading max 3.6 -> 2.4 deg
 
 
@@ -60,12 +65,16 @@ class FishTracker:
         self.models = list(models)
         self.models_mm = [F.model_in_mm(m) for m in models]
         self.cfg = cfg or TrackerConfig()
+        self.dt = 1.0 / fps
         self.filters = []
         for X in np.atleast_2d(X0):
             flt = TrackFilter(1.0 / fps, self.cfg.smoother)
             flt.start(X)
             self.filters.append(flt)
         self.est = np.atleast_2d(X0).copy()
+        # per fish: the frame (count of steps) of its filter's first entry; -1 for the fish the tracker
+        # starts with (their start state precedes the first step and is not output)
+        self.offsets = [-1] * len(self.filters)
         self.rng = np.random.default_rng(self.cfg.fit.rng_seed)
         self.frames = 0
         self.last_costs: dict[int, tuple[F.FishCost, F64]] = {}
@@ -74,7 +83,22 @@ class FishTracker:
     def n_fish(self) -> int:
         return len(self.models)
 
-    def step(self, sils: Sequence[Silhouettes]) -> FrameResult:
+    def add_fish(self, model: ShapeModel, X: F64) -> int:
+        """A fish modelled in the frame just stepped (state X in that frame) joins the tracker; it is
+        predicted and fitted from the next step on. Returns its index."""
+        self.models.append(model)
+        self.models_mm.append(F.model_in_mm(model))
+        flt = TrackFilter(self.dt, self.cfg.smoother)
+        flt.start(np.asarray(X, float))
+        self.filters.append(flt)
+        self.est = np.vstack([self.est, np.asarray(X, float)[None]])
+        self.offsets.append(self.frames - 1)
+        return self.n_fish - 1
+
+    def step(self, sils: Sequence[Silhouettes],
+             claimed: Sequence[NDArray[np.uint8] | None] | None = None) -> FrameResult:
+        """One frame. `claimed` (per camera, or None): pixels of fish not yet modelled (claims.py); the
+        contour points of a tracked fish's blob inside them are left out of its fit."""
         t0 = time.perf_counter()
         cfg = self.cfg
         Xp = np.array([f.predict() for f in self.filters])
@@ -107,7 +131,7 @@ class FishTracker:
         costs = np.full(self.n_fish, np.nan)
         evals = 0
         for members in groups.values():
-            ev, got = self._fit_group(members, Xp, assoc, sils)
+            ev, got = self._fit_group(members, Xp, assoc, sils, claimed)
             evals += ev
             for f, (X, c) in got.items():
                 Xout[f] = X
@@ -118,17 +142,25 @@ class FishTracker:
         self.frames += 1
         return FrameResult(Xout, assoc, costs, evals, time.perf_counter() - t0, list(groups.values()))
 
-    def _fit_group(self, members: list[int], Xp: F64, assoc: list[list[int]],
-                   sils: Sequence[Silhouettes]) -> tuple[int, dict[int, tuple[F64, float]]]:
+    def _fit_group(self, members: list[int], Xp: F64, assoc: list[list[int]], sils: Sequence[Silhouettes],
+                   claimed: Sequence[NDArray[np.uint8] | None] | None = None
+                   ) -> tuple[int, dict[int, tuple[F64, float]]]:
         cfg = self.cfg
         r0 = Xp[members, 0:3].mean(axis=0)
         # lines of every (camera, blob) used by the group, once
         lines: dict[tuple[int, int], F.LineSet] = {}
+        clipped: set[tuple[int, int]] = set()  # blobs an unmodelled fish's claim took contour points from
         for ci, a in enumerate(assoc):
             for f in members:
                 j = a[f]
                 if j >= 0 and (ci, j) not in lines:
-                    lines[(ci, j)] = F.contour_lines(self.views[ci], sils[ci].blobs[j].contour, r0,
+                    contour = sils[ci].blobs[j].contour
+                    if claimed is not None and claimed[ci] is not None:
+                        n0 = len(contour)
+                        contour = unclaimed(contour, claimed[ci])
+                        if len(contour) < n0:
+                            clipped.add((ci, j))
+                    lines[(ci, j)] = F.contour_lines(self.views[ci], contour, r0,
                                                      cfg.fit.max_lines * sum(1 for g in members if a[g] == j), ci)
         fields = {}
         for ci, sil in enumerate(sils):
@@ -154,12 +186,16 @@ class FishTracker:
                     ls = lines[key]
                     sets.append(ls)
                     sharers = [g for g in seen if g != f and assoc[key[0]][g] == key[1]]
+                    D = None
                     if sharers:
                         D = np.min([F.line_distances(F.surface_mm(self.models_mm[g], cur[g], r0), ls)[0]
                                     for g in sharers], axis=0)
-                        others.append(D)
-                    else:
-                        others.append(None)
+                    if key in clipped:
+                        # what the claim missed of an unmodelled fish's contour must not pull: a line
+                        # farther than this from the model counts as explained by something else
+                        cap = np.full(len(ls.p), cfg.claimed_line_cap_mm)
+                        D = cap if D is None else np.minimum(D, cap)
+                    others.append(D)
                 oms = []
                 for ci in {k[0] for k in keys}:
                     fm = fields[ci]
@@ -171,7 +207,7 @@ class FishTracker:
                     oms.append(F.OutsideMap(view, fm.field, scale, r0, fm.origin, fm.beyond))
                 zp = F.z_from_state(Xp[f], r0)[0]
                 cost = F.make_cost(self.models_mm[f], r0, sets, others, cfg.fit, z_prior=zp, outside=oms)
-                if any(o is not None for o in others):
+                if any(o is not None for o in others):  # shared with a tracked fish or an unmodelled one
                     cost.prior_weight = max(cost.prior_weight, cfg.occluded_prior_weight)
                 z0 = F.z_from_state(cur[f], r0)[0]
                 levels = cfg.fit.max_levels if rnd == 0 else max(2, cfg.fit.max_levels // 3)
@@ -182,11 +218,21 @@ class FishTracker:
                 self.last_costs[f] = (cost, r0)
         return evals, out
 
+    def _stack(self, per_fish: list[tuple[F64, F64]]) -> tuple[F64, F64]:
+        """Per-fish (states, covariances) from their filters onto the frames stepped: NaN before a fish's
+        model was made."""
+        T = self.frames
+        X = np.full((T, self.n_fish, 11), np.nan)
+        P = np.full((T, self.n_fish, 11, 11), np.nan)
+        for f, ((xs, Ps), off) in enumerate(zip(per_fish, self.offsets, strict=True)):
+            skip = max(0, -off)
+            X[off + skip:, f] = xs[skip:]
+            P[off + skip:, f] = Ps[skip:]
+        return X, P
+
     def smoothed(self) -> tuple[F64, F64]:
         """(T, F, 11) smoothed states and (T, F, 11, 11) covariances over the frames stepped so far."""
-        xs, Ps = zip(*(f.smoothed() for f in self.filters), strict=True)
-        return np.stack(xs, axis=1)[1:], np.stack(Ps, axis=1)[1:]
+        return self._stack([f.smoothed() for f in self.filters])
 
     def filtered(self) -> tuple[F64, F64]:
-        xs, Ps = zip(*(f.filtered() for f in self.filters), strict=True)
-        return np.stack(xs, axis=1)[1:], np.stack(Ps, axis=1)[1:]
+        return self._stack([f.filtered() for f in self.filters])

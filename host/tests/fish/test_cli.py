@@ -121,6 +121,6 @@ def test_fewer_fish_in_clear_view_than_asked_tracks_those_and_says_so(scene: dic
                        "--out", str(d / "two.h5"), "--fish", "2", *QUICK])
     assert code == 0, text
     flat = " ".join(text.split())  # rich wraps long lines
-    assert "shows 2 fish in clear view" in flat and "tracking the 1 modelled in frame 2" in flat
+    assert "only 1 of 2 fish were seen in clear view" in flat and "the first modelled in frame 2" in flat
     tr = read_tracks(d / "two.h5")
-    assert len(tr["fish"]) == 1 and tr["frame"][0] == 2
+    assert len(tr["fish"]) == 1 and tr["frame"][0] == 2 and tr["fish"][0]["model_frame"] == 2

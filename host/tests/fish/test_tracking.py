@@ -102,3 +102,40 @@ def test_no_model_from_two_fish_touching_in_the_top_view() -> None:
             assert "not one fish in clear view" in str(exc)
         else:
             raise AssertionError("a model was made from two touching fish")
+
+
+def test_an_unmodelled_fish_does_not_pull_a_tracked_one_off_its_silhouette() -> None:
+    """Two fish cross, and only one gets a model (track_fish=1): from frame 5 on the other's silhouette is
+    one blob with the tracked fish's in the top view. The unmodelled fish's claim keeps its contour out of
+    the tracked fish's fit (without claims: midline 5.2 px, head 8.4 mm, heading 28 deg)."""
+    s = run_demo(2, 40, 0, (640, 512), (512, 384), out=None, cross_frame=24, top_zoom=2.0, cfg=QUICK, plots=False,
+                 track_fish=1)
+    assert s["fish"] == 1 and s["fish_in_school"] == 2 and s["never_modelled_fish"] == [0]
+    assert s["midline_mean_px"] < 0.5  # measured 0.14
+    assert s["head_mm_mean"] < 2.2  # 1.68
+    assert s["heading_deg_mean"] < 1.5  # 0.41
+
+
+def test_eight_fish_each_modelled_in_its_own_first_clear_frame(tmp_path: Path) -> None:
+    """The first 34 frames of the README's 8-fish school (half-size top view): six fish are in clear view at
+    frame 0; fish 1 and 3 are one blob in the top view until about frame 28. They get their models when they
+    part and join the running tracker; the frames before are "not yet modelled", not errors."""
+    s = run_demo(8, 34, 0, (640, 512), (512, 384), out=tmp_path, cross_frame=70, plots=False,
+                 cfg=TrackerConfig(fit=FitConfig(max_levels=2, qn_maxiter=8)))
+    assert s["fish"] == 8 and s["never_modelled_fish"] == []
+    late = {p["truth_fish"]: p["model_frame"] for p in s["per_fish"] if p["model_frame"] > 0}
+    # when they part (measured: both at frame 30); before, their one blob is over 1.35 x one fish's area
+    assert sorted(late) == [1, 3] and all(25 <= k <= 33 for k in late.values()), late
+    assert s["not_yet_modelled_fish_frames"] == sum(late.values())
+    assert s["fish_frames"] == 8 * 34 - s["not_yet_modelled_fish_frames"]
+    assert s["association_errors"] == 0
+    assert s["midline_mean_px"] < 0.3  # measured 0.10 (half-size pixels)
+    assert s["head_mm_mean"] < 2.0  # 1.38
+    assert s["heading_deg_mean"] < 2.0  # 0.89
+    # the HDF5 file: a late fish has NaN states and seen 0 before its model frame, and says which frame
+    tracks = read_tracks(tmp_path / "tracks.h5")
+    for p in s["per_fish"]:
+        g, k = tracks["fish"][p["fish"]], p["model_frame"]
+        assert g["model_frame"] == k
+        assert np.all(np.isnan(g["position"][:k])) and np.all(g["seen"][:k] == 0)
+        assert np.all(np.isfinite(g["position"][k:])) and np.all(np.isfinite(g["total_curvature"][k:]))
