@@ -31,7 +31,7 @@ from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
-from flytrack_host.sim.frames import raise_priority, realtime_above_self
+from flytrack_host.sim.frames import raise_priority
 
 MATCH_WINDOW_S = 0.3  # a firing further than this from every true entry is a false fire
 LATENCY_DEFINITION = (
@@ -95,13 +95,10 @@ class ClosedLoopLab:
         self.rules_copy = Path(out) / "rules.toml"
         shutil.copyfile(self.rules_src, self.rules_copy)
         self.modbus = ModbusPeerProcess(log_dir=str(out)).start()  # a process of its own, as a PLC
-        self.modbus_realtime = False
         if self.modbus.proc is not None:
             # A PLC is a machine of its own: it runs at the simulated hardware's priority (as the cameras
             # and the trigger), so a loaded machine delays the host under test rather than the device.
             raise_priority(self.modbus.proc.pid)
-            # Under `chrt -r N` everything of the rig shares level N: the PLC goes one above it.
-            self.modbus_realtime = realtime_above_self(self.modbus.proc.pid)
         self.can_channel = f"flytrack-demo-{uuid.uuid4().hex[:8]}"
         self.can = CanListener("virtual", self.can_channel)
 
@@ -195,7 +192,6 @@ class ClosedLoopLab:
             "latency_definition": LATENCY_DEFINITION,
             "rules": out_rules,
             "modbus_coil_writes": len(self.modbus.writes),
-            "modbus_server_realtime_above_rig": self.modbus_realtime,
             "can_frames": len(self.can.frames),
             "eval_us_mean": summary["eval_us_mean"],
             "eval_us_max": summary["eval_us_max"],

@@ -265,22 +265,6 @@ def raise_priority(pid: int = 0) -> bool:
         return False
 
 
-def realtime_above_self(pid: int) -> bool:
-    """Under a realtime policy (the demo run with `chrt -r N`), put process `pid` one level above this
-    one: a device that is a machine of its own in a lab (a PLC) then answers when its request comes,
-    instead of waiting for the simulated rig's processes at the same level to yield a CPU (round robin
-    does not preempt its own level). No-op (False) under the normal policy or without the right."""
-    try:
-        pol = os.sched_getscheduler(0)
-        if pol not in (os.SCHED_RR, os.SCHED_FIFO):
-            return False
-        prio = min(os.sched_getparam(0).sched_priority + 1, os.sched_get_priority_max(pol))
-        os.sched_setscheduler(pid, pol, os.sched_param(prio))
-        return True
-    except (PermissionError, OSError):
-        return False
-
-
 class _CameraLink:
     """One camera's connection to its edge. A frame is written at once when the edge's pipe has room
     for it (the common case: a cheap copy); otherwise it waits in this camera's queue for a writer
