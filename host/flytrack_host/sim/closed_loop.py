@@ -69,6 +69,19 @@ def match(fired: list[int], expected: list[int], window: int) -> tuple[list[int]
     return errs, len(expected) - len(used_e), len(fired) - len(used_f)
 
 
+def latency_by_output(rows: np.ndarray) -> dict[str, dict[str, Any]]:
+    """Per output (device) of a rule's firing rows: trigger time of the frame -> that device's own
+    acknowledgement (ms, P50/P99), so the figure says which device costs what. The PULSE's ack is its
+    ACK of the armed request (the pulse itself lands on its scheduled frame: frame_error_max)."""
+    out: dict[str, dict[str, Any]] = {}
+    for name in sorted({bytes(n) for n in rows["output"]}):
+        r = rows[rows["output"] == name]
+        p = percentiles_ms(r["time_ack"] - r["frame_time"])
+        out[name.decode()] = {"kind": bytes(r["kind"][0]).decode(), "n": p["n"],
+                              "p50": p.get("p50", math.nan), "p99": p.get("p99", math.nan)}
+    return out
+
+
 def _max_abs(v: list[int]) -> float:
     return float(max((abs(x) for x in v), default=math.nan))
 
@@ -155,6 +168,8 @@ class ClosedLoopLab:
                 # Each stage per output: trigger -> estimate -> queued -> taken by the device thread -> sent
                 # -> acknowledged (ms, P50/P99).
                 "latency_stages_ms": stage_latencies(engine.stages, name),
+                # Each device on its own: the firmware pulse's ACK, the Modbus response, the CAN send.
+                "latency_ms_by_output": latency_by_output(rr),
                 "pulse_ack_ms_p50": pp.get("p50", math.nan),
                 "pulse_ack_ms_p99": pp.get("p99", math.nan),
                 "expected_frames": exp,

@@ -50,3 +50,24 @@ def test_goals_and_summary_line() -> None:
     assert goal_checks({}) == []
     assert closed_loop_line(_act()) == ("5/5, 0 miss, 0 false",
                                         "frame err -1..+1 (+2..+3 unpredicted); ack P50/P99 1.5/4.0 ms")
+
+
+def test_latency_by_output_is_each_devices_own_ack() -> None:
+    from flytrack_host.recording.schema import FIRINGS
+    from flytrack_host.sim.closed_loop import latency_by_output
+
+    rows = np.zeros(6, dtype=FIRINGS)
+    rows["output"] = [b"valve", b"can", b"hscam"] * 2
+    rows["kind"] = [b"modbus", b"can", b"trigger_pulse"] * 2
+    rows["frame_time"] = [10.0] * 3 + [20.0] * 3
+    # Modbus answers 1 and 3 ms after the trigger, CAN 0.5 and 0.5, the pulse's ACK 4 and 6 ms; a
+    # failed write (no ack) is left out, not counted as zero.
+    rows["time_ack"] = [10.001, 10.0005, 10.004, 20.003, 20.0005, 20.006]
+    d = latency_by_output(rows)
+    assert sorted(d) == ["can", "hscam", "valve"]
+    assert d["valve"]["kind"] == "modbus" and d["valve"]["n"] == 2
+    assert math.isclose(d["valve"]["p50"], 2.0, abs_tol=1e-6)
+    assert math.isclose(d["can"]["p99"], 0.5, abs_tol=1e-6)
+    assert math.isclose(d["hscam"]["p50"], 5.0, abs_tol=1e-6)
+    rows["time_ack"][0] = np.nan
+    assert latency_by_output(rows)["valve"]["n"] == 1

@@ -84,3 +84,65 @@ def test_feeder_renders_one_frame_per_edge_for_every_camera(fmt):
         assert len(data) == 12 * 160 * 120
         frames = np.frombuffer(data, np.uint8).reshape(12, 120, 160)
         assert 100 < frames.mean() < 200
+
+
+def test_next_frame_waits_in_the_pipe_for_its_pulse_but_its_last_bytes():
+    """Frame n+1 is written ahead but for its tail; pulse n+1 writes only the tail (no frame copy on
+    the pulse), and the edge gets whole frames in order."""
+    gt = simulate_flight(1, 0.03, 100.0, seed=0)  # 3 frames
+    cams = make_cameras(2, Arena(), seed=0, width=160, height=120)
+    size = 160 * 120
+    pipes = [os.pipe() for _ in cams]
+    src_r, src_w = os.pipe()
+    feeder = FrameFeeder(gt, cams, [w for _, w in pipes], RenderParams(), seed=1)
+    for _, w in pipes:
+        os.close(w)
+    got = [bytearray() for _ in cams]
+
+    def read(fd: int, buf: bytearray) -> None:
+        with os.fdopen(fd, "rb", buffering=0) as f:
+            while b := f.read(1 << 20):
+                buf += b
+
+    threads = [threading.Thread(target=read, args=(r, g), daemon=True) for (r, _), g in zip(pipes, got, strict=True)]
+    for t in threads:
+        t.start()
+    feeder.set_source(src_r)
+    os.close(src_r)
+    try:
+        _staged_run(feeder, src_w, got, size, threads)
+    finally:
+        feeder.stop()  # a failed check must not leave the child (and the readers) waiting
+
+
+def _staged_run(feeder: FrameFeeder, src_w: int, got: list[bytearray], size: int, threads: list) -> None:
+    from flytrack_host.sim.frames import STAGE_TAIL
+
+    def wait_bytes(n: int) -> None:
+        end = time.monotonic() + 10
+        while any(len(g) < n for g in got) and time.monotonic() < end:
+            time.sleep(0.01)
+        time.sleep(0.2)  # and nothing more comes before the next pulse
+        assert [len(g) for g in got] == [n] * len(got)
+
+    os.write(src_w, b"# header\n10 trigger 1\n")
+    wait_bytes(2 * size - STAGE_TAIL)  # frame 0, and frame 1 staged: incomplete until its pulse
+    t_pulse = time.time()  # noqa: TID251 - compared with the feeder's wall-clock stamps
+    os.write(src_w, b"20 trigger 1\n")
+    wait_bytes(3 * size - STAGE_TAIL)  # frame 1 completed by its pulse; frame 2 staged
+    os.write(src_w, b"30 trigger 1\n40 trigger 1\n")
+    os.close(src_w)
+    end = time.monotonic() + 20
+    while not feeder.done and time.monotonic() < end:
+        time.sleep(0.01)
+    feeder.finish()
+    feeder.join(20)
+    for t in threads:
+        t.join(5)
+    st = feeder.stats()
+    assert [len(g) for g in got] == [3 * size] * len(got)
+    assert st.frames_staged == 2 * len(got) and st.frames_stale == 0
+    assert np.all(st.written_time[1] >= t_pulse)  # frame 1 was handed over at its pulse, not before
+    for g in got:
+        frames = np.frombuffer(bytes(g), np.uint8).reshape(3, 120, 160)
+        assert 100 < frames.mean() < 200
