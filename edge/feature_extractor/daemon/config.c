@@ -498,3 +498,12 @@ int edge_config_load(edge_config *c, int argc, char **argv) {
         snprintf(c->camera_name, sizeof c->camera_name, "%.32s", c->input);
     return 0;
 }
+
+int edge_config_control_allowed(const edge_config *c, uint32_t addr) {
+    if (c->control_allow_any || (c->control_allow_loopback && (ntohl(addr) >> 24) == 127))
+        return 1;
+    for (int i = 0; i < c->n_control_allow; i++)
+        if (c->control_allow[i] == addr)
+            return 1;
+    return 0;
+}

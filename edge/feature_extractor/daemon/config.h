@@ -59,4 +59,8 @@ typedef struct {
 /* 0 = ok, 1 = --help printed, -1 = error (message printed to stderr). */
 int edge_config_load(edge_config *c, int argc, char **argv);
 
+/* 1 if a CONTROL datagram from IPv4 address addr (network byte order) is accepted: "any", loopback
+ * (127.0.0.0/8) when allowed, or one of the --control-allow addresses. */
+int edge_config_control_allowed(const edge_config *c, uint32_t addr);
+
 #endif

@@ -229,16 +229,6 @@ static void ack(dvs_edge *e, const struct sockaddr_in *to, uint32_t req, uint8_t
         send_to(e, buf, len, to);
 }
 
-static int allowed(const edge_config *c, const struct sockaddr_in *from) {
-    uint32_t a = from->sin_addr.s_addr;
-    if (c->control_allow_any || (c->control_allow_loopback && (ntohl(a) >> 24) == 127))
-        return 1;
-    for (int i = 0; i < c->n_control_allow; i++)
-        if (c->control_allow[i] == a)
-            return 1;
-    return 0;
-}
-
 static void poll_control(dvs_edge *e) {
     uint8_t buf[2048];
     for (;;) {
@@ -247,7 +237,8 @@ static void poll_control(dvs_edge *e) {
         ssize_t n = recvfrom(e->sock, buf, sizeof buf, MSG_DONTWAIT, (struct sockaddr *)&from, &fl);
         if (n < 0)
             return;
-        if (fl < sizeof from || from.sin_family != AF_INET || !allowed(e->cfg, &from))
+        if (fl < sizeof from || from.sin_family != AF_INET ||
+            !edge_config_control_allowed(e->cfg, from.sin_addr.s_addr))
             continue;
         ft_control c;
         if (ft_control_decode(buf, (size_t)n, &c) != FT_OK)

@@ -297,19 +297,6 @@ static void handle_control(edge *e, const uint8_t *buf, size_t len,
     }
 }
 
-static int control_allowed(const edge *e, const struct sockaddr_in *from) {
-    const edge_config *c = &e->cfg;
-    uint32_t a = from->sin_addr.s_addr;
-    if (c->control_allow_any)
-        return 1;
-    if (c->control_allow_loopback && (ntohl(a) >> 24) == 127)
-        return 1;
-    for (int i = 0; i < c->n_control_allow; i++)
-        if (c->control_allow[i] == a)
-            return 1;
-    return 0;
-}
-
 static void poll_control(edge *e) {
     uint8_t buf[2048];
     for (;;) {
@@ -318,7 +305,8 @@ static void poll_control(edge *e) {
         ssize_t n = recvfrom(e->sock, buf, sizeof buf, MSG_DONTWAIT, (struct sockaddr *)&from, &fl);
         if (n < 0)
             return; /* EAGAIN: nothing more; ICMP errors from earlier sends land here too */
-        if (fl < sizeof from || from.sin_family != AF_INET || !control_allowed(e, &from)) {
+        if (fl < sizeof from || from.sin_family != AF_INET ||
+            !edge_config_control_allowed(&e->cfg, from.sin_addr.s_addr)) {
             if (e->control_rejected++ == 0) { /* said once; the count is logged at exit */
                 char text[96];
                 snprintf(text, sizeof text, "CONTROL from %s dropped: not in --control-allow",

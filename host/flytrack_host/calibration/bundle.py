@@ -22,7 +22,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
-from flytrack_host.calibration.schur import levenberg_marquardt
+from flytrack_host.calibration.schur import distort_observations, levenberg_marquardt
 from flytrack_host.camera import Camera
 
 __all__ = ["DISTORTION_MODELS", "BundleResult", "bundle_adjust", "project_params"]
@@ -71,14 +71,7 @@ def project_params(cp: F64, aspect: F64, fixed_dist: F64, X: F64, cam: NDArray[n
     z = Xc[:, 2]
     z = np.where(np.abs(z) < 1e-12, 1e-12, z)
     x, y = Xc[:, 0] / z, Xc[:, 1] / z
-    d = fixed_dist[cam].copy()
-    if nd:
-        d[:, :nd] = cp[cam, 9:9 + nd]
-    k1, k2, p1, p2, k3 = d.T
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    xd, yd = distort_observations(x, y, cp, fixed_dist, cam, nd)[:2]
     f = cp[cam, 6]
     return np.stack([f * xd + cp[cam, 7], f * aspect[cam] * yd + cp[cam, 8]], axis=1)
 

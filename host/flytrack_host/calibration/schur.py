@@ -43,6 +43,22 @@ def _rho(z: F64, loss: str) -> tuple[F64, F64, F64]:
     raise ValueError(f"loss {loss!r} unknown; use one of {LOSSES}")
 
 
+def distort_observations(x: F64, y: F64, cp: F64, fixed_dist: F64, cam: NDArray[np.intp],
+                         nd: int) -> tuple[F64, F64, F64, F64, F64]:
+    """OpenCV's distortion (k1 k2 p1 p2 k3) of normalised coordinates x, y (N,) seen by cameras cam (N,):
+    the first nd terms are adjusted (cp rows [.., 9: 9 + nd]), the rest fixed_dist's. Returns xd, yd, the
+    terms (N, 5), r2 and the radial factor (the last three are what the Jacobian needs again)."""
+    d = fixed_dist[cam].copy()
+    if nd:
+        d[:, :nd] = cp[cam, 9:9 + nd]
+    k1, k2, p1, p2, k3 = d.T
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return xd, yd, d, r2, radial
+
+
 def project_jacobian(R: F64, cp: F64, aspect: F64, fixed_dist: F64, X: F64, cam: NDArray[np.intp],
                      pt: NDArray[np.intp], nd: int, jac: bool = True) -> tuple[F64, F64 | None, F64 | None]:
     """Projections (N, 2) of X[pt] in cameras cam, and their Jacobians: (N, 2, 9 + nd) with respect to
@@ -55,14 +71,8 @@ def project_jacobian(R: F64, cp: F64, aspect: F64, fixed_dist: F64, X: F64, cam:
     z = np.where(np.abs(z) < 1e-12, 1e-12, z)
     iz = 1.0 / z
     x, y = Xc[:, 0] * iz, Xc[:, 1] * iz
-    d = fixed_dist[cam].copy()
-    if nd:
-        d[:, :nd] = cp[cam, 9:9 + nd]
+    xd, yd, d, r2, radial = distort_observations(x, y, cp, fixed_dist, cam, nd)
     k1, k2, p1, p2, k3 = d.T
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
     f = cp[cam, 6]
     fa = f * aspect[cam]
     uv = np.stack([f * xd + cp[cam, 7], fa * yd + cp[cam, 8]], axis=1)

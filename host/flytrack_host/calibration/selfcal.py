@@ -213,7 +213,8 @@ def _pairwise_outliers(obs: Observations, inv: NDArray[np.int64], xy: F64, fpx: 
     """Epipolar RANSAC per camera pair; returns (observation is an outlier, inliers per pair).
 
     With focal lengths fpx, xy are normalised coordinates and the essential matrix is fitted; with
-    fpx None, xy are pixels and the fundamental matrix is fitted (no intrinsics needed)."""
+    fpx None, xy are pixels and the fundamental matrix is fitted (no intrinsics needed). SelfCalError when no
+    pair of cameras could be fitted."""
     n_frames = int(inv.max()) + 1
     C = obs.n_cameras
     lookup = np.full((C, n_frames), -1, dtype=np.int64)
@@ -240,6 +241,9 @@ def _pairwise_outliers(obs: Observations, inv: NDArray[np.int64], xy: F64, fpx: 
         for o in (oi, oj):
             votes_all[o] += 1
             votes_bad[o] += ~m
+    if not pair_inliers:
+        raise SelfCalError(f"no pair of cameras shares {MIN_PAIR_POINTS} or more frames with the LED. The "
+                           "cameras must overlap: wave the LED where several cameras see it at once.")
     outlier = (votes_all > 0) & (votes_bad > 0.5 * votes_all)
     return outlier, pair_inliers
 
@@ -263,9 +267,6 @@ def initial_cameras(obs: Observations, focal_px: float | Mapping[str, float] | N
         ransac_px = _default_ransac_px(obs)
     outlier, pair_inliers = _pairwise_outliers(obs, inv, xy, fpx, ransac_px, seed)
     good = ~outlier
-    if not pair_inliers:
-        raise SelfCalError(f"no pair of cameras shares {MIN_PAIR_POINTS} or more frames with the LED. The "
-                           "cameras must overlap: wave the LED where several cameras see it at once.")
     (i0, j0), n0 = max(pair_inliers.items(), key=lambda kv: kv[1])
     n_frames = int(inv.max()) + 1
     lookup = np.full((obs.n_cameras, n_frames), -1, dtype=np.int64)
@@ -369,9 +370,6 @@ def factorization_cameras(obs: Observations, focal_px: float | Mapping[str, floa
         ransac_px = _default_ransac_px(obs)
     outlier, pair_inliers = _pairwise_outliers(obs, inv, px, None, ransac_px, seed)
     good = ~outlier
-    if not pair_inliers:
-        raise SelfCalError(f"no pair of cameras shares {MIN_PAIR_POINTS} or more frames with the LED. The "
-                           "cameras must overlap: wave the LED where several cameras see it at once.")
     lookup = np.full((C, n_pts), -1, dtype=np.int64)
     lookup[obs.cam[good], inv[good]] = np.flatnonzero(good)
     cand = np.flatnonzero(np.sum(lookup >= 0, axis=0) >= 3)  # frames seen by 3+ cameras fix the cameras best

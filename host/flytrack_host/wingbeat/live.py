@@ -22,6 +22,7 @@ import numpy as np
 
 from flytrack_host.protocol import DvsWingbeat, EdgeStatus, ProtocolError, decode_datagram
 from flytrack_host.wingbeat.analysis import WingbeatResult, WingScore, WingTrack, score_wings
+from flytrack_host.wingbeat.plot import plot_truth_beats, save_figure
 from flytrack_host.wingbeat.wra import BeatSeries
 
 DEFAULT_PORT = 7700  # flytrack-edge's default --port
@@ -209,16 +210,11 @@ def plot_live(rx: WingbeatReceiver, path: Path, truth=None) -> Path:
             if len(d):
                 ax.plot(d[:, 0] * 1e-6, d[:, col] * scale, ".-", ms=2, lw=0.6, color="tab:red", label="edge EKF (live)")
             if truth is not None:
-                tt = truth.t_us[:: max(1, len(truth.t_us) // 2000)]
-                val = truth.freq_at(tt) if col == 3 else truth.amplitude_at(w, tt) * scale
-                ax.plot(tt * 1e-6, val, "k--", lw=1, label="truth")
+                plot_truth_beats(ax, truth, w, col == 3, scale)
             ax.set_title(f"wing {w}", fontsize=9)
             ax.set_ylabel(label)
             ax.set_xlabel("event time (s)")
             ax.legend(fontsize=7)
     fig.suptitle("Wing beats live from a DVS edge (DVS_WINGBEAT)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

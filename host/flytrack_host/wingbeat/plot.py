@@ -12,6 +12,24 @@ from flytrack_host.wingbeat.analysis import WingbeatResult
 WING_NAMES = ("wing 0", "wing 1")
 
 
+def plot_truth_beats(ax, truth, wing: int, frequency: bool, scale: float) -> None:
+    """The truth's beat frequency (frequency=True) or the wing's amplitude times scale, over time in s,
+    thinned to about 2000 points, as a dashed black line labelled "truth"."""
+    tt = truth.t_us[:: max(1, len(truth.t_us) // 2000)]
+    val = truth.freq_at(tt) if frequency else truth.amplitude_at(wing, tt) * scale
+    ax.plot(tt * 1e-6, val, "k--", lw=1, label="truth")
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Write fig as a PNG at 100 dpi (making its folder) and free it."""
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def plot_wingbeats(results: list[WingbeatResult], path: Path, window_s: tuple[float, float] | None = None,
                    truth=None) -> Path:
     """One figure: per wing, a 40 ms window of the leading edge's track over its events, then frequency
@@ -47,15 +65,10 @@ def plot_wingbeats(results: list[WingbeatResult], path: Path, window_s: tuple[fl
                 ax.plot(b.t_us * 1e-6, getattr(b, attr) * scale, ".-", ms=2, lw=0.6,
                         color=colours.get(r.method, "k"), label=r.method.upper())
             if truth is not None:
-                tt = truth.t_us[:: max(1, len(truth.t_us) // 2000)]
-                val = truth.freq_at(tt) if attr == "freq_hz" else truth.amplitude_at(w, tt) * scale
-                ax.plot(tt * 1e-6, val, "k--", lw=1, label="truth")
+                plot_truth_beats(ax, truth, w, attr == "freq_hz", scale)
             ax.set_ylabel(label)
             ax.set_xlabel("time (s)")
             ax.legend(fontsize=7)
     fig.suptitle("Wing beats from events (seed 002, part II)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

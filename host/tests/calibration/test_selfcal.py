@@ -296,3 +296,16 @@ def test_cli_refine_intrinsics(tmp_path: Path) -> None:
     assert not np.array_equal(load_calibration(tmp_path / "b.json")["cam2"].K, board.K)
     r = _run_cli("selfcal", str(pts), "-o", str(tmp_path / "c.json"), "--refine-intrinsics")
     assert r.returncode == 2 and "needs --intrinsics" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_cameras_that_never_share_a_frame_are_a_clear_error_for_both_initialisations() -> None:
+    # 3 cameras, each sees the LED only in frames of its own: no pair can be fitted (one check serves both).
+    from flytrack_host.calibration.selfcal import factorization_cameras, initial_cameras
+
+    rng = np.random.default_rng(0)
+    n = 40
+    obs = Observations(frame=np.arange(3 * n), cam=np.repeat(np.arange(3), n), uv=rng.uniform(50, 600, (3 * n, 2)),
+                       camera_names=["a", "b", "c"], sizes=[(640, 480)] * 3)
+    for init in (initial_cameras, factorization_cameras):
+        with pytest.raises(SelfCalError, match="no pair of cameras shares .* must overlap"):
+            init(obs, focal_px=600.0)
