@@ -183,12 +183,17 @@ class Receiver:
                 except OSError as exc:  # e.g. ICMP errors surfacing on Linux; keep going
                     self._warn_once(f"socket error: {exc}", key="socket_error")
                     break
-                t = now
+                # Read now, not at the batch's start: a batch can take tens of ms on a loaded host
+                # (this thread descheduled or waiting for the GIL) and datagrams keep coming in
+                # meanwhile. Bounding their kernel stamps by the batch's start, and falling back to
+                # it, dated them before they arrived (a frame seemingly 1-6 periods before its
+                # trigger pulse); the read time is never earlier than the arrival.
+                t = t_read = hostclock.now()
                 for level, kind, cdata in anc:
                     if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(cdata) >= 16:
                         sec, nsec = struct.unpack_from("qq", cdata)
                         k = sec + nsec * 1e-9 + wall_to_host
-                        if now - 60.0 < k <= now:
+                        if now - 60.0 < k <= t_read:
                             t = k  # when it reached this host, however long it then waited for us
                 try:
                     self.handle(data, addr, t, out)

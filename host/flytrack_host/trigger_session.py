@@ -210,6 +210,7 @@ class TriggerSession:
         self._seen_model_restarts = 0
         self._dev_lock = threading.Lock()  # the clock thread re-arms; stop() must not race it
         self._rearming = False
+        self._warmup_left = WARMUP_SAMPLES  # clock queries still due at WARMUP_INTERVAL_S (reset by each start)
 
     @property
     def label(self) -> str:
@@ -284,6 +285,9 @@ class TriggerSession:
         self.started_at = hostclock.now()
         self._expect_running = True
         self.log(f"trigger started at {self.fps:.6f} fps; the first pulse is trigger frame 0")
+        # Every start warms up, a re-arm too: its clock model and snapshot start empty, and on a loaded
+        # host the first round trips can all exceed max_rtt, so bundles wait for a usable sample.
+        self._warmup_left = WARMUP_SAMPLES
         # A few samples at once: bundles get trigger times from the first frames on.
         for _ in range(3):
             self._sample()
@@ -364,7 +368,6 @@ class TriggerSession:
         self._rearm()
 
     def _clock_loop(self) -> None:
-        n = 0
         last_reconnect = time.monotonic()
         while not self._stop.is_set():
             with self._dev_lock:
@@ -374,8 +377,8 @@ class TriggerSession:
                 if self.lost_since is not None and time.monotonic() - last_reconnect > RECONNECT_EVERY_S:
                     last_reconnect = time.monotonic()
                     self._reconnect()
-            n += 1
-            self._stop.wait(WARMUP_INTERVAL_S if n < WARMUP_SAMPLES else self.interval_s)
+            self._warmup_left -= 1
+            self._stop.wait(WARMUP_INTERVAL_S if self._warmup_left > 0 else self.interval_s)
 
     # --- stopping ---------------------------------------------------------------------------------
     def stop(self) -> None:

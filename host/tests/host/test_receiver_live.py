@@ -143,3 +143,53 @@ def test_a_forward_jump_of_millions_is_a_restart_and_logged(helpers):
         assert any("jumped ahead" in m and "restart" in m for m in logs)
     finally:
         rx.close()
+
+
+
+def test_datagrams_arriving_during_a_slow_batch_are_not_dated_before_they_were_sent(helpers, monkeypatch):
+    """A datagram cannot reach the host before it was sent. One receive() reads every datagram
+    queued, and on a loaded host that batch can take tens of ms (the thread descheduled, or waiting
+    for the GIL) while more datagrams come in. Their kernel stamps were bounded by, and replaced
+    with, the host time read when select() returned: they were dated up to the batch's length
+    early (seen as frames 10-60 ms before their trigger pulse in the trigger restart test at load
+    ~15). Made deterministic: handling the first datagram takes 30 ms, and the next frame is sent
+    in the middle of it."""
+    import socket
+
+    from flytrack_host import hostclock
+
+    rx = Receiver(helpers.make_rig(1), bind="127.0.0.1:0")
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    e = helpers.EdgeSim(0, rx.address)
+    real_handle = rx.handle
+    sent_at: dict[int, float] = {}
+    state = {"calls": 0}
+
+    def slow_handle(data, addr, now, out):
+        state["calls"] += 1
+        if state["calls"] == 1:  # a slow batch: frame 1 is sent while frame 0 is being handled
+            time.sleep(0.010)
+            sent_at[1] = hostclock.now()
+            for d in e.datagrams(1):
+                tx.sendto(d, rx.address)
+            time.sleep(0.020)
+        real_handle(data, addr, now, out)
+
+    monkeypatch.setattr(rx, "handle", slow_handle)
+    try:
+        sent_at[0] = hostclock.now()
+        for d in e.datagrams(0):
+            tx.sendto(d, rx.address)
+        frames: list[CameraFrame] = []
+        deadline = time.monotonic() + 3.0
+        while len(frames) < 2 and time.monotonic() < deadline:
+            frames += [o for o in rx.receive(0.5) if isinstance(o, CameraFrame)]
+        assert [f.camera_frame for f in frames] == [0, 1]
+        late_ms = {f.camera_frame: (f.recv_time - sent_at[f.camera_frame]) * 1e3 for f in frames}
+        # Stamped at or after its send (0.5 ms of slack for clock reads), and not the end of the
+        # batch either (the kernel stamp is kept: about 20 ms before frame 1 was read).
+        assert min(late_ms.values()) > -0.5, late_ms
+        assert late_ms[1] < 15.0, late_ms
+    finally:
+        tx.close()
+        rx.close()
