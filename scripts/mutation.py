@@ -12,7 +12,9 @@ from __future__ import annotations
 import json
 import os
 import re
+import shlex
 import shutil
+import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -20,15 +22,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+FORKSERVER = ROOT / "scripts" / "mutation_forkserver.py"
 # module name -> (file to mutate, its fast tests); paths relative to the repository root.
 MODULES: dict[str, tuple[str, list[str]]] = {
     "ekf": ("host/flytrack_host/tracking/ekf.py", ["host/tests/tracking/test_ekf.py"]),
-    # association.py's batched helpers are exercised end to end (its unit tests alone killed 5 of the
-    # first 48 mutants): the NumPy path's accuracy tests too, -k selects their numpy cases.
-    "association": ("host/flytrack_host/tracking/association.py",
-                    ["host/tests/tracking/test_association.py",
-                     "host/tests/tracking/test_tracker.py::test_accuracy_on_synthetic_flights", "-k",
-                     "'not accuracy or numpy'"]),
+    "association": ("host/flytrack_host/tracking/association.py", ["host/tests/tracking/test_association.py"]),
     "birth": ("host/flytrack_host/tracking/birth.py", ["host/tests/tracking/test_birth.py"]),
     "sync": ("host/flytrack_host/sync.py", ["host/tests/host/test_sync.py", "host/tests/host/test_sync_bursty.py"]),
     "recording": ("host/flytrack_host/recording", ["host/tests/recording"]),
@@ -41,23 +39,52 @@ def _count(out: str, sym: str) -> int:
     return int(m[-1]) if m else 0
 
 
+def _module_name(target: str) -> str:
+    """host/flytrack_host/tracking/birth.py -> flytrack_host.tracking.birth (a folder: its package)."""
+    rel = Path(target).relative_to("host")
+    return ".".join(rel.with_suffix("").parts if rel.suffix == ".py" else rel.parts)
+
+
 def run_module(name: str, py: str) -> dict:
     target, tests = MODULES[name]
+    keep = os.environ.get("MUTATION_WORKDIR")
     with tempfile.TemporaryDirectory(prefix=f"flytrack-mut-{name}-") as tmp:
-        work = Path(tmp)
+        work = Path(keep) / name if keep else Path(tmp)
+        if keep:
+            shutil.rmtree(work, ignore_errors=True)
+            work.mkdir(parents=True)
         for part in ("host", "pytest.ini", "ruff.toml"):
             src = ROOT / part
             if src.is_dir():
                 shutil.copytree(src, work / part, ignore=shutil.ignore_patterns("__pycache__", ".hypothesis"))
             elif src.exists():
                 shutil.copy2(src, work / part)
+        # One BLAS thread: the runs are sequential, and the fork server must not fork a thread pool.
         env = {**os.environ, "PYTHONPATH": str(work / "host"), "PYTHONDONTWRITEBYTECODE": "1",
-               "FLYTRACK_HYPOTHESIS_EXAMPLES": "25"}
-        runner = f"{py} -m pytest -x -q -p no:cacheprovider {' '.join(tests)}"
+               "FLYTRACK_HYPOTHESIS_EXAMPLES": "25", "FLYTRACK_BUILD_DIR": str(ROOT / "build"),
+               "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+        args = ["-x", "-q", "-p", "no:cacheprovider", *tests]
         t0 = time.monotonic()
-        cmd = [py, "-m", "mutmut", "run", "--paths-to-mutate", target, "--runner", runner,
-               "--tests-dir", "host/tests", "--no-progress", "--CI"]
-        r = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
+        # The modules the tests import, recorded by one ordinary run (which must pass), are preloaded
+        # by the fork server (scripts/mutation_forkserver.py), except the mutated module and its users.
+        mods, sock = work / ".mutation-modules.json", work / ".mutation.sock"
+        rec = subprocess.run([py, str(FORKSERVER), "record", str(mods), *shlex.split(" ".join(args))],
+                             cwd=work, env=env, capture_output=True, text=True)
+        if rec.returncode != 0:
+            raise RuntimeError(f"the tests of {name} fail without mutations:\n{rec.stdout[-3000:]}{rec.stderr[-2000:]}")
+        server = subprocess.Popen([py, str(FORKSERVER), "serve", str(sock), _module_name(target), str(mods)],
+                                  cwd=work, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            ready = server.stderr.readline() if server.stderr else ""
+            if "preloaded" not in ready:
+                raise RuntimeError(f"mutation fork server for {name} did not start: {ready}")
+            runner = f"{py} -S {FORKSERVER} run {sock} {' '.join(args)}"
+            cmd = [py, "-m", "mutmut", "run", "--paths-to-mutate", target, "--runner", runner,
+                   "--tests-dir", "host/tests", "--no-progress", "--CI"]
+            r = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
+        finally:
+            server.kill()
+            server.wait()
         res = subprocess.run([py, "-m", "mutmut", "results"], cwd=work, env=env, capture_output=True, text=True)
         out = r.stdout + r.stderr
         killed, survived = _count(out, "🎉"), _count(out, "🙁")
@@ -67,10 +94,18 @@ def run_module(name: str, py: str) -> dict:
         total = killed + survived + timeout + suspicious
         # A mutant that makes the tests time out or run suspiciously long was detected: counted killed.
         caught = killed + timeout + suspicious
+        shown = ""
+        if os.environ.get("MUTATION_SHOW"):  # the diff of every survivor, to study them
+            with sqlite3.connect(work / ".mutmut-cache") as db:
+                ids = [i for (i,) in db.execute("SELECT id FROM Mutant WHERE status = 'bad_survived' ORDER BY id")]
+            for i in ids:
+                d = subprocess.run([py, "-m", "mutmut", "show", str(i)], cwd=work, env=env,
+                                   capture_output=True, text=True)
+                shown += d.stdout
         return {"module": name, "file": target, "tests": tests, "mutants": total, "killed": caught,
                 "survived": survived, "timeout": timeout, "suspicious": suspicious, "skipped": skipped,
                 "kill_rate": caught / total, "seconds": time.monotonic() - t0,
-                "survivors": res.stdout[-4000:]}
+                "survivors": res.stdout[-4000:], "survivor_diffs": shown}
 
 
 def main() -> int:
@@ -90,6 +125,8 @@ def main() -> int:
         print(f"mutation: {n}: {row['killed']}/{row['mutants']} mutants killed = {100 * row['kill_rate']:.1f}% "
               f"({row['survived']} survived, {row['timeout']} timed out, {row['seconds']:.0f} s){verdict}",
               flush=True)
+        if row["survivor_diffs"]:
+            print(row["survivor_diffs"], flush=True)
     tot = sum(r["mutants"] for r in rows)
     kil = sum(r["killed"] for r in rows)
     print(f"mutation: all: {kil}/{tot} killed = {100 * kil / max(tot, 1):.1f}%")

@@ -74,7 +74,8 @@ def inv3(M: F64) -> F64:
         [co_a, c * h - b * i, b * f - c * e, co_b, a * i - c * g, c * d - a * f, co_c, b * g - a * h, a * e - b * d],
         axis=-1,
     )
-    return (out / det[..., None]).reshape(M.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):  # singular: inf/NaN, by design (see below)
+        return (out / det[..., None]).reshape(M.shape)
 
 
 def ray_mahalanobis(mean: F64, cov_pos: F64, origins: F64, dirs: F64) -> F64:
