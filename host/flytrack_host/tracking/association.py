@@ -170,7 +170,7 @@ def _assign_camera_globally(c: int, cost_c: F64, start: int, assign: NDArray[np.
     assign[c, :] = -1
     best[c, :] = np.inf
     for ri, ci in zip(r_i, c_i, strict=True):
-        if sub[ri, ci] < _BIG:
+        if np.isfinite(sub[ri, ci]):  # a target left with only a _BIG stand-in gets none
             assign[c, cols[ci]] = start + rows[ri]
             best[c, cols[ci]] = sub[ri, ci]
 

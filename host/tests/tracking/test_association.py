@@ -199,20 +199,42 @@ def test_min_area_gate_needs_an_area_above_it() -> None:
     assert res.assign[0, 0] == -1
     res, _ = _associate(X, {0: pix[0][:1]}, TrackingParams(min_area_px=0.4), area=0.5, target_area=0.5)
     assert res.assign[0, 0] == 0
+    # The area test adds to the other gates, never replaces them: a point 40 px away stays out.
+    res, _ = _associate(X, {0: [tuple(p[0] + (40.0, 0.0))]}, TrackingParams(min_area_px=0.4), area=0.5,
+                        target_area=0.5, cov=np.eye(3)[None] * 0.05**2)
+    assert res.assign[0, 0] == -1
+
+
+def test_image_and_area_gates_alone() -> None:
+    """With a loose (5 cm) covariance only the image gate (20 px) and the area ratio (10x either way)
+    decide: 18 px is in, 25 px out; an area 0.15 of the target's is in, 0.09 out."""
+    X = np.array([[0.7, 0.0, 0.15]])
+    p = _proj(X[0])
+    cov = np.eye(3)[None] * 0.05**2
+    res, _ = _associate(X, {0: [tuple(p[0] + (18.0, 0.0))], 1: [tuple(p[1] + (0.0, 25.0))]}, TrackingParams(),
+                        cov=cov)
+    assert res.assign[0, 0] >= 0 and res.assign[1, 0] == -1
+    for area, used in ((4.5, True), (2.7, False)):
+        res, _ = _associate(X, {0: [tuple(p[0] + (1.0, 0.0))]}, TrackingParams(), cov=cov, area=area)
+        assert (res.assign[0, 0] >= 0) == used, area
 
 
 def test_clashes_are_counted_per_camera_and_a_loser_without_a_point_goes_without() -> None:
     """Camera 0: one point between A and B (A nearer): A takes it, B gets none there (cost inf).
-    Camera 1: A and B each have their own point, no clash: untouched, not counted."""
+    Camera 1: the same nearer B, behind a point far from both: B takes it. Camera 2: A and B each have
+    their own point, no clash: untouched, not counted."""
     X = np.array([[0.7, 0.0, 0.15], [0.7, 0.015, 0.15]])
     pa, pb = _proj(X[0]), _proj(X[1])
-    pix = {0: [tuple(pa[0] + 0.4 * (pb[0] - pa[0]))], 1: [tuple(pa[1] + (0.5, 0.0)), tuple(pb[1] + (0.5, 0.0))]}
+    pix = {0: [tuple(pa[0] + 0.4 * (pb[0] - pa[0]))],
+           1: [(20.0, 20.0), tuple(pa[1] + 0.6 * (pb[1] - pa[1]))],
+           2: [tuple(pa[2] + (0.5, 0.0)), tuple(pb[2] + (0.5, 0.0))]}
     res, pts = _associate(X, pix, TrackingParams())
-    assert res.conflicts_resolved == 1
+    assert res.conflicts_resolved == 2
     assert res.assign[0, 0] == 0 and res.assign[0, 1] == -1 and np.isinf(res.cost[0, 1])
     assert np.isfinite(res.cost[0, 0])
-    assert [int(pts.index[res.assign[1, t]]) for t in (0, 1)] == [0, 1]
-    assert (res.assign[2:] == -1).all()
+    assert res.assign[1, 0] == -1 and pts.slot[res.assign[1, 1]] == 1 and pts.index[res.assign[1, 1]] == 1
+    assert [int(pts.index[res.assign[2, t]]) for t in (0, 1)] == [0, 1]
+    assert (res.assign[3:] == -1).all()
 
 
 def test_merge_prevention_keeps_the_nearest_whatever_its_order_and_counts_every_stripped_target() -> None:
@@ -239,6 +261,7 @@ def test_no_candidate_or_no_point_counts_nothing() -> None:
     for params in (TrackingParams(), TrackingParams(exclusive_points=False)):
         res, _ = _associate(X, {}, params)
         assert (res.conflicts_resolved, res.merges_prevented) == (0, 0) and (res.assign == -1).all()
+        assert res.cost.shape == (len(CAMS), 2) and np.isinf(res.cost).all()
         res, _ = _associate(X, {0: [(5.0, 5.0)]}, params)  # far from both: gated out
         assert (res.conflicts_resolved, res.merges_prevented) == (0, 0) and (res.assign == -1).all()
 

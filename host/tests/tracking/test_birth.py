@@ -399,5 +399,42 @@ def test_seeds_beyond_the_first_batch_are_evaluated_on_the_points_left() -> None
     arr = CameraArray(cams)
     s = search_births(arr, pts, np.ones(pts.n, dtype=bool), TrackingParams(birth_max_hypotheses=70))
     assert len(s.births) == 3 and s.evaluated == 70
+    assert all(b.n_hypothesis_cameras == 3 for b in s.births)
     for x in X:
         assert min(np.linalg.norm(b.position - x) for b in s.births) < 0.01  # 3 views, 1.5 px: 5.5 mm
+
+
+def test_an_outlier_that_spoils_the_extended_fit_falls_back_to_the_seed_pair() -> None:
+    """Three cameras, the third's point 18 px off (within the extension gate): the three-camera fit
+    fails the threshold, so the exact seed pair alone is born, without the outlier point."""
+    cams = arena_cameras(3, seed=5)
+    arr = CameraArray(cams)
+    X = np.array([0.8, 0.0, 0.15])
+    bundle = _frame(cams, [X])
+    bundle.detections[2] = point_array(cams[2], cams[2].project(X) + 18.0 / np.sqrt(2))
+    pts = Tracker(cams, TrackingParams(), 0.01)._gather(bundle)
+    b = find_births(arr, pts, np.ones(pts.n, dtype=bool), TrackingParams())
+    assert len(b) == 1 and b[0].n_hypothesis_cameras == 2 and sorted(pts.slot[b[0].rows]) == [0, 1]
+    assert np.linalg.norm(b[0].position - X) < 1e-4 and b[0].reproj_px < 0.01
+
+
+def test_a_real_animal_seen_by_more_cameras_beats_a_chance_pair_with_a_smaller_error() -> None:
+    """Camera 1 has a false positive exactly where camera 0's ray through the animal passes a point
+    nearer camera 0: that chance pair fits to ~0 px, better than any pair of the animal (1 px noise).
+    Ranked by the further cameras that see it, the animal wins; the chance pair is not born."""
+    cams = arena_cameras(5, seed=5)
+    arr = CameraArray(cams)
+    X = np.array([0.8, 0.0, 0.15])
+    Z = X + 0.25 * (cams[0].center - X)
+    rng = np.random.default_rng(1)
+    dets = {}
+    for ci, cam in cams.items():
+        uv = [cam.project(X)[0] + (rng.normal(0, 1.0, 2) if ci else 0.0)]
+        if ci == 1:
+            uv.append(cam.project(Z)[0])
+        dets[ci] = point_array(cam, np.array(uv))
+    pts = Tracker(cams, TrackingParams(), 0.01)._gather(FrameBundle(0, 0.0, dets))
+    for comb in (2, 3):
+        b = find_births(arr, pts, np.ones(pts.n, dtype=bool), TrackingParams(birth_max_combination=comb))
+        assert len(b) == 1 and np.linalg.norm(b[0].position - X) < 0.02  # Z is 30 cm away
+        assert sorted(pts.slot[b[0].rows]) == [0, 1, 2, 3, 4] and (pts.index[b[0].rows] == 0).all()
