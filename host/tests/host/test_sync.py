@@ -213,3 +213,30 @@ def test_camera_that_drifts_is_reported_and_remapped():
     for k in range(100, 199):
         fr = by_tf[k].frames.get(2)
         assert fr is not None and abs(fr.recv_time - (T0 + k * P + 0.002)) < 0.001
+
+
+# --- Contracts `make mutation` found untested (issue 17) ---
+
+
+def test_fixed_rate_clock_checks_fps_and_maps_frames_to_times() -> None:
+    import math
+
+    import pytest
+
+    for bad in (0.0, -5.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="fps must be a positive number"):
+            FixedRateClock(bad)
+    slow = FixedRateClock(0.5, start_time=10.0)  # half a frame per second is a valid rate
+    assert slow.anchored and slow.frame_to_host_time(3) == 16.0
+    c = FixedRateClock(FPS)
+    assert not c.anchored and math.isnan(c.frame_to_host_time(5))
+    c.anchor(50, 2.0)  # frame 50 happened at t = 2 s
+    assert c.anchored and abs(c.frame_to_host_time(50) - 2.0) < 1e-12 and abs(c.frame_to_host_time(0) - 1.5) < 1e-12
+
+
+def test_camera_frame_defaults_describe_a_plain_complete_frame() -> None:
+    """Sources that know no edge timing (software trigger, synthetic feeds) leave the defaults: no
+    timestamps, no points beyond those given, not truncated, complete, no restart, not an event camera."""
+    f = frame(0, 1, 2.0)
+    assert (f.device_timestamp_ns, f.edge_recv_ns, f.edge_done_ns, f.total_points) == (0, 0, 0, 0)
+    assert (f.truncated, f.incomplete, f.restarted, f.dvs) == (False, False, False, False)

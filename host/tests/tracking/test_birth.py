@@ -315,6 +315,15 @@ def test_a_ghost_pair_meeting_behind_a_camera_costs_no_hypothesis() -> None:
     pts = Tracker(cams, TrackingParams(), 0.01)._gather(FrameBundle(0, 0.0, dets))
     s = search_births(arr, pts, np.ones(pts.n, dtype=bool), TrackingParams())
     assert s.evaluated == 1 and len(s.births) == 1 and np.linalg.norm(s.births[0].position - X) < 1e-4
+    # The other way round: camera 0's false positive where a point behind camera 1 would appear.
+    X = np.array([1.2, -0.1, 0.25])
+    ghost = cams[0].project(cams[1].center + 0.3 * (cams[1].center - X))[0]
+    assert 0 < ghost[0] < 640 and 0 < ghost[1] < 480
+    dets = {0: point_array(cams[0], ghost[None]), 1: point_array(cams[1], cams[1].project(X))}
+    pts = Tracker(cams, TrackingParams(), 0.01)._gather(FrameBundle(0, 0.0, dets))
+    assert sampson2(arr, pts, np.array([0]), np.array([1]))[0] < 1e-3
+    s = search_births(arr, pts, np.ones(pts.n, dtype=bool), TrackingParams())
+    assert s.evaluated == 0 and s.births == []
 
 
 def test_seed_gate_spares_the_budget_for_pairs_that_cannot_pass() -> None:
