@@ -240,3 +240,125 @@ def test_camera_frame_defaults_describe_a_plain_complete_frame() -> None:
     f = frame(0, 1, 2.0)
     assert (f.device_timestamp_ns, f.edge_recv_ns, f.edge_done_ns, f.total_points) == (0, 0, 0, 0)
     assert (f.truncated, f.incomplete, f.restarted, f.dvs) == (False, False, False, False)
+
+
+def test_stats_count_every_frame_once_and_bundles_by_how_they_closed() -> None:
+    """Per camera: frames received; tracked (in a bundle), late, duplicate, future; deaths and revivals.
+    The counts add up: every frame is tracked or reported untracked with one reason."""
+    from flytrack_host.sync import CameraSyncStats
+
+    d = make(dead_timeout_s=0.3)
+    frames = stream({0: 0, 1: 0, 2: 0}, range(120))
+    frames = [f for f in frames if not (f.camera_index == 0 and 40 <= f.camera_frame < 90)]  # 0.5 s gone
+    late = next(f for f in frames if f.camera_index == 2 and f.camera_frame == 20)
+    late.recv_time += 0.05  # after frame 20's deadline
+    dup = frame(1, 30, T0 + 30 * P + 0.004)  # camera 1 sends frame 30 twice
+    future = frame(2, 10**6, T0 + 60 * P + 0.003, 60 + 100000)  # an edge number 1000 s ahead
+    stranger = frame(7, 5, T0 + 5 * P + 0.003)  # a camera the rig does not have
+    d.feed(frames + [dup, future, stranger])
+    d.advance(T0 + 120 * P + 0.1)  # all bundles closed, nobody silent for 0.3 s yet
+    assert [(u.frame.camera_index, u.trigger_frame, u.reason) for u in d.untracked if u.reason != "late"] == [
+        (7, -1, "unknown_camera"), (1, 30, "duplicate"), (2, 100060, "future")]
+    assert [(u.frame.camera_index, u.trigger_frame) for u in d.untracked if u.reason == "late"] == [(2, 20)]
+    st = d.sync.stats()
+    assert st[0] == CameraSyncStats(frames=70, tracked=70, deaths=1, revivals=1)
+    assert st[1] == CameraSyncStats(frames=121, tracked=120, duplicate=1)
+    assert st[2] == CameraSyncStats(frames=121, tracked=119, late=1, future=1)
+    assert [e.kind for e in d.events] == ["dead", "alive"]
+    assert "camera 0 silent for 0.3" in d.events[0].message and "camera 0 is sending again" in d.events[1].message
+    complete = sum(b.closed_by == "complete" and not b.bundle.missing_cameras for b in d.bundles)
+    assert len(d.bundles) == 120 and d.sync.bundles_complete == complete > 0
+    assert d.sync.bundles_deadline == 120 - complete > 0 and d.sync.reanchors == 0
+
+
+def test_defaults_deadline_dead_timeout_and_start_time() -> None:
+    """The defaults: a bundle waits half a period after its first frame; a camera is dead after 0.5 s
+    of silence, counted from start_time (0) before it ever sent; the clock is a fixed-rate one."""
+    s = FrameSynchronizer([0, 1, 2], FPS)
+    assert not [o for o in s.poll(0.49) if isinstance(o, SyncEvent)]
+    assert [o.camera_index for o in s.poll(0.51) if isinstance(o, SyncEvent) and o.kind == "dead"] == [0, 1, 2]
+    s = FrameSynchronizer([0, 1, 2], FPS)
+    s.add(frame(0, 0, 0.100), 0.100)
+    s.add(frame(1, 0, 0.101), 0.101)
+    assert s.next_deadline() == 0.100 + 0.5 * P
+    assert s.poll(0.100 + 0.45 * P) == []
+    out = s.poll(0.100 + 0.55 * P)
+    assert [(b.bundle.trigger_frame, b.closed_by) for b in out if isinstance(b, SyncedBundle)] == [(0, "deadline")]
+    assert isinstance(s.clock, FixedRateClock) and abs(s.frame_time(0) - 0.100) < 1e-12
+    # A clock given is used as it is.
+    own = FixedRateClock(FPS, start_time=5.0)
+    assert FrameSynchronizer([0], FPS, clock=own).clock is own
+
+
+def test_frame_zero_tie_window_after_synchronize_and_without() -> None:
+    """After synchronize() every camera's first frame within 0.5 s (tie_window_s) of the first one is
+    trigger frame 0; a camera first seen 0.7 s later is a late joiner, placed by its arrival. Without
+    synchronize() (cameras already running) the tie spans only 0.9 period."""
+    for synced, late_s, want_tf in ((True, 0.45, 0), (True, 0.7, 70), (False, 0.3, 30)):
+        d = make()
+        if synced:
+            d.sync.synchronize()
+        frames = stream({0: 0, 1: 0}, range(100))
+        frames += [frame(2, 500 + k, T0 + late_s + k * P + 0.002) for k in range(20)]
+        d.feed(frames)
+        d.advance(T0 + 2)
+        # Its first frame's trigger frame, tracked or (tied to frame 0, long closed) reported late.
+        tfs = [b.bundle.trigger_frame for b in d.bundles if 2 in b.frames]
+        tfs += [u.trigger_frame for u in d.untracked if u.frame.camera_index == 2]
+        assert tfs and abs(min(tfs) - want_tf) <= 1, (synced, late_s, tfs[:3])
+
+
+def test_a_counter_jump_is_confirmed_by_three_frames_and_mapped_by_arrival() -> None:
+    """jump_confirm_frames (3): camera 1's counter jumps by 5000; its first two frames in the new
+    numbering are suspect (future-dated), the third confirms the jump, not global (only its counter)."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 50:
+            f.camera_frame += 5000
+    d.feed(frames)
+    d.advance(T0 + 2)
+    reasons = [u.reason for u in d.untracked if u.frame.camera_index == 1]
+    assert reasons == ["future", "future", "clock_jump"]
+    jumps = d.kinds("clock_jump")
+    assert len(jumps) == 1 and jumps[0].camera_index == 1 and not jumps[0].global_jump
+    assert d.sync.stats()[1].future == 2 and d.sync.stats()[1].clock_jumps == 1
+    by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+    assert all(by_tf[k].frames[1].camera_frame == k + 5000 for k in range(53, 100))
+
+
+def test_future_dated_frames_by_the_clock_and_without_one() -> None:
+    """A frame numbered for a trigger time more than 0.5 s (future_tolerance_s) ahead is future-dated;
+    0.4 s ahead is only early (claims a pulse not yet seen). Without a clock model (NaN times) the
+    same tolerance counts in frames: 60 frames ahead of the newest accepted is future, 10 is accepted."""
+    d = make()
+    d.feed(stream({0: 0, 1: 0, 2: 0}, range(10), tf_from_edge=True))
+    now = T0 + 10 * P
+    for ahead, reason in ((60, "future"), (40, "early")):
+        out = d.sync.add(frame(0, 100 + ahead, now, 9 + ahead), now)
+        assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == [reason], ahead
+
+    class NoModel:
+        def frame_to_host_time(self, frame: int) -> float:
+            return float("nan")
+
+    s = FrameSynchronizer([0, 1, 2], FPS, clock=NoModel(), start_time=T0)
+    for k in range(5):
+        for c in range(3):
+            s.add(frame(c, k, T0 + k * P, k), T0 + k * P)
+    for ahead, reason in ((60, "future"), (10, None)):
+        out = s.add(frame(1, 200 + ahead, T0 + 5 * P, 4 + ahead), T0 + 5 * P)
+        assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == ([reason] if reason else []), ahead
+
+
+def test_a_shift_shorter_than_half_a_second_is_no_drift_by_default() -> None:
+    """Drift evidence must span drift_min_s (0.5 s) at 100 fps, not just drift_frames (10) frames: camera
+    2 arriving a period late for 0.3 s, then on time again, is never re-mapped."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200))
+    for f in frames:
+        if f.camera_index == 2 and 80 <= f.camera_frame < 110:
+            f.recv_time += P
+    d.feed(frames)
+    d.advance(T0 + 3)
+    assert not d.kinds("drift") and d.sync.stats()[2].drift == 0
