@@ -325,6 +325,19 @@ def test_a_counter_jump_is_confirmed_by_three_frames_and_mapped_by_arrival() -> 
     assert d.sync.stats()[1].future == 2 and d.sync.stats()[1].clock_jumps == 1
     by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
     assert all(by_tf[k].frames[1].camera_frame == k + 5000 for k in range(53, 100))
+    # The confirming frame is reported under its new mapping (it answered trigger frame 52).
+    assert [u.trigger_frame for u in d.untracked if u.reason == "clock_jump"] == [52]
+    # A counter jumping back (restarted without the receiver noticing): a discontinuity, then re-mapped.
+    d = make()
+    frames = stream({0: 0, 1: 5000, 2: 0}, range(100))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 5050:
+            f.camera_frame -= 1000  # numbers far behind those seen: not a late frame
+    d.feed(frames)
+    d.advance(T0 + 2)
+    assert [u.reason for u in d.untracked if u.frame.camera_index == 1] == ["discontinuity", "discontinuity",
+                                                                           "clock_jump"]
+    assert d.sync.stats()[1].suspect == 2 and d.sync.stats()[1].future == 0
 
 
 def test_future_dated_frames_by_the_clock_and_without_one() -> None:
@@ -362,3 +375,26 @@ def test_a_shift_shorter_than_half_a_second_is_no_drift_by_default() -> None:
     d.feed(frames)
     d.advance(T0 + 3)
     assert not d.kinds("drift") and d.sync.stats()[2].drift == 0
+
+
+def test_a_restarted_edge_counts_each_of_its_frames_once() -> None:
+    """An edge restart (restarted=True, counter from 0): its first frames are held until placed, then
+    counted once each: frames received = tracked + reported untracked, one restart, 40 frames missed."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 200):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        if k >= 140:
+            f = frame(1, k - 140, t + 0.0005)
+            f.restarted = k == 140
+            frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    st = d.sync.stats()[1]
+    sent = 100 + 60
+    untracked = sum(1 for u in d.untracked if u.frame.camera_index == 1)
+    assert st.frames == sent and st.tracked + untracked == sent and st.tracked >= sent - 2
+    assert st.restarts == 1 and st.missed == 40
+    ev = [e for e in d.events if e.kind == "restart"]
+    assert len(ev) == 1 and "40 trigger frames missed" in ev[0].message
