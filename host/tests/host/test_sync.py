@@ -407,3 +407,32 @@ def test_a_restarted_edge_counts_each_of_its_frames_once() -> None:
     assert st.restarts == 1 and st.missed == 40
     ev = [e for e in d.events if e.kind == "restart"]
     assert len(ev) == 1 and "40 trigger frames missed" in ev[0].message
+
+
+def test_the_fixed_rate_clock_is_reanchored_after_a_fifth_of_a_second_of_late_frames() -> None:
+    """Every camera resumes 100 ms late (paced): the clock is re-anchored once, on the 20th late bundle
+    (reanchor_s 0.2 s at 100 fps); bundles before keep the old frame times, later ones the new."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200))
+    for f in frames:
+        if f.camera_frame >= 100:
+            f.recv_time += 0.1
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.15)
+    ev = d.kinds("reanchor")
+    assert len(ev) == 1 and d.sync.reanchors == 1
+    assert "at trigger frame 119" in ev[0].message and "came 100 ms after" in ev[0].message
+    lag = {b.bundle.trigger_frame: b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P) for b in d.bundles}
+    assert all(abs(lag[k] - lag[0]) < 1e-3 for k in range(100, 119))
+    assert all(abs(lag[k] - lag[0] - 0.1) < 1e-3 for k in range(119, 200))
+
+
+def test_an_early_frame_needs_more_than_the_slack() -> None:
+    """early_s = 1.5 periods + 5 ms: numbered for a pulse 17 ms before its camera's usual lag allows
+    is within the margin (host jitter); 25 ms is early."""
+    for early_ms, reasons in ((17.0, []), (25.0, ["early"])):
+        d = make()
+        d.feed(stream({0: 0, 1: 0, 2: 0}, range(10), tf_from_edge=True))
+        t = T0 + 12 * P + 0.002 - early_ms * 1e-3
+        out = d.sync.add(frame(1, 300, t, 12), t)
+        assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == reasons, early_ms
