@@ -220,19 +220,19 @@ def test_image_and_area_gates_alone() -> None:
 
 
 def test_clashes_are_counted_per_camera_and_a_loser_without_a_point_goes_without() -> None:
-    """Camera 0: one point between A and B (A nearer): A takes it, B gets none there (cost inf).
-    Camera 1: the same nearer B, behind a point far from both: B takes it. Camera 2: A and B each have
-    their own point, no clash: untouched, not counted."""
+    """Camera 0: one point between A and B, nearer B: B takes it, A gets none there (cost inf).
+    Camera 1: a point far from both, then one between them nearer A: A takes the second. Camera 2: A
+    and B each have their own point, no clash: untouched, not counted."""
     X = np.array([[0.7, 0.0, 0.15], [0.7, 0.015, 0.15]])
     pa, pb = _proj(X[0]), _proj(X[1])
-    pix = {0: [tuple(pa[0] + 0.4 * (pb[0] - pa[0]))],
-           1: [(20.0, 20.0), tuple(pa[1] + 0.6 * (pb[1] - pa[1]))],
+    pix = {0: [tuple(pa[0] + 0.6 * (pb[0] - pa[0]))],
+           1: [(20.0, 20.0), tuple(pa[1] + 0.4 * (pb[1] - pa[1]))],
            2: [tuple(pa[2] + (0.5, 0.0)), tuple(pb[2] + (0.5, 0.0))]}
     res, pts = _associate(X, pix, TrackingParams())
     assert res.conflicts_resolved == 2
-    assert res.assign[0, 0] == 0 and res.assign[0, 1] == -1 and np.isinf(res.cost[0, 1])
-    assert np.isfinite(res.cost[0, 0])
-    assert res.assign[1, 0] == -1 and pts.slot[res.assign[1, 1]] == 1 and pts.index[res.assign[1, 1]] == 1
+    assert res.assign[0, 1] == 0 and res.assign[0, 0] == -1 and np.isinf(res.cost[0, 0])
+    assert np.isfinite(res.cost[0, 1])
+    assert res.assign[1, 1] == -1 and pts.slot[res.assign[1, 0]] == 1 and pts.index[res.assign[1, 0]] == 1
     assert [int(pts.index[res.assign[2, t]]) for t in (0, 1)] == [0, 1]
     assert (res.assign[3:] == -1).all()
 
