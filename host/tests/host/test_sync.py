@@ -437,3 +437,46 @@ def test_an_early_frame_needs_more_than_the_slack() -> None:
         t = T0 + 12 * P + 0.002 - early_ms * 1e-3
         out = d.sync.add(frame(1, 300, t, 12), t)
         assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == reasons, early_ms
+
+
+def test_a_counter_jumping_ahead_is_early_for_a_fifth_of_a_second_then_confirmed() -> None:
+    """Camera 1's counter skips 3 numbers while its frames keep coming on time: they claim pulses 30 ms
+    ahead, so they are early (rejected) for early_confirm_s (0.2 s = 20 frames), then the jump is
+    confirmed and the camera mapped by arrival again."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 100:
+            f.camera_frame += 3
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert st.early == 20 and st.clock_jumps == 1 and st.tracked == 179
+    assert [e.kind for e in d.events] == ["clock_jump"] and not d.events[0].global_jump
+    by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+    assert all(by_tf[k].frames[1].camera_frame == k + 3 for k in range(121, 200))
+
+
+def test_synchronize_starts_the_numbering_again_from_frame_zero() -> None:
+    d = make()
+    d.feed(stream({0: 0, 1: 0, 2: 0}, range(50)))
+    d.advance(T0 + 50 * P + 0.3)
+    d.sync.synchronize()
+    n0 = len(d.bundles)
+    again = [frame(f.camera_index, f.camera_frame + 1000, f.recv_time + 1.0) for f in stream({0: 0, 1: 0, 2: 0},
+                                                                                               range(30))]
+    d.feed(again)
+    d.advance(T0 + 1.0 + 30 * P + 0.1)
+    assert [b.bundle.trigger_frame for b in d.bundles[n0:]] == list(range(30))
+    assert all(b.closed_by == "complete" for b in d.bundles[n0:])
+
+
+def test_a_camera_that_dies_twice_is_counted_twice() -> None:
+    d = make(dead_timeout_s=0.2)
+    frames = [f for f in stream({0: 0, 1: 0, 2: 0}, range(200))
+              if not (f.camera_index == 2 and (40 <= f.camera_frame < 70 or 120 <= f.camera_frame < 150))]
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.05)
+    st = d.sync.stats()[2]
+    assert (st.deaths, st.revivals) == (2, 2)
+    assert [(e.kind, e.camera_index) for e in d.events] == [("dead", 2), ("alive", 2)] * 2
