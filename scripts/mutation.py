@@ -64,6 +64,23 @@ def _prepare(work: Path) -> None:
             shutil.copy2(src, work / part)
 
 
+def _recheck(work: Path, target: str, runner: str, env: dict, py: str) -> None:
+    """Run each surviving mutant of a finished run again (mutmut apply, the runner, restore)."""
+    with sqlite3.connect(work / ".mutmut-cache") as db:
+        ids = [i for (i,) in db.execute("SELECT id FROM Mutant WHERE status = 'bad_survived' ORDER BY id")]
+        for i in ids:
+            subprocess.run([py, "-m", "mutmut", "apply", str(i)], cwd=work, env=env, capture_output=True, check=True)
+            try:
+                rc = subprocess.run(shlex.split(runner), cwd=work, env=env, capture_output=True, timeout=300).returncode
+            except subprocess.TimeoutExpired:
+                rc = 1  # as mutmut counts a time-out: caught
+            finally:
+                shutil.copy2(ROOT / target, work / target)
+            if rc == 1:  # mutmut's rule: exit status 1 (tests failed) is a kill
+                db.execute("UPDATE Mutant SET status = 'ok_killed' WHERE id = ?", (i,))
+        db.commit()
+
+
 def run_module(name: str, py: str) -> dict:
     target, tests = MODULES[name]
     # MUTATION_JOBS shards run side by side, each in its own scratch copy (mutmut mutates in place).
@@ -76,9 +93,20 @@ def run_module(name: str, py: str) -> dict:
         t0 = time.monotonic()
         servers: list[subprocess.Popen] = []
         runs: list[subprocess.Popen] = []
+        recheck = bool(os.environ.get("MUTATION_RECHECK"))
+        if recheck and not (keep and all((w / ".mutmut-cache").exists() for w in works)):
+            raise RuntimeError("MUTATION_RECHECK needs the MUTATION_WORKDIR (and MUTATION_JOBS) of a finished run")
         try:
             for k, work in enumerate(works):
-                _prepare(work)
+                if recheck:
+                    # Survivors of that run against the tests as they are now (tests only added since:
+                    # a mutant they killed stays killed); the mutated file comes from the repository.
+                    shutil.rmtree(work / "host" / "tests")
+                    shutil.copytree(ROOT / "host" / "tests", work / "host" / "tests",
+                                    ignore=shutil.ignore_patterns("__pycache__", ".hypothesis"))
+                    (work / ".mutation.sock").unlink(missing_ok=True)
+                else:
+                    _prepare(work)
                 if jobs > 1:
                     (work / "mutmut_config.py").write_text(SHARD_CONFIG.format(n=jobs, k=k))
                 # One BLAS thread: the fork server must not fork a thread pool.
@@ -103,6 +131,9 @@ def run_module(name: str, py: str) -> dict:
                 if "preloaded" not in ready:
                     raise RuntimeError(f"mutation fork server for {name} did not start: {ready}")
                 runner = f"{py} -S {FORKSERVER} run {sock} {' '.join(args)}"
+                if recheck:
+                    _recheck(work, target, runner, env, py)
+                    continue
                 cmd = [py, "-m", "mutmut", "run", "--paths-to-mutate", target, "--runner", runner,
                        "--tests-dir", "host/tests", "--no-progress", "--CI"]
                 with open(work / ".mutmut.log", "w") as log:  # every test run's output: long

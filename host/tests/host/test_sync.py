@@ -480,3 +480,14 @@ def test_a_camera_that_dies_twice_is_counted_twice() -> None:
     st = d.sync.stats()[2]
     assert (st.deaths, st.revivals) == (2, 2)
     assert [(e.kind, e.camera_index) for e in d.events] == [("dead", 2), ("alive", 2)] * 2
+
+
+def test_every_resent_frame_is_a_duplicate() -> None:
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(60))
+    frames += [frame(1, k, T0 + k * P + 0.004) for k in (20, 40)]  # camera 1 sends 20 and 40 again
+    d.feed(frames)
+    d.advance(T0 + 60 * P + 0.1)
+    assert [(u.frame.camera_index, u.trigger_frame, u.reason) for u in d.untracked] == [(1, 20, "duplicate"),
+                                                                                        (1, 40, "duplicate")]
+    assert d.sync.stats()[1].duplicate == 2 and d.sync.stats()[1].tracked == 60
