@@ -491,3 +491,27 @@ def test_every_resent_frame_is_a_duplicate() -> None:
     assert [(u.frame.camera_index, u.trigger_frame, u.reason) for u in d.untracked] == [(1, 20, "duplicate"),
                                                                                         (1, 40, "duplicate")]
     assert d.sync.stats()[1].duplicate == 2 and d.sync.stats()[1].tracked == 60
+
+
+def test_flush_closes_what_is_pending_as_flush() -> None:
+    d = make()
+    d.feed([f for f in stream({0: 0, 1: 0, 2: 0}, range(5)) if f.camera_index != 2])
+    out = d.sync.flush()  # frames 0-3 closed at their deadlines as the frames came; 4 was pending
+    assert [(b.bundle.trigger_frame, b.closed_by) for b in out] == [(4, "flush")]
+    assert d.sync.flush() == [] and d.sync.next_deadline() is None
+
+
+def test_a_late_joiner_is_placed_by_arrival_minus_the_other_cameras_lag() -> None:
+    """Cameras answer 6 ms after each pulse (more than half a period): a camera first seen later is
+    placed at the pulse its frame answered, the others' lag taken off, not the pulse nearest its arrival.
+    Without synchronize() a camera first seen 1.3 periods after the first one is no longer frame 0."""
+    for first_k, lag_s in ((50, 0.006), (1, 0.002)):
+        d = make()
+        frames = stream({0: 0, 1: 0}, range(100), lag={0: lag_s, 1: lag_s})
+        frames += [frame(2, 700 + k, T0 + k * P + lag_s + 0.0003) for k in range(first_k, 100)]
+        if first_k == 1:
+            frames[-99].recv_time += 0.001  # 1.3 periods after camera 0's first frame
+        d.feed(frames)
+        d.advance(T0 + 2)
+        by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+        assert all(by_tf[k].frames[2].camera_frame == 700 + k for k in range(first_k + 2, 100)), first_k
