@@ -506,7 +506,9 @@ def test_a_late_joiner_is_placed_by_arrival_minus_the_other_cameras_lag() -> Non
     placed at the pulse its frame answered, the others' lag taken off, not the pulse nearest its arrival.
     Without synchronize() a camera first seen 1.3 periods after the first one is no longer frame 0."""
     for first_k, lag_s in ((50, 0.006), (1, 0.002)):
-        d = make()
+        # A trigger clock that knows when the pulses were (the fixed-rate fallback would take the first
+        # arrival, lag included, as frame 0's time).
+        d = Driver(FrameSynchronizer((0, 1, 2), FPS, clock=FixedRateClock(FPS, start_time=T0), start_time=T0))
         frames = stream({0: 0, 1: 0}, range(100), lag={0: lag_s, 1: lag_s})
         frames += [frame(2, 700 + k, T0 + k * P + lag_s + 0.0003) for k in range(first_k, 100)]
         if first_k == 1:
