@@ -517,3 +517,28 @@ def test_a_late_joiner_is_placed_by_arrival_minus_the_other_cameras_lag() -> Non
         d.advance(T0 + 2)
         by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
         assert all(by_tf[k].frames[2].camera_frame == 700 + k for k in range(first_k + 2, 100)), first_k
+
+
+def test_a_restart_placed_by_late_frames_is_moved_back_when_its_frames_come_ahead() -> None:
+    """Camera 1's edge restarts; its first 8 frames come 70 ms late, 6 ms apart (paced, so it is placed
+    by them: 7 pulses too late). Its next frames, on time, then arrive 70 ms before their mapped pulses
+    compared with the other cameras: it is found ahead and moved back by 7, its missed count corrected."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 260):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        if k >= 140:
+            cf = k - 140
+            f = frame(1, cf, max(T0 + 147 * P + 0.002 + cf * 0.006, t) if cf < 8 else t)
+            f.restarted = cf == 0
+            frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 260 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.restarts, st.ahead, st.missed, st.frames) == (1, 1, 40, 220)
+    assert [e.kind for e in d.events] == ["restart", "ahead"]
+    assert d.events[1].message == ("camera 1: frames numbered 7 ahead of their arrival against the other cameras "
+                                   "(after its restart): re-mapped")
+    got = [(b.bundle.trigger_frame, b.frames[1].camera_frame) for b in d.bundles if 1 in b.frames]
+    assert all(tf == cf + 140 for tf, cf in got if tf >= 170) and sum(tf >= 170 for tf, _ in got) == 90
