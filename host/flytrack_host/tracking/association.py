@@ -74,7 +74,8 @@ def inv3(M: F64) -> F64:
         [co_a, c * h - b * i, b * f - c * e, co_b, a * i - c * g, c * d - a * f, co_c, b * g - a * h, a * e - b * d],
         axis=-1,
     )
-    return (out / det[..., None]).reshape(M.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):  # singular: inf/NaN, by design (see below)
+        return (out / det[..., None]).reshape(M.shape)
 
 
 def ray_mahalanobis(mean: F64, cov_pos: F64, origins: F64, dirs: F64) -> F64:
@@ -169,7 +170,7 @@ def _assign_camera_globally(c: int, cost_c: F64, start: int, assign: NDArray[np.
     assign[c, :] = -1
     best[c, :] = np.inf
     for ri, ci in zip(r_i, c_i, strict=True):
-        if sub[ri, ci] < _BIG:
+        if np.isfinite(sub[ri, ci]):  # a target left with only a _BIG stand-in gets none
             assign[c, cols[ci]] = start + rows[ri]
             best[c, cols[ci]] = sub[ri, ci]
 

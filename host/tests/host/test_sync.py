@@ -213,3 +213,332 @@ def test_camera_that_drifts_is_reported_and_remapped():
     for k in range(100, 199):
         fr = by_tf[k].frames.get(2)
         assert fr is not None and abs(fr.recv_time - (T0 + k * P + 0.002)) < 0.001
+
+
+# --- Contracts `make mutation` found untested (issue 17) ---
+
+
+def test_fixed_rate_clock_checks_fps_and_maps_frames_to_times() -> None:
+    import math
+    import re
+
+    import pytest
+
+    for bad in (0.0, -5.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match=f"^fps must be a positive number, not {re.escape(repr(bad))}$"):
+            FixedRateClock(bad)
+    slow = FixedRateClock(0.5, start_time=10.0)  # half a frame per second is a valid rate
+    assert slow.anchored and slow.frame_to_host_time(3) == 16.0
+    c = FixedRateClock(FPS)
+    assert not c.anchored and math.isnan(c.frame_to_host_time(5))
+    c.anchor(50, 2.0)  # frame 50 happened at t = 2 s
+    assert c.anchored and abs(c.frame_to_host_time(50) - 2.0) < 1e-12 and abs(c.frame_to_host_time(0) - 1.5) < 1e-12
+
+
+def test_camera_frame_defaults_describe_a_plain_complete_frame() -> None:
+    """Sources that know no edge timing (software trigger, synthetic feeds) leave the defaults: no
+    timestamps, no points beyond those given, not truncated, complete, no restart, not an event camera."""
+    f = frame(0, 1, 2.0)
+    assert (f.device_timestamp_ns, f.edge_recv_ns, f.edge_done_ns, f.total_points) == (0, 0, 0, 0)
+    assert (f.truncated, f.incomplete, f.restarted, f.dvs) == (False, False, False, False)
+
+
+def test_stats_count_every_frame_once_and_bundles_by_how_they_closed() -> None:
+    """Per camera: frames received; tracked (in a bundle), late, duplicate, future; deaths and revivals.
+    The counts add up: every frame is tracked or reported untracked with one reason."""
+    import dataclasses
+
+    from flytrack_host.sync import CameraSyncStats
+
+    d = make(dead_timeout_s=0.3)
+    frames = stream({0: 0, 1: 0, 2: 0}, range(120))
+    frames = [f for f in frames if not (f.camera_index == 0 and 40 <= f.camera_frame < 90)]  # 0.5 s gone
+    late = next(f for f in frames if f.camera_index == 2 and f.camera_frame == 20)
+    late.recv_time += 0.05  # after frame 20's deadline
+    dup = frame(1, 30, T0 + 30 * P + 0.004)  # camera 1 sends frame 30 twice
+    future = frame(2, 10**6, T0 + 60 * P + 0.003, 60 + 100000)  # an edge number 1000 s ahead
+    stranger = frame(7, 5, T0 + 5 * P + 0.003)  # a camera the rig does not have
+    d.feed(frames + [dup, future, stranger])
+    d.advance(T0 + 120 * P + 0.1)  # all bundles closed, nobody silent for 0.3 s yet
+    assert [(u.frame.camera_index, u.trigger_frame, u.reason) for u in d.untracked if u.reason != "late"] == [
+        (7, -1, "unknown_camera"), (1, 30, "duplicate"), (2, 100060, "future")]
+    assert [(u.frame.camera_index, u.trigger_frame) for u in d.untracked if u.reason == "late"] == [(2, 20)]
+    st = {c: dataclasses.asdict(x) for c, x in d.sync.stats().items()}
+    zero = {f.name: 0 for f in dataclasses.fields(CameraSyncStats)}  # every other count stays 0
+    assert st[0] == {**zero, "frames": 70, "tracked": 70, "deaths": 1, "revivals": 1}
+    assert st[1] == {**zero, "frames": 121, "tracked": 120, "duplicate": 1}
+    assert st[2] == {**zero, "frames": 121, "tracked": 119, "late": 1, "future": 1}
+    assert [(e.kind, e.global_jump) for e in d.events] == [("dead", False), ("alive", False)]
+    assert d.events[0].message.startswith("camera 0 silent for 0.3") and d.events[0].message.endswith(" s: marked dead")
+    assert d.events[1].message == "camera 0 is sending again"
+    complete = sum(b.closed_by == "complete" and not b.bundle.missing_cameras for b in d.bundles)
+    assert len(d.bundles) == 120 and d.sync.bundles_complete == complete > 0
+    assert d.sync.bundles_deadline == 120 - complete > 0 and d.sync.reanchors == 0
+
+
+def test_defaults_deadline_dead_timeout_and_start_time() -> None:
+    """The defaults: a bundle waits half a period after its first frame; a camera is dead after 0.5 s
+    of silence, counted from start_time (0) before it ever sent; the clock is a fixed-rate one."""
+    s = FrameSynchronizer([0, 1, 2], FPS)
+    assert not [o for o in s.poll(0.49) if isinstance(o, SyncEvent)]
+    assert [o.camera_index for o in s.poll(0.51) if isinstance(o, SyncEvent) and o.kind == "dead"] == [0, 1, 2]
+    s = FrameSynchronizer([0, 1, 2], FPS)
+    s.add(frame(0, 0, 0.100), 0.100)
+    s.add(frame(1, 0, 0.101), 0.101)
+    assert s.next_deadline() == 0.100 + 0.5 * P
+    assert s.poll(0.100 + 0.45 * P) == []
+    out = s.poll(0.100 + 0.55 * P)
+    assert [(b.bundle.trigger_frame, b.closed_by) for b in out if isinstance(b, SyncedBundle)] == [(0, "deadline")]
+    assert isinstance(s.clock, FixedRateClock) and abs(s.frame_time(0) - 0.100) < 1e-12
+    # A clock given is used as it is.
+    own = FixedRateClock(FPS, start_time=5.0)
+    assert FrameSynchronizer([0], FPS, clock=own).clock is own
+
+
+def test_frame_zero_tie_window_after_synchronize_and_without() -> None:
+    """After synchronize() every camera's first frame within 0.5 s (tie_window_s) of the first one is
+    trigger frame 0; a camera first seen 0.7 s later is a late joiner, placed by its arrival. Without
+    synchronize() (cameras already running) the tie spans only 0.9 period."""
+    for synced, late_s, want_tf in ((True, 0.45, 0), (True, 0.7, 70), (False, 0.3, 30)):
+        d = make()
+        if synced:
+            d.sync.synchronize()
+        frames = stream({0: 0, 1: 0}, range(100))
+        frames += [frame(2, 500 + k, T0 + late_s + k * P + 0.002) for k in range(20)]
+        d.feed(frames)
+        d.advance(T0 + 2)
+        # Its first frame's trigger frame, tracked or (tied to frame 0, long closed) reported late.
+        tfs = [b.bundle.trigger_frame for b in d.bundles if 2 in b.frames]
+        tfs += [u.trigger_frame for u in d.untracked if u.frame.camera_index == 2]
+        assert tfs and abs(min(tfs) - want_tf) <= 1, (synced, late_s, tfs[:3])
+
+
+def test_a_counter_jump_is_confirmed_by_three_frames_and_mapped_by_arrival() -> None:
+    """jump_confirm_frames (3): camera 1's counter jumps by 5000; its first two frames in the new
+    numbering are suspect (future-dated), the third confirms the jump, not global (only its counter)."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 50:
+            f.camera_frame += 5000
+    d.feed(frames)
+    d.advance(T0 + 2)
+    reasons = [u.reason for u in d.untracked if u.frame.camera_index == 1]
+    assert reasons == ["future", "future", "clock_jump"]
+    jumps = d.kinds("clock_jump")
+    assert len(jumps) == 1 and jumps[0].camera_index == 1 and not jumps[0].global_jump
+    assert d.sync.stats()[1].future == 2 and d.sync.stats()[1].clock_jumps == 1
+    by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+    assert all(by_tf[k].frames[1].camera_frame == k + 5000 for k in range(53, 100))
+    # The confirming frame is reported under its new mapping (it answered trigger frame 52).
+    assert [u.trigger_frame for u in d.untracked if u.reason == "clock_jump"] == [52]
+    # A counter jumping back (restarted without the receiver noticing): a discontinuity, then re-mapped.
+    d = make()
+    frames = stream({0: 0, 1: 5000, 2: 0}, range(100))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 5050:
+            f.camera_frame -= 1000  # numbers far behind those seen: not a late frame
+    d.feed(frames)
+    d.advance(T0 + 2)
+    assert [u.reason for u in d.untracked if u.frame.camera_index == 1] == ["discontinuity", "discontinuity",
+                                                                           "clock_jump"]
+    assert d.sync.stats()[1].suspect == 2 and d.sync.stats()[1].future == 0
+
+
+def test_future_dated_frames_by_the_clock_and_without_one() -> None:
+    """A frame numbered for a trigger time more than 0.5 s (future_tolerance_s) ahead is future-dated;
+    0.4 s ahead is only early (claims a pulse not yet seen). Without a clock model (NaN times) the
+    same tolerance counts in frames: 60 frames ahead of the newest accepted is future, 10 is accepted."""
+    d = make()
+    d.feed(stream({0: 0, 1: 0, 2: 0}, range(10), tf_from_edge=True))
+    now = T0 + 10 * P
+    for ahead, reason in ((60, "future"), (40, "early")):
+        out = d.sync.add(frame(0, 100 + ahead, now, 9 + ahead), now)
+        assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == [reason], ahead
+    # Early (early_fraction 1.5 periods + 5 ms): numbered for trigger frame 12 but arriving 25 ms
+    # before its usual lag after that pulse would allow (camera 1 answers its pulses 2-2.5 ms late).
+    t = T0 + 9.5 * P + 0.002
+    out = d.sync.add(frame(1, 300, t, 12), t)
+    assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == ["early"]
+
+    class NoModel:
+        def frame_to_host_time(self, frame: int) -> float:
+            return float("nan")
+
+    s = FrameSynchronizer([0, 1, 2], FPS, clock=NoModel(), start_time=T0)
+    for k in range(5):
+        for c in range(3):
+            s.add(frame(c, k, T0 + k * P, k), T0 + k * P)
+    for ahead, reason in ((60, "future"), (10, None)):
+        out = s.add(frame(1, 200 + ahead, T0 + 5 * P, 4 + ahead), T0 + 5 * P)
+        assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == ([reason] if reason else []), ahead
+
+
+def test_a_shift_shorter_than_half_a_second_is_no_drift_by_default() -> None:
+    """Drift evidence must span drift_min_s (0.5 s) at 100 fps, not just drift_frames (10) frames: camera
+    2 arriving a period late for 0.3 s, then on time again, is never re-mapped."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200))
+    for f in frames:
+        if f.camera_index == 2 and 80 <= f.camera_frame < 110:
+            f.recv_time += P
+    d.feed(frames)
+    d.advance(T0 + 3)
+    assert not d.kinds("drift") and d.sync.stats()[2].drift == 0
+
+
+def test_a_restarted_edge_counts_each_of_its_frames_once() -> None:
+    """An edge restart (restarted=True, counter from 0): its first frames are held until placed, then
+    counted once each: frames received = tracked + reported untracked, one restart, 40 frames missed."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 200):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        if k >= 140:
+            f = frame(1, k - 140, t + 0.0005)
+            f.restarted = k == 140
+            frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    st = d.sync.stats()[1]
+    sent = 100 + 60
+    untracked = sum(1 for u in d.untracked if u.frame.camera_index == 1)
+    assert st.frames == sent and st.tracked + untracked == sent and st.tracked >= sent - 2
+    assert st.restarts == 1 and st.missed == 40
+    ev = [e for e in d.events if e.kind == "restart"]
+    assert len(ev) == 1 and "40 trigger frames missed" in ev[0].message
+
+
+def test_the_fixed_rate_clock_is_reanchored_after_a_fifth_of_a_second_of_late_frames() -> None:
+    """Every camera resumes 100 ms late (paced): the clock is re-anchored once, on the 20th late bundle
+    (reanchor_s 0.2 s at 100 fps); bundles before keep the old frame times, later ones the new."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200))
+    for f in frames:
+        if f.camera_frame >= 100:
+            f.recv_time += 0.1
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.15)
+    ev = d.kinds("reanchor")
+    assert len(ev) == 1 and d.sync.reanchors == 1
+    assert "at trigger frame 119" in ev[0].message and "came 100 ms after" in ev[0].message
+    lag = {b.bundle.trigger_frame: b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P) for b in d.bundles}
+    assert all(abs(lag[k] - lag[0]) < 1e-3 for k in range(100, 119))
+    assert all(abs(lag[k] - lag[0] - 0.1) < 1e-3 for k in range(119, 200))
+
+
+def test_an_early_frame_needs_more_than_the_slack() -> None:
+    """early_s = 1.5 periods + 5 ms: numbered for a pulse 17 ms before its camera's usual lag allows
+    is within the margin (host jitter); 25 ms is early."""
+    for early_ms, reasons in ((17.0, []), (25.0, ["early"])):
+        d = make()
+        d.feed(stream({0: 0, 1: 0, 2: 0}, range(10), tf_from_edge=True))
+        t = T0 + 12 * P + 0.002 - early_ms * 1e-3
+        out = d.sync.add(frame(1, 300, t, 12), t)
+        assert [u.reason for u in out if isinstance(u, UntrackedFrame)] == reasons, early_ms
+
+
+def test_a_counter_jumping_ahead_is_early_for_a_fifth_of_a_second_then_confirmed() -> None:
+    """Camera 1's counter skips 3 numbers while its frames keep coming on time: they claim pulses 30 ms
+    ahead, so they are early (rejected) for early_confirm_s (0.2 s = 20 frames), then the jump is
+    confirmed and the camera mapped by arrival again."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 100:
+            f.camera_frame += 3
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert st.early == 20 and st.clock_jumps == 1 and st.tracked == 179
+    assert [e.kind for e in d.events] == ["clock_jump"] and not d.events[0].global_jump
+    by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+    assert all(by_tf[k].frames[1].camera_frame == k + 3 for k in range(121, 200))
+
+
+def test_synchronize_starts_the_numbering_again_from_frame_zero() -> None:
+    d = make()
+    d.feed(stream({0: 0, 1: 0, 2: 0}, range(50)))
+    d.advance(T0 + 50 * P + 0.3)
+    d.sync.synchronize()
+    n0 = len(d.bundles)
+    again = [frame(f.camera_index, f.camera_frame + 1000, f.recv_time + 1.0) for f in stream({0: 0, 1: 0, 2: 0},
+                                                                                               range(30))]
+    d.feed(again)
+    d.advance(T0 + 1.0 + 30 * P + 0.1)
+    assert [b.bundle.trigger_frame for b in d.bundles[n0:]] == list(range(30))
+    assert all(b.closed_by == "complete" for b in d.bundles[n0:])
+
+
+def test_a_camera_that_dies_twice_is_counted_twice() -> None:
+    d = make(dead_timeout_s=0.2)
+    frames = [f for f in stream({0: 0, 1: 0, 2: 0}, range(200))
+              if not (f.camera_index == 2 and (40 <= f.camera_frame < 70 or 120 <= f.camera_frame < 150))]
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.05)
+    st = d.sync.stats()[2]
+    assert (st.deaths, st.revivals) == (2, 2)
+    assert [(e.kind, e.camera_index) for e in d.events] == [("dead", 2), ("alive", 2)] * 2
+
+
+def test_every_resent_frame_is_a_duplicate() -> None:
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(60))
+    frames += [frame(1, k, T0 + k * P + 0.004) for k in (20, 40)]  # camera 1 sends 20 and 40 again
+    d.feed(frames)
+    d.advance(T0 + 60 * P + 0.1)
+    assert [(u.frame.camera_index, u.trigger_frame, u.reason) for u in d.untracked] == [(1, 20, "duplicate"),
+                                                                                        (1, 40, "duplicate")]
+    assert d.sync.stats()[1].duplicate == 2 and d.sync.stats()[1].tracked == 60
+
+
+def test_flush_closes_what_is_pending_as_flush() -> None:
+    d = make()
+    d.feed([f for f in stream({0: 0, 1: 0, 2: 0}, range(5)) if f.camera_index != 2])
+    out = d.sync.flush()  # frames 0-3 closed at their deadlines as the frames came; 4 was pending
+    assert [(b.bundle.trigger_frame, b.closed_by) for b in out] == [(4, "flush")]
+    assert d.sync.flush() == [] and d.sync.next_deadline() is None
+
+
+def test_a_late_joiner_is_placed_by_arrival_minus_the_other_cameras_lag() -> None:
+    """Cameras answer 6 ms after each pulse (more than half a period): a camera first seen later is
+    placed at the pulse its frame answered, the others' lag taken off, not the pulse nearest its arrival.
+    Without synchronize() a camera first seen 1.3 periods after the first one is no longer frame 0."""
+    for first_k, lag_s in ((50, 0.006), (1, 0.002)):
+        # A trigger clock that knows when the pulses were (the fixed-rate fallback would take the first
+        # arrival, lag included, as frame 0's time).
+        d = Driver(FrameSynchronizer((0, 1, 2), FPS, clock=FixedRateClock(FPS, start_time=T0), start_time=T0))
+        frames = stream({0: 0, 1: 0}, range(100), lag={0: lag_s, 1: lag_s})
+        frames += [frame(2, 700 + k, T0 + k * P + lag_s + 0.0003) for k in range(first_k, 100)]
+        if first_k == 1:
+            frames[-99].recv_time += 0.001  # 1.3 periods after camera 0's first frame
+        d.feed(frames)
+        d.advance(T0 + 2)
+        by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+        assert all(by_tf[k].frames[2].camera_frame == 700 + k for k in range(first_k + 2, 100)), first_k
+
+
+def test_a_restart_placed_by_late_frames_is_moved_back_when_its_frames_come_ahead() -> None:
+    """Camera 1's edge restarts; its first 8 frames come 70 ms late, 6 ms apart (paced, so it is placed
+    by them: 7 pulses too late). Its next frames, on time, then arrive 70 ms before their mapped pulses
+    compared with the other cameras: it is found ahead and moved back by 7, its missed count corrected."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 260):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        if k >= 140:
+            cf = k - 140
+            f = frame(1, cf, max(T0 + 147 * P + 0.002 + cf * 0.006, t) if cf < 8 else t)
+            f.restarted = cf == 0
+            frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 260 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.restarts, st.ahead, st.missed, st.frames) == (1, 1, 40, 220)
+    assert [e.kind for e in d.events] == ["restart", "ahead"]
+    assert d.events[1].message == ("camera 1: frames numbered 7 ahead of their arrival against the other cameras "
+                                   "(after its restart): re-mapped")
+    got = [(b.bundle.trigger_frame, b.frames[1].camera_frame) for b in d.bundles if 1 in b.frames]
+    assert all(tf == cf + 140 for tf, cf in got if tf >= 170) and sum(tf >= 170 for tf, _ in got) == 90
