@@ -86,10 +86,14 @@ def test_aravis_fake_camera_streams_features(edge_bin: Path, receiver, fake_came
         xs = np.sort(pts["x_dist"])
         np.testing.assert_allclose(np.diff(xs), 127.5, atol=1.0)
         assert np.all((xs > 0) & (xs < 512)) and np.all(pts["peak_diff"] >= 200)
-        # Each stripe is the one-pixel line x + y = 2 x_c, as long as the image lets it be: 2 x_c + 1 pixels
-        # up to the anti-diagonal, 1023 - 2 x_c beyond (a stripe near a corner is short: 89 px at x_c = 44).
+        # Each stripe is k adjacent lines x + y = const around 2 x_c (k: how far the ramp moved since the
+        # background was taken, the same for every stripe of a frame), each as long as the image lets it
+        # be: 2 x_c + 1 pixels up to the anti-diagonal, 1023 - 2 x_c beyond (a stripe near a corner is
+        # short: 89 px a line at x_c = 44). Measured: k = 1 to 10, every stripe of a frame within 0.006 of it.
         order = np.argsort(pts["x_dist"])
-        np.testing.assert_allclose(pts["area"][order], np.minimum(2 * xs + 1, 1023 - 2 * xs), atol=1.0)
+        lines = np.minimum(2 * xs + 1, 1023 - 2 * xs)
+        k = pts["area"][order] / lines
+        assert np.allclose(k, np.round(k[np.argmax(lines)]), atol=3.0 / lines.min()) and k.max() >= 0.99, k
     st = [m for m in receiver.messages if isinstance(m, EdgeStatus)]
     assert st and st[-1].width == 512 and st[-1].height == 512 and st[-1].frames_seen == 25
 
