@@ -1,4 +1,5 @@
-"""Test helpers shared by tests/ and host/tests/: a part that should have been built is missing.
+"""Test helpers shared by tests/ and host/tests/: a part that should have been built is missing; a small
+real file system to fill.
 
 `make test` builds the C libraries, the tracker kernel, the firmware and the simavr harness, and
 installs the AVR tools, before pytest runs; the Makefile exports FLYTRACK_BUILD_DIR. Under make a
@@ -9,6 +10,10 @@ a build gets a skip that names the part and how to build it.
 from __future__ import annotations
 
 import os
+import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import NoReturn
 
 import pytest
@@ -27,3 +32,20 @@ def missing_part(reason: str) -> NoReturn:
         pytest.fail(f"{reason} ({BUILD_ENV} is set, so make should have built it: the build is broken)",
                     pytrace=False)
     pytest.skip(f"{reason} (run `make build`, or `make test`, to build it)")
+
+
+@contextmanager
+def small_tmpfs(mountpoint: Path, size: str) -> Iterator[Path]:
+    """A tmpfs of `size` (e.g. "4m") mounted at `mountpoint` (created) for a disk-full test, unmounted
+    afterwards. Mounting needs root: the test is skipped with the reason otherwise."""
+    mountpoint.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mountpoint)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        yield mountpoint
+    finally:
+        subprocess.run(["umount", "-l", str(mountpoint)], check=False)

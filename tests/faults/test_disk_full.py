@@ -17,6 +17,7 @@ import pytest
 
 from flytrack_host.protocol.udp import POINT_DTYPE, FeatureFrame, encode_features
 from flytrack_host.recording import load_recording
+from flytrack_host.testing import small_tmpfs
 
 ROOT = Path(__file__).resolve().parents[2]
 FLYTRACK = [sys.executable, "-m", "flytrack_host.cli"]
@@ -24,17 +25,8 @@ FLYTRACK = [sys.executable, "-m", "flytrack_host.cli"]
 
 @pytest.fixture
 def small_disk(tmp_path):
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small tmpfs needs root")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
+    with small_tmpfs(tmp_path / "small", "2m") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 def _points(n: int, k: int) -> np.ndarray:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import errno
 import logging
 import os
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -21,6 +20,7 @@ from flytrack_host.pipeline import HostPipeline
 from flytrack_host.recording import Recorder, load_recording
 from flytrack_host.recording import writer as writer_mod
 from flytrack_host.recording.schema import DATA2D
+from flytrack_host.testing import small_tmpfs
 
 
 def _rows(start: int, n: int) -> np.ndarray:
@@ -41,18 +41,9 @@ def _wait(cond, timeout: float = 3.0) -> bool:
 
 @pytest.fixture
 def small_disk(tmp_path):
-    """A 4 MB tmpfs (finalising wants 1 MB of slack), unmounted afterwards."""
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small tmpfs needs root")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mnt)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
+    """A 4 MB tmpfs (finalising wants 1 MB of slack)."""
+    with small_tmpfs(tmp_path / "small", "4m") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 def _fill(disk, leave: int = 0) -> Path:
