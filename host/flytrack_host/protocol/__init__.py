@@ -1,6 +1,7 @@
 """Python codec of the FlyTrack wire protocol (protocol/SPEC.md).
 
-- UDP datagrams (udp.py): decode_datagram, encode, encode_features, join_feature_parts, the message
+- UDP datagrams (udp.py, split by family into udp_header/udp_frame/udp_eventcam/udp_live/udp_codec): decode_datagram,
+  encode, encode_features, join_feature_parts, the message
   dataclasses and record dtypes.
 - Trigger serial link (trigger_link.py): CRC-16, COBS, frames, typed messages, FrameSplitter.
 - DVS128 USB words (dvs.py): DvsDecoder, encode_events.
