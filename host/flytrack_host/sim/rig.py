@@ -147,3 +147,23 @@ def write_rig(rig: RigConfig, path: Path) -> Path:
     path = Path(path)
     path.write_text(to_toml(data), encoding="utf-8")
     return path
+
+
+def _write_calibration(cams: list[Camera], path: Path, notes: list[str]) -> Path | None:
+    try:
+        from flytrack_host.calibration.formats import save_flydra_xml
+    except ImportError:
+        notes.append("calibration writer missing: the host got the cameras directly")
+        return None
+    save_flydra_xml({c.name: c for c in cams}, path)
+    return path
+
+
+def _host_cameras(rig: Any, cams: list[Camera], calib_path: Path | None) -> dict[int, Camera]:
+    """Cameras for the host, read back from the calibration file when there is one (as a user's)."""
+    by_name = {c.name: c for c in cams}
+    if calib_path is not None:
+        from flytrack_host.calibration.formats import load_calibration
+
+        by_name = load_calibration(calib_path)
+    return {c.index: by_name[c.calib_name] for c in rig.cameras}
