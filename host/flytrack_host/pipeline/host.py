@@ -18,39 +18,33 @@ from __future__ import annotations
 import importlib
 import json
 import logging
-import math
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
-import typer
 
 from flytrack_host import hostclock
 from flytrack_host.camera import Camera
 from flytrack_host.eventcam.observations import DvsObservations
 from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
-from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
+from flytrack_host.pipeline.cameras import calibration_problems
+from flytrack_host.pipeline.dvs import DvsIntake
+from flytrack_host.pipeline.report import PipelineReport
+from flytrack_host.pipeline.rows import data2d_rows, result_rows
+from flytrack_host.pipeline.sink import ResultSink
 from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.receiver import DvsSlice, Receiver, StatusReport
 from flytrack_host.recording.schema import (
-    ASSOCIATION,
     CAM_INFO,
     CAMERA_STATUS,
-    COV_NAMES,
-    DATA2D,
-    FLAG_DVS,
-    FLAG_INCOMPLETE,
     FLAG_LATE,
     FLAG_REJECTED,
     FLAG_TRACKED,
-    FLAG_TRUNCATED,
-    KALMAN,
     TRIGGER_CLOCK,
 )
 from flytrack_host.recording.writer import Recorder
@@ -69,11 +63,7 @@ from flytrack_host.tracking.types import FrameBundle, FrameResult
 
 log = logging.getLogger("flytrack.pipeline")
 
-
 TrackerFactory = Callable[[Mapping[int, Camera], TrackingParams, float], Any]
-_POINT_FIELDS = ("x_dist", "y_dist", "x_undist", "y_undist", "area", "peak_diff", "orientation",
-                 "eccentricity", "cur_val", "mean_val", "sumsq_val")
-_FLOAT_FIELDS = tuple(f for f in _POINT_FIELDS if f != "cur_val")
 _UNTRACKED_WHY = {
     "early": "is numbered ahead of its arrival (a misbehaving or replaying edge?)",
     "future": "claims a trigger frame in the future",
@@ -87,113 +77,16 @@ MAX_BACKLOG_S = 1.0  # a frame this far behind real time is recorded, not tracke
 STALL_S = 0.2  # a turn of the tracking thread this late means the host was not scheduled
 
 
-class ResultSink(Protocol):
-    """A consumer of every tracked frame: a live output (event stream, VR pose) or the actuation rules.
-
-    `on_frame` runs on the tracking thread right after the tracker, so it must only hand the frame on
-    (append to a bounded queue, a non-blocking send) and return: a slow sink would delay tracking.
-    `frame_time` is the host time of the frame's trigger pulse (the clock model's), `estimate_time` the
-    host time the estimate was made; their difference is the trigger-to-estimate latency. An exception
-    is caught, counted in `sink_errors` and logged (rate-limited); the sink stays attached. `close` is
-    called once when the pipeline stops.
-    """
-
-    def on_frame(self, result: FrameResult, frame_time: float, estimate_time: float) -> None: ...
-
-    def close(self) -> None: ...
-
-
 def default_tracker_factory(cameras: Mapping[int, Camera], params: TrackingParams, period: float) -> Any:
     mod = importlib.import_module("flytrack_host.tracking.tracker")
     return mod.Tracker(cameras, params, period)
-
-
-_INT_LIMITS = {name: np.iinfo(DATA2D[name]) for name in DATA2D.names if DATA2D[name].kind in "iu"}
-_FALLBACK = {"trigger_frame": -1}  # out of range: "not mapped"; unsigned fields: 0
-
-
-def _fit(name: str, value: int, bad: list[str]) -> int:
-    """`value` if the DATA2D column holds it, else a fallback, and the column is named in `bad`."""
-    lim = _INT_LIMITS[name]
-    v = int(value)
-    if lim.min <= v <= lim.max:
-        return v
-    bad.append(f"{name}={v}")
-    return _FALLBACK.get(name, 0)
-
-
-def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int,
-                range_errors: list[str] | None = None) -> np.ndarray:
-    """One DATA2D row per point of a camera frame (one NaN row for a frame without points).
-
-    Every integer is range-checked before it is written: a value the column cannot hold (a wild frame
-    number from a misbehaving edge) is stored as -1 (trigger frame) or 0 and named in `range_errors`,
-    and the row is flagged rejected; the frame is never lost."""
-    pts = fr.points
-    n = len(pts)
-    bad: list[str] = []
-    rows = np.zeros(max(n, 1), dtype=DATA2D)
-    rows["trigger_frame"] = _fit("trigger_frame", tf, bad)
-    rows["camera_index"] = _fit("camera_index", fr.camera_index, bad)
-    rows["camera_frame"] = _fit("camera_frame", fr.camera_frame, bad)
-    rows["timestamp"] = timestamp
-    rows["cam_received_timestamp"] = fr.recv_time
-    rows["device_timestamp_ns"] = _fit("device_timestamp_ns", fr.device_timestamp_ns, bad)
-    rows["edge_recv_ns"] = _fit("edge_recv_ns", fr.edge_recv_ns, bad)
-    rows["edge_done_ns"] = _fit("edge_done_ns", fr.edge_done_ns, bad)
-    rows["n_points"] = _fit("n_points", n, bad)
-    rows["total_points"] = _fit("total_points", fr.total_points, bad)
-    if bad:
-        flags = (flags & ~FLAG_TRACKED) | FLAG_REJECTED
-        if range_errors is not None:
-            range_errors.extend(bad)
-    rows["flags"] = (flags | (FLAG_TRUNCATED if fr.truncated else 0) | (FLAG_INCOMPLETE if fr.incomplete else 0)
-                     | (FLAG_DVS if fr.dvs else 0))
-    if n:
-        rows["frame_pt_idx"] = np.arange(n)
-        names = pts.dtype.names or ()
-        for f in _POINT_FIELDS:
-            if f in names:
-                rows[f] = pts[f]
-    else:
-        for f in _FLOAT_FIELDS:
-            rows[f] = np.nan
-    return rows
-
-
-_COV_IU = np.triu_indices(6)  # COV_NAMES order (recording.schema.cov_upper)
-
-
-def result_rows(result: FrameResult, timestamp: float) -> tuple[np.ndarray, np.ndarray]:
-    """KALMAN and ASSOCIATION rows of a frame, column by column (the tracking thread makes them for
-    every frame: one row at a time cost ~0.1 ms a frame more with 3 objects)."""
-    est = result.estimates
-    n = len(est)
-    k = np.zeros(n, dtype=KALMAN)
-    if n:
-        states = np.array([np.asarray(e.state, dtype=np.float64)[:6] for e in est]).reshape(n, 6)
-        covs = np.array([np.asarray(e.covariance, dtype=np.float64)[:6, :6] for e in est]).reshape(n, 6, 6)
-        k["obj_id"] = [e.obj_id for e in est]
-        k["trigger_frame"] = result.trigger_frame
-        k["timestamp"] = timestamp
-        for j, name in enumerate(("x", "y", "z", "xvel", "yvel", "zvel")):
-            k[name] = states[:, j]
-        upper = covs[:, _COV_IU[0], _COV_IU[1]]
-        for j, name in enumerate(COV_NAMES):
-            k[name] = upper[:, j]
-        k["n_cameras"] = [e.n_cameras for e in est]
-    a = np.zeros(len(result.associations), dtype=ASSOCIATION)
-    for i, asc in enumerate(result.associations):
-        a[i] = (asc.obj_id, result.trigger_frame, asc.camera_index, asc.point_index)
-    return k, a
-
 
 def default_recording_path(rig: RigConfig) -> Path:
     stamp = time.strftime("%Y%m%d_%H%M%S")
     return rig.recording_dir / f"{stamp}_{rig.name}.flytrack"
 
 
-class HostPipeline:
+class HostPipeline(DvsIntake, PipelineReport):
     def __init__(
         self,
         rig: RigConfig,
@@ -509,39 +402,6 @@ class HostPipeline:
         elif isinstance(item, DvsSlice):
             self._dvs_slice(item)
 
-    def _dvs_slice(self, item: DvsSlice) -> None:
-        """An event camera's time slice: kept, to give its clusters to the tracker at the trigger
-        frames it covers (flytrack_host.eventcam)."""
-        self.dvs_slices[item.camera_index] = self.dvs_slices.get(item.camera_index, 0) + 1
-        if self.dvs_obs is not None:
-            self.dvs_obs.add(item, self._frame_of_host_time)
-
-    def _frame_of_host_time(self, t: float) -> float:
-        """The trigger clock model inverted: host time -> trigger frame (NaN before it is known)."""
-        clock = self.sync.clock if self.sync is not None else None
-        if clock is None:
-            return math.nan
-        t0, t1 = float(clock.frame_to_host_time(0)), float(clock.frame_to_host_time(1000))
-        if not (math.isfinite(t0) and math.isfinite(t1)) or t1 <= t0:
-            return math.nan
-        return (t - t0) / ((t1 - t0) / 1000.0)
-
-    def _add_dvs(self, sb: SyncedBundle, count: bool = True) -> None:
-        """Event cameras' observations join the bundle of frame cameras (a rig may mix them)."""
-        if self.dvs_obs is None:
-            return
-        tf = sb.bundle.trigger_frame
-        for ci in self.dvs_obs.indices:
-            got = self.dvs_obs.frame(ci, tf)
-            if got is not None:
-                fr, cov = got
-                if count:
-                    self.dvs_obs.count(ci, len(fr.points))
-                sb.frames[ci] = fr
-                sb.bundle.detections[ci] = fr.points
-                # their own covariance is their measurement noise, and they never start a track
-                sb.bundle.point_cov[ci] = cov
-
     def _guarded(self, fn: Callable[..., object], *args: Any) -> bool:
         """Run one step of the tracking thread; an exception is logged (the first few in full) and
         counted (`loop_errors`), and the thread goes on."""
@@ -681,287 +541,3 @@ class HostPipeline:
                     self.callback_errors += 1
                     if self.callback_errors <= 10:
                         self.log(f"on_result callback failed: {exc!r}")
-
-    # --- reporting ----------------------------------------------------------------------------
-    def status_line(self) -> str:
-        parts = [f"tracked {self.frames_tracked}", f"objects {self.n_objects}"]
-        if self.receiver is not None and self.sync is not None:
-            rs = self.receiver.stats
-            ss = self.sync.stats()
-            for c in self.rig.cameras:
-                if c.kind == "dvs":
-                    r = rs.cameras[c.index]
-                    parts.append(f"{c.name}: slices {r.dvs_slices} events {r.status_frames_seen}")
-                    continue
-                r, s = rs.cameras[c.index], ss[c.index]
-                alive = "" if self.sync.cams[c.index].alive else " DEAD"
-                parts.append(f"{c.name}: rx {r.frames} lost {r.lost} late {s.late} bad {r.malformed} "
-                             f"dup {r.duplicated + s.duplicate} reo {r.reordered}{alive}")
-            rej = rs.rejected_address + rs.rejected_camera
-            if rej:
-                parts.append(f"rejected {rej}")
-        if self.recorder is not None:
-            parts.append(self.recorder_status())
-        if self.tracker_errors:
-            parts.append(f"tracker errors {self.tracker_errors}")
-        if self.loop_errors:
-            parts.append(f"ERRORS {self.loop_errors}")
-        s = self.latency.summary()
-        if "total_p50_ms" in s:
-            parts.append(f"latency P50 {s['total_p50_ms']:.1f} P99 {s['total_p99_ms']:.1f} ms")
-        for src in self.status_sources:
-            try:
-                parts.append(src())
-            except Exception as exc:  # a status line must never take the run down
-                parts.append(f"status error {exc!r}")
-        return " | ".join(parts)
-
-    def recorder_status(self) -> str:
-        """Queue depth of the recorder, and what it lost (write errors, full queue) if anything."""
-        rec = self.recorder
-        if rec is None:
-            return "not recording"
-        st = rec.stats
-        out = f"rec queue {rec.queue_bytes / 1e6:.1f} MB"
-        lost = sum(st.dropped_rows.values())
-        if st.write_errors:
-            out += f" WRITE ERRORS {st.write_errors} ({rec.last_error})"
-        if lost or st.dropped_log_lines:
-            out += f" LOST {lost} rows"
-        return out
-
-    def _why_nothing(self) -> list[str]:
-        """Reasons, with numbers, that a run whose points arrived produced no estimate."""
-        stats = getattr(self.tracker, "stats", None)
-        if self.n_estimates or not isinstance(stats, dict) or not stats.get("points"):
-            return []
-        from flytrack_host.tracking.diagnosis import why_no_estimates
-
-        return why_no_estimates(stats, self.cameras, self.params)
-
-    def summary(self, recording_h5: Path | None = None) -> dict[str, Any]:
-        rs = self.receiver.stats if self.receiver else None
-        out: dict[str, Any] = {
-            "why_nothing": list(self.why_nothing),
-            "estimates": self.n_estimates,
-            "duration_s": (self._stopped_at or hostclock.now()) - self._started_at,
-            "frames_tracked": self.frames_tracked,
-            "bundles_complete": self.sync.bundles_complete if self.sync else 0,
-            "bundles_deadline": self.sync.bundles_deadline if self.sync else 0,
-            "untracked": dict(self.untracked),
-            "tracker_errors": self.tracker_errors,
-            "tracker_resets": self.tracker_resets,
-            "loop_errors": self.loop_errors,
-            "wall_clock_steps": self.wall_steps,
-            "stalls": self.stalls,
-            "behind_skipped": self.behind_skipped,
-            "range_errors": self.range_errors,
-            "log_counts": self.warn.counts,
-            "sink_errors": self.sink_errors,
-            "latency": self.latency.summary(),
-            "latency_text": self.latency.format(),
-            "recording": str(recording_h5) if recording_h5 else (str(self.recording_path) if self.record else None),
-            "recording_error": self.recording_error,
-        }
-        if rs is not None:
-            out["receiver"] = {
-                "datagrams": rs.datagrams, "rejected_address": rs.rejected_address,
-                "rejected_camera": rs.rejected_camera, "malformed_unattributed": rs.malformed_unattributed,
-                "internal_errors": rs.internal_errors,
-                "errors_by_name": dict(rs.errors_by_name),
-                "cameras": {i: asdict(c) for i, c in rs.cameras.items()},
-            }
-        if self.sync is not None:
-            out["sync"] = {i: asdict(s) for i, s in self.sync.stats().items()}
-        if self.dvs_obs is not None:
-            out["dvs"] = self.dvs_obs.stats()
-        if self.live is not None:
-            out["live"] = asdict(self.live.stats)
-        if self.recorder is not None:
-            out["recorder"] = asdict(self.recorder.stats)
-        return out
-
-
-# --- `flytrack run` -------------------------------------------------------------------------------
-
-
-def calibration_problems(rig: RigConfig, cameras: Mapping[int, Camera]) -> list[str]:
-    """What is missing for 3D tracking: no calibration at all, or rig cameras absent from it."""
-    if not cameras:
-        where = f" ({rig.calibration_path} has none of the rig's cameras)" if rig.calibration_path else ""
-        return [f"no calibration{where}: recording 2D data only, NO 3D tracking"]
-    missing = [f"{c.index} ({c.calib_name})" for c in rig.cameras if c.index not in cameras]
-    if missing:
-        return [f"camera(s) {', '.join(missing)} are not in the calibration {rig.calibration_path}: their points "
-                "cannot be used for 3D"]
-    return []
-
-
-def load_cameras(rig: RigConfig) -> dict[int, Camera]:
-    """Calibration file of the rig -> camera_index -> Camera (empty without a calibration)."""
-    path = rig.calibration_path
-    if path is None:
-        return {}
-    from flytrack_host.calibration.formats import load_calibration
-
-    by_name = load_calibration(path)
-    cams = {}
-    for c in rig.cameras:
-        if c.calib_name in by_name:
-            cams[c.index] = by_name[c.calib_name]
-    return cams
-
-
-
-def run_command(
-    rig_path: Path = typer.Argument(..., help="The rig TOML file."),
-    seconds: float | None = typer.Option(None, "--seconds", help="Stop after this many seconds (default: Ctrl-C)."),
-    bind: str | None = typer.Option(None, help="Listen on HOST:PORT instead of the rig's host.listen."),
-    recording: Path | None = typer.Option(None, help="Recording folder (default: in the rig's recording folder)."),
-    no_record: bool = typer.Option(False, "--no-record", help="Do not record."),
-    dead_timeout_s: float = typer.Option(0.5, help="A camera silent this long is marked dead."),
-    no_trigger: bool = typer.Option(
-        False, "--no-trigger",
-        help="Do not open the trigger: fixed-rate clock anchored at the first frame (no trigger latency).",
-    ),
-    trigger_port: str | None = typer.Option(None, help="Serial port of the trigger instead of the rig's trigger.port."),
-    trigger_reset_wait: float | None = typer.Option(
-        None, help="Seconds to wait after opening the trigger port (default 2 for a board, 0 for a pty)."),
-    http: str = typer.Option("127.0.0.1:8397", "--http", help=HTTP_HELP),
-    pose: str | None = typer.Option(None, "--pose", help=POSE_HELP),
-    pose_rate: float = typer.Option(200.0, "--pose-rate", help="Pose datagrams per second."),
-    pose_lead_ms: float = typer.Option(0.0, "--pose-lead-ms", help="Extrapolate the pose this far past now."),
-    pose_lock: str = typer.Option("auto", "--pose-lock", help="auto (oldest live object), all, or an obj_id."),
-    thumbnails: float = typer.Option(0.0, "--thumbnails", help=THUMBS_HELP),
-    rules: Path | None = typer.Option(
-        None, "--rules", help="Closed-loop rules file (default: the rig's `rules`); its actions drive the rig's "
-        "[[actuators]]."),
-    skip_bad_rules: bool = typer.Option(
-        False, "--skip-bad-rules", help="Run with the rules that are valid; each bad one is reported, logged in "
-        "the recording and counted (default: a bad rules file stops the run before it starts)."),
-) -> None:
-    """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
-    until Ctrl-C.
-
-    Without a trigger board, pass --no-trigger (frames are timed by a fixed-rate clock anchored at the
-    first frame), or use a rig file with [trigger] kind = "software"."""
-    import signal
-
-    from rich.console import Console
-    from rich.live import Live
-
-    from flytrack_host.rig import RigError, load_rig
-
-    console = Console()
-    try:
-        outputs = LiveOutputs.from_options(http=http, pose=pose, pose_rate=pose_rate, pose_lead_ms=pose_lead_ms,
-                                           pose_lock=pose_lock, thumbnails_every_s=thumbnails)
-    except OutputsError as exc:
-        console.print(f"[red]error[/red] {exc}", highlight=False)
-        raise typer.Exit(code=2) from None
-    try:
-        rig = load_rig(rig_path)
-    except RigError as exc:
-        console.print(f"[red]error[/red] {exc}", highlight=False)
-        raise typer.Exit(code=2) from None
-    try:
-        cameras = load_cameras(rig)
-    except Exception as exc:
-        console.print(f"[red]error[/red] calibration {rig.calibration_path}: {exc}", highlight=False)
-        raise typer.Exit(code=2) from None
-    for problem in calibration_problems(rig, cameras):
-        Console(stderr=True).print(f"[yellow]warning[/yellow] {problem}", highlight=False, soft_wrap=True)
-    from flytrack_host.actuation.cli import rules_for_run
-
-    run_rules = rules_for_run(rig, rules, skip_bad_rules)  # a bad rules file exits 2 here unless skipped
-    session = None
-    if not no_trigger:
-        from flytrack_host.trigger.common import TriggerError
-        from flytrack_host.trigger_session import TriggerSession
-
-        session = TriggerSession(rig.trigger, port=trigger_port, reset_wait_s=trigger_reset_wait)
-        try:
-            session.open()  # before anything is recorded: a trigger problem leaves no empty recording
-        except TriggerError as exc:
-            err = Console(stderr=True)
-            err.print(f"[red]error[/red] trigger ({rig.trigger.kind}): {exc}", highlight=False, soft_wrap=True)
-            err.print(f"no trigger board? run without one: flytrack run {rig_path} --no-trigger", highlight=False,
-                      soft_wrap=True)
-            raise typer.Exit(code=2) from None
-    pipe = HostPipeline(rig, cameras, bind=bind, record=not no_record, recording_path=recording,
-                        rig_text=Path(rig_path).read_text(encoding="utf-8"), dead_timeout_s=dead_timeout_s,
-                        clock=session.clock if session else None, fps=session.fps if session else None,
-                        hold_until_synchronized=session is not None)
-    engine = run_rules.engine(pipe.fps, session) if run_rules is not None else None
-    try:
-        outputs.attach(pipe, echo=lambda s: None)  # printed after the first line below
-        pipe.start()
-    except OSError as exc:
-        if session is not None:
-            session.close()
-        for sink in pipe.sinks:
-            sink.close()
-        where = f"{bind or rig.host.listen} (features) or {http} (live outputs)"
-        console.print(f"[red]error[/red] cannot listen on {where}: {exc}", highlight=False)
-        raise typer.Exit(code=2) from None
-    if engine is not None:  # after start: its messages go into the recording's log too
-        engine.attach(pipe)
-        engine.start()
-    if session is not None:
-        session.attach(pipe)
-        try:
-            session.start(pipe)
-        except (TriggerError, OSError) as exc:
-            session.close()
-            pipe.stop()
-            Console(stderr=True).print(f"[red]error[/red] trigger did not start: {exc}", highlight=False,
-                                       soft_wrap=True)
-            raise typer.Exit(code=2) from None
-    host, port = pipe.address
-    # Plain first line, so scripts (and tests) can find the port and the recording.
-    print(f"listening on {host}:{port}; recording to {pipe.recording_path if pipe.record else '-'}", flush=True)
-    for line in outputs.started:
-        print(line, flush=True)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    end = None if seconds is None else time.monotonic() + seconds
-    try:
-        if console.is_terminal:
-            with Live(pipe.status_line(), console=console, refresh_per_second=4, transient=False) as live:
-                while not stop.is_set() and (end is None or time.monotonic() < end) and pipe.running:
-                    stop.wait(0.25)
-                    live.update(pipe.status_line())
-        else:
-            last = 0.0
-            while not stop.is_set() and (end is None or time.monotonic() < end) and pipe.running:
-                stop.wait(0.25)
-                if time.monotonic() - last > 5:
-                    print(pipe.status_line(), flush=True)
-                    last = time.monotonic()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if session is not None:
-            session.stop()  # the cameras stop with the trigger; pending frames are tracked by pipe.stop()
-        summary = pipe.stop()
-    console.print(pipe.status_line(), highlight=False)
-    console.print(summary["latency_text"], highlight=False)
-    for w in summary.get("why_nothing") or []:
-        Console(stderr=True).print(f"[yellow]warning[/yellow] no estimates: {w}", highlight=False, soft_wrap=True)
-    if session is not None:
-        t = session.summary()
-        m = t["clock_model"]
-        resid = f"{m['residual_us']:.1f} us over {m['n_samples']:.0f} samples" if m else "no fit"
-        console.print(f"trigger: {t['fps']:.6f} fps; clock residual {resid}; {t['clock_samples']} clock samples, "
-                      f"{t['clock_errors']} errors, lost {t['lost']}, device restarts {t['device_restarts']}",
-                      highlight=False)
-    if summary["recording"]:
-        console.print(f"recording: {summary['recording']}", highlight=False)
-    rs = summary.get("recorder") or {}
-    lost = sum(rs.get("dropped_rows", {}).values())
-    if rs.get("write_errors") or lost or summary.get("recording_error"):
-        console.print(f"[red]recording incomplete[/red]: {rs.get('write_errors', 0)} write errors, {lost} rows lost"
-                      + (f"; not finalised ({summary['recording_error']}): run `flytrack recording recover`"
-                         " (its --out writes the file on another disk)"
-                         if summary.get("recording_error") else ""), highlight=False)
-        raise typer.Exit(code=RECORDING_INCOMPLETE_EXIT)  # scripts must not take this run for a good one
