@@ -542,3 +542,106 @@ def test_a_restart_placed_by_late_frames_is_moved_back_when_its_frames_come_ahea
                                    "(after its restart): re-mapped")
     got = [(b.bundle.trigger_frame, b.frames[1].camera_frame) for b in d.bundles if 1 in b.frames]
     assert all(tf == cf + 140 for tf, cf in got if tf >= 170) and sum(tf >= 170 for tf, _ in got) == 90
+
+
+def test_an_edge_restarted_twice_is_numbered_by_arrival_each_time_and_counted_twice() -> None:
+    """Camera 1's edge restarts at trigger frame 140 (down 40 frames) and again at 220 (down 20):
+    two restarts, 60 frames missed in all, each restart reported with where its counter now sits, and
+    its frames land in the bundles of the pulses they answered."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 300):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        for start, end in ((140, 200), (220, 300)):
+            if start <= k < end:
+                f = frame(1, k - start, t + 0.0005)
+                f.restarted = k == start
+                frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 300 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.restarts, st.missed, st.frames, st.clock_jumps) == (2, 60, 240, 0)
+    assert [e.message for e in d.kinds("restart")] == [
+        "camera 1: edge restarted; its camera frame 0 is trigger frame 140 (by arrival); "
+        "40 trigger frames missed while it was down",
+        "camera 1: edge restarted; its camera frame 0 is trigger frame 220 (by arrival); "
+        "20 trigger frames missed while it was down",
+    ]
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf - 140 for tf in range(141, 200))
+    assert all(got[tf] == tf - 220 for tf in range(221, 300))
+    assert not any(200 <= tf < 220 for tf in got)
+
+
+def test_an_edge_restart_without_a_gap_misses_nothing() -> None:
+    """The edge restarts between two pulses (its counter from 0, no pulse lost): 0 frames missed."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 200):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        f = frame(1, k - 100, t + 0.0005)
+        f.restarted = k == 100
+        frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.restarts, st.missed, st.frames) == (1, 0, 200)
+    msg = d.kinds("restart")[0].message
+    assert "its camera frame 0 is trigger frame 100 (by arrival); 0 trigger frames missed" in msg
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf - 100 for tf in range(101, 200))
+
+
+def test_a_camera_counter_that_jumps_twice_is_remapped_twice() -> None:
+    """Camera 1's counter jumps ahead by 5000 at trigger frame 100 and again at 200: each jump is
+    confirmed by 3 frames, reported once (a camera's own jump, not the trigger's), counted, and its
+    frames after it go back into the bundles of the pulses they answered."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(300))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 100:
+            f.camera_frame += 5000
+        if f.camera_index == 1 and f.camera_frame >= 5200:
+            f.camera_frame += 5000
+    d.feed(frames)
+    d.advance(T0 + 300 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert st.clock_jumps == 2 and st.future == 4 and st.restarts == 0
+    jumps = d.kinds("clock_jump")
+    assert [e.message for e in jumps] == [
+        "camera 1: frame numbers jumped from trigger frame 99 to 102; mapping re-established",
+        "camera 1: frame numbers jumped from trigger frame 199 to 202; mapping re-established",
+    ]
+    assert all(e.global_jump is False and e.camera_index == 1 for e in jumps)
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf + 5000 for tf in range(103, 200))
+    assert all(got[tf] == tf + 10000 for tf in range(203, 300))
+    assert all(tf in got for tf in range(100)) and not any(tf in got for tf in (100, 101, 102, 200, 201, 202))
+
+
+def test_two_pauses_of_every_camera_reanchor_the_clock_twice() -> None:
+    """Every camera pauses 700 ms at trigger frame 100 and 300 ms more at 250: two re-anchors (as
+    the rig, camera -1), counted, and the bundles' frame times follow the resumed arrivals."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(400))
+    for f in frames:
+        if f.camera_frame >= 100:
+            f.recv_time += 0.7
+        if f.camera_frame >= 250:
+            f.recv_time += 0.3
+    d.feed(frames)
+    d.advance(T0 + 400 * P + 1.5)
+    ev = d.kinds("reanchor")
+    assert d.sync.reanchors == 2 and [e.camera_index for e in ev] == [-1, -1]
+    assert [e.message for e in ev] == [
+        "fixed-rate clock re-anchored at trigger frame 119: frames came 700 ms after their expected time "
+        "(a pause of the cameras?)",
+        "fixed-rate clock re-anchored at trigger frame 269: frames came 300 ms after their expected time "
+        "(a pause of the cameras?)",
+    ]
+    lag = {b.bundle.trigger_frame: b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P) for b in d.bundles}
+    assert len(lag) == 400
+    assert all(abs(lag[k] - lag[0] - 0.7) < 1e-3 for k in range(119, 250))
+    assert all(abs(lag[k] - lag[0] - 1.0) < 1e-3 for k in range(269, 400))
