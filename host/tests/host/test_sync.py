@@ -645,3 +645,88 @@ def test_two_pauses_of_every_camera_reanchor_the_clock_twice() -> None:
     assert len(lag) == 400
     assert all(abs(lag[k] - lag[0] - 0.7) < 1e-3 for k in range(119, 250))
     assert all(abs(lag[k] - lag[0] - 1.0) < 1e-3 for k in range(269, 400))
+
+
+def _drift_ms(message: str) -> float:
+    return float(message.split("its frames arrive ")[1].split(" ms off")[0])
+
+
+def test_a_camera_that_misses_two_pulses_drifts_twice_and_is_remapped_each_time() -> None:
+    """Camera 2 misses a pulse at trigger frame 80 and another at 180 (its counter does not show it):
+    two drifts of one frame (about one period, 10 ms), counted, and after each re-map its frames land
+    in the bundles of the pulses they answered again."""
+    d = make(drift_frames=5, drift_min_s=0.0)
+    frames = stream({0: 0, 1: 0, 2: 0}, range(300))
+    for f in frames:
+        if f.camera_index == 2 and f.camera_frame >= 80:
+            f.camera_frame -= 1
+        if f.camera_index == 2 and f.camera_frame >= 179:
+            f.camera_frame -= 1
+    d.feed(frames)
+    d.advance(T0 + 300 * P + 0.1)
+    st = d.sync.stats()[2]
+    assert st.drift == 2 and st.clock_jumps == 0
+    drift = d.kinds("drift")
+    assert [e.camera_index for e in drift] == [2, 2]
+    for e in drift:
+        assert e.message.startswith("camera 2 drifted by 1 frames: its frames arrive ")
+        assert e.message.endswith(" ms off the other cameras' over 5 trigger frames; re-mapped")
+        assert 9.0 <= _drift_ms(e.message) <= 11.0
+    by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+    for k in [*range(0, 80), *range(86, 180), *range(186, 299)]:
+        fr = by_tf[k].frames.get(2)
+        assert fr is not None and abs(fr.recv_time - (T0 + k * P + 0.002)) < 0.001, k
+
+
+def test_an_edge_numbered_camera_that_drifts_is_reported_once_and_keeps_its_numbers() -> None:
+    """Camera 2's edge numbers its frames; from trigger frame 80 they come a period later than the
+    other cameras'. Reported as a drift once (not re-mapped: the edge's number wins)."""
+    d = make(drift_frames=5, drift_min_s=0.0)
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200), tf_from_edge=True)
+    for f in frames:
+        if f.camera_index == 2 and f.trigger_frame >= 80:
+            f.recv_time += P
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    drift = d.kinds("drift")
+    assert d.sync.stats()[2].drift == 1 and len(drift) == 1
+    assert drift[0].message.endswith(" ms off the other cameras' over 5 trigger frames")
+    assert 9.0 <= _drift_ms(drift[0].message) <= 11.0
+    # Its numbers kept: every frame of camera 2 is in the bundle it names, or reported late with it.
+    placed = {tf: b.frames[2].camera_frame for b in d.bundles for tf in [b.bundle.trigger_frame] if 2 in b.frames}
+    assert all(cf == tf for tf, cf in placed.items()) and len(placed) >= 80
+    late = [u for u in d.untracked if u.frame.camera_index == 2]
+    assert all(u.reason == "late" and u.trigger_frame == u.frame.trigger_frame for u in late)
+    assert len(placed) + len(late) == 200
+
+
+def test_a_late_joiner_placed_ahead_and_its_restart_placed_ahead_are_each_moved_back() -> None:
+    """Camera 1 joins at trigger frame 100 with its first 8 frames 70 ms late, 6 ms apart (placed 7
+    pulses too late), then restarts its edge at 240 (after 40 missed pulses) the same way: found ahead
+    twice, moved back by 7 each time (the second time noted as after its restart, its missed count
+    corrected from 47 to 40), and its frames then sit in the bundles of the pulses they answered."""
+    d = make()
+    frames = stream({0: 0, 2: 0}, range(400))
+    for k in range(100, 400):
+        if 200 <= k < 240:
+            continue
+        t = T0 + k * P + 0.0025
+        cf = k if k < 240 else k - 240 + 5000
+        first = 100 if k < 240 else 240
+        if k < first + 8:
+            t = max(T0 + (first + 7) * P + 0.0025 + (k - first) * 0.006, t)
+        f = frame(1, cf, t)
+        f.restarted = k == 240
+        frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 400 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.ahead, st.restarts, st.missed, st.frames) == (2, 1, 40, 260)
+    assert [e.message for e in d.kinds("ahead")] == [
+        "camera 1: frames numbered 7 ahead of their arrival against the other cameras: re-mapped",
+        "camera 1: frames numbered 7 ahead of their arrival against the other cameras (after its restart): "
+        "re-mapped",
+    ]
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf for tf in range(130, 200))
+    assert all(got[tf] == tf - 240 + 5000 for tf in range(270, 400))
