@@ -730,3 +730,26 @@ def test_a_late_joiner_placed_ahead_and_its_restart_placed_ahead_are_each_moved_
     got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
     assert all(got[tf] == tf for tf in range(130, 200))
     assert all(got[tf] == tf - 240 + 5000 for tf in range(270, 400))
+
+
+def test_a_trigger_count_restart_is_confirmed_once_and_the_other_cameras_follow_at_once() -> None:
+    """The trigger's count restarts at 0 (edge-numbered frames, no synchronize()): camera 0 confirms the
+    jump on its third frame (trigger frame 2), a global jump reported once; cameras 1 and 2, already
+    seeing the new numbering, follow at once (no jump of their own, 2 suspect frames each), and every
+    bundle from trigger frame 3 on is complete."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200), tf_from_edge=True)
+    for f in frames:
+        if f.trigger_frame >= 100:
+            f.trigger_frame -= 100
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    jumps = d.kinds("clock_jump")
+    assert [(e.camera_index, e.global_jump) for e in jumps] == [(0, True)]
+    assert jumps[0].message == "camera 0: frame numbers jumped from trigger frame 99 to 2; mapping re-established"
+    st = d.sync.stats()
+    assert [(st[i].clock_jumps, st[i].suspect) for i in range(3)] == [(1, 2), (0, 2), (0, 2)]
+    after = d.bundles[100:]
+    assert [b.bundle.trigger_frame for b in after] == list(range(3, 100))
+    assert all(sorted(b.frames) == [0, 1, 2] and b.closed_by == "complete" for b in after)
+    assert sum(len(b.frames) for b in d.bundles) + len(d.untracked) == 600
