@@ -753,3 +753,23 @@ def test_a_trigger_count_restart_is_confirmed_once_and_the_other_cameras_follow_
     assert [b.bundle.trigger_frame for b in after] == list(range(3, 100))
     assert all(sorted(b.frames) == [0, 1, 2] and b.closed_by == "complete" for b in after)
     assert sum(len(b.frames) for b in d.bundles) + len(d.untracked) == 600
+
+
+def test_frames_coming_sooner_than_the_anchor_pull_the_frame_times_back_by_up_to_two_periods() -> None:
+    """The fixed-rate clock is anchored by the first frames' arrival (30 ms after the pulse here). From
+    trigger frame 50 every camera's frames come 15 ms sooner: a frame cannot come before its pulse, so
+    the anchor was late and the frame times move back 15 ms (two cameras are enough to say so). A step
+    of 25 ms (more than two periods) is no late anchor: the frame times stay."""
+    for cams in ((0, 1), (0, 1, 2)):
+        for drop, expect in ((0.015, 0.015), (0.025, 0.030)):
+            d = make(cams)
+            frames = stream({c: 0 for c in cams}, range(100), lag={c: 0.03 for c in cams})
+            for f in frames:
+                if f.camera_frame >= 50:
+                    f.recv_time -= drop
+            d.feed(frames)
+            d.advance(T0 + 100 * P + 0.1)
+            lag = {b.bundle.trigger_frame: b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P) for b in d.bundles}
+            assert all(abs(lag[k] - expect) < 0.0008 for k in range(60, 100)), (cams, drop, lag[99])
+            assert not d.kinds("reanchor")
+            assert sum(len(b.frames) for b in d.bundles) + len(d.untracked) == 100 * len(cams)
