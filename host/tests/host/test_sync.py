@@ -773,3 +773,37 @@ def test_frames_coming_sooner_than_the_anchor_pull_the_frame_times_back_by_up_to
             assert all(abs(lag[k] - expect) < 0.0008 for k in range(60, 100)), (cams, drop, lag[99])
             assert not d.kinds("reanchor")
             assert sum(len(b.frames) for b in d.bundles) + len(d.untracked) == 100 * len(cams)
+
+
+def _restart_placed_at(spacing: float, n: int) -> tuple[int, float]:
+    """Camera 1's edge restarts and sends n frames `spacing` apart (bunched: less than half a period,
+    25 ms at 20 fps); returns its frame on whose arrival the restart was placed, and when (s after
+    the first)."""
+    fps = 20.0
+    d = Driver(FrameSynchronizer((0, 1, 2), fps, clock=FixedRateClock(fps), start_time=T0))
+    frames = []
+    for k in range(120):
+        t = T0 + k / fps + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        if k < 40:
+            frames.append(frame(1, k, t + 0.0005))
+    t1 = T0 + 60 / fps
+    for i in range(n):
+        f = frame(1, i, t1 + i * spacing)
+        f.restarted = i == 0
+        frames.append(f)
+    for f in sorted(frames, key=lambda f: f.recv_time):
+        d.feed([f])
+        if d.kinds("restart"):
+            assert len(d.kinds("restart")) == 1 and d.sync.stats()[1].restarts == 1
+            return f.camera_frame, f.recv_time - t1
+    raise AssertionError("the restart was never placed")
+
+
+def test_a_restarted_edge_sending_bunched_frames_is_placed_after_a_third_of_a_second_or_30_frames() -> None:
+    """Its frames held while they come bunched: placed by the first one 0.3 s after its first frame
+    (frames 20 ms apart), or by its 30th frame if that comes sooner (frames 4 ms apart)."""
+    cf, dt = _restart_placed_at(0.020, 40)
+    assert cf in (15, 16) and 0.3 - 1e-9 <= dt <= 0.32 + 1e-9, (cf, dt)
+    cf, dt = _restart_placed_at(0.004, 40)
+    assert cf == 29, (cf, dt)
