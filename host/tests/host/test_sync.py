@@ -807,3 +807,25 @@ def test_a_restarted_edge_sending_bunched_frames_is_placed_after_a_third_of_a_se
     assert cf in (15, 16) and 0.3 - 1e-9 <= dt <= 0.32 + 1e-9, (cf, dt)
     cf, dt = _restart_placed_at(0.004, 40)
     assert cf == 29, (cf, dt)
+
+
+def test_three_wrong_frames_in_a_row_that_do_not_count_up_together_are_no_jump() -> None:
+    """A jump is confirmed only by frames whose camera counter and trigger number both go up from one to
+    the next. Runs of three wrong frames that do not (a counter going back, a counter or a trigger
+    number repeated) are rejected one by one, and the camera goes on in its own numbering."""
+    for edge, wild in (
+        (False, {50: (5000, -1), 51: (3000, -1), 52: (7000, -1)}),
+        (True, {60: (61, 9000), 61: (61, 9001), 62: (62, 9002), 70: (71, 9000), 71: (72, 9000), 72: (73, 9001)}),
+    ):
+        d = make()
+        frames = stream({0: 0, 1: 0, 2: 0}, range(100), tf_from_edge=edge)
+        for f in frames:
+            if f.camera_index == 1 and f.camera_frame in wild:
+                f.camera_frame, f.trigger_frame = wild[f.camera_frame]
+        d.feed(frames)
+        d.advance(T0 + 100 * P + 0.1)
+        st = d.sync.stats()[1]
+        assert st.clock_jumps == 0 and not d.kinds("clock_jump") and st.future == len(wild)
+        assert sorted(u.frame.camera_frame for u in d.untracked) == sorted(cf for cf, _ in wild.values())
+        got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+        assert [k for k in range(100) if got.get(k) != k] == sorted(wild)
