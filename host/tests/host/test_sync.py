@@ -542,3 +542,290 @@ def test_a_restart_placed_by_late_frames_is_moved_back_when_its_frames_come_ahea
                                    "(after its restart): re-mapped")
     got = [(b.bundle.trigger_frame, b.frames[1].camera_frame) for b in d.bundles if 1 in b.frames]
     assert all(tf == cf + 140 for tf, cf in got if tf >= 170) and sum(tf >= 170 for tf, _ in got) == 90
+
+
+def test_an_edge_restarted_twice_is_numbered_by_arrival_each_time_and_counted_twice() -> None:
+    """Camera 1's edge restarts at trigger frame 140 (down 40 frames) and again at 220 (down 20):
+    two restarts, 60 frames missed in all, each restart reported with where its counter now sits, and
+    its frames land in the bundles of the pulses they answered."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 300):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        for start, end in ((140, 200), (220, 300)):
+            if start <= k < end:
+                f = frame(1, k - start, t + 0.0005)
+                f.restarted = k == start
+                frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 300 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.restarts, st.missed, st.frames, st.clock_jumps) == (2, 60, 240, 0)
+    assert [e.message for e in d.kinds("restart")] == [
+        "camera 1: edge restarted; its camera frame 0 is trigger frame 140 (by arrival); "
+        "40 trigger frames missed while it was down",
+        "camera 1: edge restarted; its camera frame 0 is trigger frame 220 (by arrival); "
+        "20 trigger frames missed while it was down",
+    ]
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf - 140 for tf in range(141, 200))
+    assert all(got[tf] == tf - 220 for tf in range(221, 300))
+    assert not any(200 <= tf < 220 for tf in got)
+
+
+def test_an_edge_restart_without_a_gap_misses_nothing() -> None:
+    """The edge restarts between two pulses (its counter from 0, no pulse lost): 0 frames missed."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(100))
+    for k in range(100, 200):
+        t = T0 + k * P + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        f = frame(1, k - 100, t + 0.0005)
+        f.restarted = k == 100
+        frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.restarts, st.missed, st.frames) == (1, 0, 200)
+    msg = d.kinds("restart")[0].message
+    assert "its camera frame 0 is trigger frame 100 (by arrival); 0 trigger frames missed" in msg
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf - 100 for tf in range(101, 200))
+
+
+def test_a_camera_counter_that_jumps_twice_is_remapped_twice() -> None:
+    """Camera 1's counter jumps ahead by 5000 at trigger frame 100 and again at 200: each jump is
+    confirmed by 3 frames, reported once (a camera's own jump, not the trigger's), counted, and its
+    frames after it go back into the bundles of the pulses they answered."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(300))
+    for f in frames:
+        if f.camera_index == 1 and f.camera_frame >= 100:
+            f.camera_frame += 5000
+        if f.camera_index == 1 and f.camera_frame >= 5200:
+            f.camera_frame += 5000
+    d.feed(frames)
+    d.advance(T0 + 300 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert st.clock_jumps == 2 and st.future == 4 and st.restarts == 0
+    jumps = d.kinds("clock_jump")
+    assert [e.message for e in jumps] == [
+        "camera 1: frame numbers jumped from trigger frame 99 to 102; mapping re-established",
+        "camera 1: frame numbers jumped from trigger frame 199 to 202; mapping re-established",
+    ]
+    assert all(e.global_jump is False and e.camera_index == 1 for e in jumps)
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf + 5000 for tf in range(103, 200))
+    assert all(got[tf] == tf + 10000 for tf in range(203, 300))
+    assert all(tf in got for tf in range(100)) and not any(tf in got for tf in (100, 101, 102, 200, 201, 202))
+
+
+def test_two_pauses_of_every_camera_reanchor_the_clock_twice() -> None:
+    """Every camera pauses 700 ms at trigger frame 100 and 300 ms more at 250: two re-anchors (as
+    the rig, camera -1), counted, and the bundles' frame times follow the resumed arrivals."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(400))
+    for f in frames:
+        if f.camera_frame >= 100:
+            f.recv_time += 0.7
+        if f.camera_frame >= 250:
+            f.recv_time += 0.3
+    d.feed(frames)
+    d.advance(T0 + 400 * P + 1.5)
+    ev = d.kinds("reanchor")
+    assert d.sync.reanchors == 2 and [e.camera_index for e in ev] == [-1, -1]
+    assert [e.message for e in ev] == [
+        "fixed-rate clock re-anchored at trigger frame 119: frames came 700 ms after their expected time "
+        "(a pause of the cameras?)",
+        "fixed-rate clock re-anchored at trigger frame 269: frames came 300 ms after their expected time "
+        "(a pause of the cameras?)",
+    ]
+    lag = {b.bundle.trigger_frame: b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P) for b in d.bundles}
+    assert len(lag) == 400
+    assert all(abs(lag[k] - lag[0] - 0.7) < 1e-3 for k in range(119, 250))
+    assert all(abs(lag[k] - lag[0] - 1.0) < 1e-3 for k in range(269, 400))
+
+
+def _drift_ms(message: str) -> float:
+    return float(message.split("its frames arrive ")[1].split(" ms off")[0])
+
+
+def test_a_camera_that_misses_two_pulses_drifts_twice_and_is_remapped_each_time() -> None:
+    """Camera 2 misses a pulse at trigger frame 80 and another at 180 (its counter does not show it):
+    two drifts of one frame (about one period, 10 ms), counted, and after each re-map its frames land
+    in the bundles of the pulses they answered again."""
+    d = make(drift_frames=5, drift_min_s=0.0)
+    frames = stream({0: 0, 1: 0, 2: 0}, range(300))
+    for f in frames:
+        if f.camera_index == 2 and f.camera_frame >= 80:
+            f.camera_frame -= 1
+        if f.camera_index == 2 and f.camera_frame >= 179:
+            f.camera_frame -= 1
+    d.feed(frames)
+    d.advance(T0 + 300 * P + 0.1)
+    st = d.sync.stats()[2]
+    assert st.drift == 2 and st.clock_jumps == 0
+    drift = d.kinds("drift")
+    assert [e.camera_index for e in drift] == [2, 2]
+    for e in drift:
+        assert e.message.startswith("camera 2 drifted by 1 frames: its frames arrive ")
+        assert e.message.endswith(" ms off the other cameras' over 5 trigger frames; re-mapped")
+        assert 9.0 <= _drift_ms(e.message) <= 11.0
+    by_tf = {b.bundle.trigger_frame: b for b in d.bundles}
+    for k in [*range(0, 80), *range(86, 180), *range(186, 299)]:
+        fr = by_tf[k].frames.get(2)
+        assert fr is not None and abs(fr.recv_time - (T0 + k * P + 0.002)) < 0.001, k
+
+
+def test_an_edge_numbered_camera_that_drifts_is_reported_once_and_keeps_its_numbers() -> None:
+    """Camera 2's edge numbers its frames; from trigger frame 80 they come a period later than the
+    other cameras'. Reported as a drift once (not re-mapped: the edge's number wins)."""
+    d = make(drift_frames=5, drift_min_s=0.0)
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200), tf_from_edge=True)
+    for f in frames:
+        if f.camera_index == 2 and f.trigger_frame >= 80:
+            f.recv_time += P
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    drift = d.kinds("drift")
+    assert d.sync.stats()[2].drift == 1 and len(drift) == 1
+    assert drift[0].message.endswith(" ms off the other cameras' over 5 trigger frames")
+    assert 9.0 <= _drift_ms(drift[0].message) <= 11.0
+    # Its numbers kept: every frame of camera 2 is in the bundle it names, or reported late with it.
+    placed = {tf: b.frames[2].camera_frame for b in d.bundles for tf in [b.bundle.trigger_frame] if 2 in b.frames}
+    assert all(cf == tf for tf, cf in placed.items()) and len(placed) >= 80
+    late = [u for u in d.untracked if u.frame.camera_index == 2]
+    assert all(u.reason == "late" and u.trigger_frame == u.frame.trigger_frame for u in late)
+    assert len(placed) + len(late) == 200
+
+
+def test_a_late_joiner_placed_ahead_and_its_restart_placed_ahead_are_each_moved_back() -> None:
+    """Camera 1 joins at trigger frame 100 with its first 8 frames 70 ms late, 6 ms apart (placed 7
+    pulses too late), then restarts its edge at 240 (after 40 missed pulses) the same way: found ahead
+    twice, moved back by 7 each time (the second time noted as after its restart, its missed count
+    corrected from 47 to 40), and its frames then sit in the bundles of the pulses they answered."""
+    d = make()
+    frames = stream({0: 0, 2: 0}, range(400))
+    for k in range(100, 400):
+        if 200 <= k < 240:
+            continue
+        t = T0 + k * P + 0.0025
+        cf = k if k < 240 else k - 240 + 5000
+        first = 100 if k < 240 else 240
+        if k < first + 8:
+            t = max(T0 + (first + 7) * P + 0.0025 + (k - first) * 0.006, t)
+        f = frame(1, cf, t)
+        f.restarted = k == 240
+        frames.append(f)
+    d.feed(frames)
+    d.advance(T0 + 400 * P + 0.1)
+    st = d.sync.stats()[1]
+    assert (st.ahead, st.restarts, st.missed, st.frames) == (2, 1, 40, 260)
+    assert [e.message for e in d.kinds("ahead")] == [
+        "camera 1: frames numbered 7 ahead of their arrival against the other cameras: re-mapped",
+        "camera 1: frames numbered 7 ahead of their arrival against the other cameras (after its restart): "
+        "re-mapped",
+    ]
+    got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+    assert all(got[tf] == tf for tf in range(130, 200))
+    assert all(got[tf] == tf - 240 + 5000 for tf in range(270, 400))
+
+
+def test_a_trigger_count_restart_is_confirmed_once_and_the_other_cameras_follow_at_once() -> None:
+    """The trigger's count restarts at 0 (edge-numbered frames, no synchronize()): camera 0 confirms the
+    jump on its third frame (trigger frame 2), a global jump reported once; cameras 1 and 2, already
+    seeing the new numbering, follow at once (no jump of their own, 2 suspect frames each), and every
+    bundle from trigger frame 3 on is complete."""
+    d = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(200), tf_from_edge=True)
+    for f in frames:
+        if f.trigger_frame >= 100:
+            f.trigger_frame -= 100
+    d.feed(frames)
+    d.advance(T0 + 200 * P + 0.1)
+    jumps = d.kinds("clock_jump")
+    assert [(e.camera_index, e.global_jump) for e in jumps] == [(0, True)]
+    assert jumps[0].message == "camera 0: frame numbers jumped from trigger frame 99 to 2; mapping re-established"
+    st = d.sync.stats()
+    assert [(st[i].clock_jumps, st[i].suspect) for i in range(3)] == [(1, 2), (0, 2), (0, 2)]
+    after = d.bundles[100:]
+    assert [b.bundle.trigger_frame for b in after] == list(range(3, 100))
+    assert all(sorted(b.frames) == [0, 1, 2] and b.closed_by == "complete" for b in after)
+    assert sum(len(b.frames) for b in d.bundles) + len(d.untracked) == 600
+
+
+def test_frames_coming_sooner_than_the_anchor_pull_the_frame_times_back_by_up_to_two_periods() -> None:
+    """The fixed-rate clock is anchored by the first frames' arrival (30 ms after the pulse here). From
+    trigger frame 50 every camera's frames come 15 ms sooner: a frame cannot come before its pulse, so
+    the anchor was late and the frame times move back 15 ms (two cameras are enough to say so). A step
+    of 25 ms (more than two periods) is no late anchor: the frame times stay."""
+    for cams in ((0, 1), (0, 1, 2)):
+        for drop, expect in ((0.015, 0.015), (0.025, 0.030)):
+            d = make(cams)
+            frames = stream({c: 0 for c in cams}, range(100), lag={c: 0.03 for c in cams})
+            for f in frames:
+                if f.camera_frame >= 50:
+                    f.recv_time -= drop
+            d.feed(frames)
+            d.advance(T0 + 100 * P + 0.1)
+            lag = {b.bundle.trigger_frame: b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P) for b in d.bundles}
+            assert all(abs(lag[k] - expect) < 0.0008 for k in range(60, 100)), (cams, drop, lag[99])
+            assert not d.kinds("reanchor")
+            assert sum(len(b.frames) for b in d.bundles) + len(d.untracked) == 100 * len(cams)
+
+
+def _restart_placed_at(spacing: float, n: int) -> tuple[int, float]:
+    """Camera 1's edge restarts and sends n frames `spacing` apart (bunched: less than half a period,
+    25 ms at 20 fps); returns its frame on whose arrival the restart was placed, and when (s after
+    the first)."""
+    fps = 20.0
+    d = Driver(FrameSynchronizer((0, 1, 2), fps, clock=FixedRateClock(fps), start_time=T0))
+    frames = []
+    for k in range(120):
+        t = T0 + k / fps + 0.002
+        frames += [frame(0, k, t), frame(2, k, t)]
+        if k < 40:
+            frames.append(frame(1, k, t + 0.0005))
+    t1 = T0 + 60 / fps
+    for i in range(n):
+        f = frame(1, i, t1 + i * spacing)
+        f.restarted = i == 0
+        frames.append(f)
+    for f in sorted(frames, key=lambda f: f.recv_time):
+        d.feed([f])
+        if d.kinds("restart"):
+            assert len(d.kinds("restart")) == 1 and d.sync.stats()[1].restarts == 1
+            return f.camera_frame, f.recv_time - t1
+    raise AssertionError("the restart was never placed")
+
+
+def test_a_restarted_edge_sending_bunched_frames_is_placed_after_a_third_of_a_second_or_30_frames() -> None:
+    """Its frames held while they come bunched: placed by the first one 0.3 s after its first frame
+    (frames 20 ms apart), or by its 30th frame if that comes sooner (frames 4 ms apart)."""
+    cf, dt = _restart_placed_at(0.020, 40)
+    assert cf in (15, 16) and 0.3 - 1e-9 <= dt <= 0.32 + 1e-9, (cf, dt)
+    cf, dt = _restart_placed_at(0.004, 40)
+    assert cf == 29, (cf, dt)
+
+
+def test_three_wrong_frames_in_a_row_that_do_not_count_up_together_are_no_jump() -> None:
+    """A jump is confirmed only by frames whose camera counter and trigger number both go up from one to
+    the next. Runs of three wrong frames that do not (a counter going back, a counter or a trigger
+    number repeated) are rejected one by one, and the camera goes on in its own numbering."""
+    for edge, wild in (
+        (False, {50: (5000, -1), 51: (3000, -1), 52: (7000, -1)}),
+        (True, {60: (61, 9000), 61: (61, 9001), 62: (62, 9002), 70: (71, 9000), 71: (72, 9000), 72: (73, 9001)}),
+    ):
+        d = make()
+        frames = stream({0: 0, 1: 0, 2: 0}, range(100), tf_from_edge=edge)
+        for f in frames:
+            if f.camera_index == 1 and f.camera_frame in wild:
+                f.camera_frame, f.trigger_frame = wild[f.camera_frame]
+        d.feed(frames)
+        d.advance(T0 + 100 * P + 0.1)
+        st = d.sync.stats()[1]
+        assert st.clock_jumps == 0 and not d.kinds("clock_jump") and st.future == len(wild)
+        assert sorted(u.frame.camera_frame for u in d.untracked) == sorted(cf for cf, _ in wild.values())
+        got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
+        assert [k for k in range(100) if got.get(k) != k] == sorted(wild)
