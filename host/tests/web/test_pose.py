@@ -120,6 +120,18 @@ def test_udp_sender_keeps_its_rate_and_the_client_counts_garbage():
     assert [m.seq for m in msgs] == sorted(m.seq for m in msgs)
 
 
+def _send_poses(port: int, frames: int) -> None:
+    """One animal's poses to the example on `port` through a real PoseStream, one frame per 10 ms."""
+    s = PoseStream([("127.0.0.1", port)], rate_hz=200.0, lock="auto")
+    try:
+        for f in range(frames):
+            now = time.time()
+            s.on_frame(make_result(f, 1, t=now), now, now)
+            time.sleep(0.01)
+    finally:
+        s.close()
+
+
 def test_virtual_post_example_holds_the_post_ahead_of_the_animal():
     """examples/virtual_post.py, run as a user runs it, fed by a real PoseStream over UDP."""
     import json
@@ -133,14 +145,7 @@ def test_virtual_post_example_holds_the_post_ahead_of_the_animal():
                              "--seconds", "2.5", "--distance", "0.1", "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(0.8)  # its interpreter starts and binds the port
-    s = PoseStream([("127.0.0.1", port)], rate_hz=200.0, lock="auto")
-    try:
-        for f in range(100):
-            now = time.time()
-            s.on_frame(make_result(f, 1, t=now), now, now)
-            time.sleep(0.01)
-    finally:
-        s.close()
+    _send_poses(port, 100)
     out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     lines = [json.loads(x) for x in out.splitlines() if x.startswith("{")]
@@ -166,14 +171,7 @@ def test_virtual_post_example_counts_its_seconds_from_the_first_pose():
                             text=True)
     time.sleep(2.0)  # longer than --seconds: the sender starts late
     assert proc.poll() is None, proc.communicate()
-    s = PoseStream([("127.0.0.1", port)], rate_hz=200.0, lock="auto")
-    try:
-        for f in range(60):
-            now = time.time()
-            s.on_frame(make_result(f, 1, t=now), now, now)
-            time.sleep(0.01)
-    finally:
-        s.close()
+    _send_poses(port, 60)
     out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert sum(x.startswith("{") for x in out.splitlines()) > 20, out[-500:]
