@@ -35,7 +35,7 @@ from flytrack_host.live import LiveSender
 from flytrack_host.pipeline.cameras import calibration_problems
 from flytrack_host.pipeline.dvs import DvsIntake
 from flytrack_host.pipeline.report import PipelineReport
-from flytrack_host.pipeline.rows import data2d_rows, result_rows
+from flytrack_host.pipeline.rows import data2d_rows, dvs_covariance_rows, result_rows
 from flytrack_host.pipeline.sink import ResultSink
 from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.receiver import DvsSlice, Receiver, StatusReport
@@ -526,6 +526,9 @@ class HostPipeline(DvsIntake, PipelineReport):
         if self.recorder is not None:
             items = [("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_TRACKED))
                      for fr in sb.frames.values()]
+            # The event cameras' point covariances, so that a re-track weighs their points as here.
+            items += [("dvs_point_covariance", dvs_covariance_rows(ci, bundle.trigger_frame, cov))
+                      for ci, cov in bundle.point_cov.items() if len(cov)]
             if result is not None:
                 k, a = result_rows(result, bundle.timestamp)
                 items += [("kalman_estimates", k), ("data_association", a)]
