@@ -35,7 +35,11 @@ MODULES: dict[str, tuple[str, list[str]]] = {
               "host/tests/host/test_faults_units.py", "-k",
               "'(not faults_units or wrong_numbers or gap_in_the_good or edge_restart or reanchored "
               "or stall_and_burst or restarted_edge) and not repeated_random_stalls'"]),
-    "recording": ("host/flytrack_host/recording", ["host/tests/recording"]),
+    # The recorder's fast tests (not the 12-22 s SIGKILL and real-disk-full end-to-end runs).
+    "recording": ("host/flytrack_host/recording",
+                  ["host/tests/host/test_finalize.py", "host/tests/host/test_recorder_faults.py",
+                   "host/tests/host/test_io.py", "host/tests/host/test_braidz_schema.py",
+                   "host/tests/io/test_data2d_dvs_rows.py"]),
 }
 GOAL = {"ekf": 0.85, "association": 0.85, "birth": 0.85, "sync": 0.85}
 
