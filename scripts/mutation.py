@@ -38,7 +38,8 @@ MODULES: dict[str, tuple[str, list[str]]] = {
     # The recorder's writer (raw files, flushes, disk errors) and finalisation (raw files -> HDF5,
     # recovery), against its fast tests (not the 12-22 s SIGKILL and real-disk-full end-to-end runs).
     "recording": ("host/flytrack_host/recording/writer.py,host/flytrack_host/recording/finalize.py",
-                  ["host/tests/host/test_finalize.py", "host/tests/host/test_recorder_faults.py"]),
+                  ["host/tests/host/test_finalize.py", "host/tests/host/test_recorder_faults.py",
+                   "host/tests/host/test_recorder_contract.py"]),
 }
 GOAL = {"ekf": 0.85, "association": 0.85, "birth": 0.85, "sync": 0.85}
 
