@@ -140,10 +140,14 @@ void ft_fx_destroy(ft_fx *fx) {
     free(fx->blo8);
     free(fx->bhi16);
     free(fx->blo16);
-    free(fx->rhi8);
-    free(fx->rlo8);
-    free(fx->rhi16);
-    free(fx->rlo16);
+    free(fx->ghi8);
+    free(fx->glo8);
+    free(fx->ghi16);
+    free(fx->glo16);
+    free(fx->whi8);
+    free(fx->wlo8);
+    free(fx->whi16);
+    free(fx->wlo16);
     free(fx->mask);
     free(fx->luma);
     free(fx->cand_d);
@@ -196,7 +200,8 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
     int ok = fx->mean && fx->sumsq && fx->mask && fx->cand_d && fx->runs && fx->run_parent &&
              fx->run_region && fx->regions && fx->ranks && fx->points;
     fx->nblk = (fx->w + FT_BLOCK - 1) / FT_BLOCK;
-    size_t nb = fx->nblk * fx->h;
+    const size_t nb = fx->nblk * fx->h, nbands = (fx->h + FT_BAND - 1) / FT_BAND;
+    const size_t ng = fx->nblk * nbands;
     fx->queue = malloc(nb * sizeof(uint32_t)); /* nblk <= 256: y << 8 | block */
     fx->qmask = malloc(nb * sizeof(uint64_t));
     ok = ok && fx->queue && fx->qmask;
@@ -205,17 +210,23 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
         fx->lo16 = malloc(fx->npix * sizeof(uint16_t));
         fx->bhi16 = malloc(nb * sizeof(uint16_t));
         fx->blo16 = malloc(nb * sizeof(uint16_t));
-        fx->rhi16 = malloc(fx->h * sizeof(uint16_t));
-        fx->rlo16 = malloc(fx->h * sizeof(uint16_t));
-        ok = ok && fx->hi16 && fx->lo16 && fx->bhi16 && fx->blo16 && fx->rhi16 && fx->rlo16;
+        fx->ghi16 = malloc(ng * sizeof(uint16_t));
+        fx->glo16 = malloc(ng * sizeof(uint16_t));
+        fx->whi16 = malloc(nbands * sizeof(uint16_t));
+        fx->wlo16 = malloc(nbands * sizeof(uint16_t));
+        ok = ok && fx->hi16 && fx->lo16 && fx->bhi16 && fx->blo16 && fx->ghi16 && fx->glo16 &&
+             fx->whi16 && fx->wlo16;
     } else {
         fx->hi8 = malloc(fx->npix);
         fx->lo8 = malloc(fx->npix);
         fx->bhi8 = malloc(nb);
         fx->blo8 = malloc(nb);
-        fx->rhi8 = malloc(fx->h);
-        fx->rlo8 = malloc(fx->h);
-        ok = ok && fx->hi8 && fx->lo8 && fx->bhi8 && fx->blo8 && fx->rhi8 && fx->rlo8;
+        fx->ghi8 = malloc(ng);
+        fx->glo8 = malloc(ng);
+        fx->whi8 = malloc(nbands);
+        fx->wlo8 = malloc(nbands);
+        ok = ok && fx->hi8 && fx->lo8 && fx->bhi8 && fx->blo8 && fx->ghi8 && fx->glo8 && fx->whi8 &&
+             fx->wlo8;
         if (p->pixel_format == FT_FX_YUYV) {
             fx->luma = malloc(fx->npix);
             ok = ok && fx->luma;
@@ -282,9 +293,8 @@ DEFINE_UPDATE(update16, uint16_t)
  * short). */
 #define DEFINE_BLOCK_BOUNDS(NAME, T)                                                               \
     static void NAME(size_t w, size_t h, size_t nblk, const T *restrict hi, const T *restrict lo,  \
-                     T *restrict bhi, T *restrict blo, T *restrict rhi, T *restrict rlo) {         \
+                     T *restrict bhi, T *restrict blo) {                                           \
         for (size_t y = 0; y < h; y++) {                                                           \
-            T rh = hi[y * w], rl = lo[y * w];                                                      \
             for (size_t b = 0; b < nblk; b++) {                                                    \
                 size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK < w ? x0 + FT_BLOCK : w;              \
                 T mh = hi[y * w + x0], ml = lo[y * w + x0];                                        \
@@ -295,28 +305,60 @@ DEFINE_UPDATE(update16, uint16_t)
                 }                                                                                  \
                 bhi[y * nblk + b] = mh;                                                            \
                 blo[y * nblk + b] = ml;                                                            \
-                rh = mh < rh ? mh : rh;                                                            \
-                rl = ml > rl ? ml : rl;                                                            \
             }                                                                                      \
-            rhi[y] = rh;                                                                           \
-            rlo[y] = rl;                                                                           \
         }                                                                                          \
     }
 DEFINE_BLOCK_BOUNDS(block_bounds8, uint8_t)
 DEFINE_BLOCK_BOUNDS(block_bounds16, uint16_t)
 
-/* Thresholds and bounds of rows y0 .. y1 - 1. */
+/* ghi = min(bhi), glo = max(blo) over the rows of each band of FT_BAND rows (the last one may have
+ * fewer), block by block; whi, wlo the same over the whole band. */
+#define DEFINE_BAND_BOUNDS(NAME, T)                                                                \
+    static void NAME(size_t h, size_t nblk, const T *restrict bhi, const T *restrict blo,          \
+                     T *restrict ghi, T *restrict glo, T *restrict whi, T *restrict wlo) {         \
+        for (size_t y0 = 0; y0 < h; y0 += FT_BAND) {                                               \
+            T *restrict gh = ghi + y0 / FT_BAND * nblk, *restrict gl = glo + y0 / FT_BAND * nblk;  \
+            memcpy(gh, bhi + y0 * nblk, nblk * sizeof(T));                                         \
+            memcpy(gl, blo + y0 * nblk, nblk * sizeof(T));                                         \
+            for (size_t y = y0 + 1; y < h && y < y0 + FT_BAND; y++)                                \
+                for (size_t b = 0; b < nblk; b++) {                                                \
+                    T vh = bhi[y * nblk + b], vl = blo[y * nblk + b];                              \
+                    gh[b] = vh < gh[b] ? vh : gh[b];                                               \
+                    gl[b] = vl > gl[b] ? vl : gl[b];                                               \
+                }                                                                                  \
+            T mh = gh[0], ml = gl[0];                                                              \
+            for (size_t b = 1; b < nblk; b++) {                                                    \
+                mh = gh[b] < mh ? gh[b] : mh;                                                      \
+                ml = gl[b] > ml ? gl[b] : ml;                                                      \
+            }                                                                                      \
+            whi[y0 / FT_BAND] = mh;                                                                \
+            wlo[y0 / FT_BAND] = ml;                                                                \
+        }                                                                                          \
+    }
+DEFINE_BAND_BOUNDS(band_bounds8, uint8_t)
+DEFINE_BAND_BOUNDS(band_bounds16, uint16_t)
+
+/* Thresholds and block bounds of rows y0 .. y1 - 1 (the band bounds once all rows are done). */
 static void refresh_rows(ft_fx *fx, thr_cfg c, size_t y0, size_t y1) {
     const size_t o = y0 * fx->w, n = (y1 - y0) * fx->w, ob = y0 * fx->nblk;
+    const uint8_t *um = fx->has_mask ? fx->mask + o : NULL;
     if (fx->hi16) {
-        ft_fx_thresh16(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi16 + o, fx->lo16 + o, c);
+        ft_fx_thresh16(n, fx->mean + o, fx->sumsq + o, um, fx->hi16 + o, fx->lo16 + o, c);
         block_bounds16(fx->w, y1 - y0, fx->nblk, fx->hi16 + o, fx->lo16 + o, fx->bhi16 + ob,
-                       fx->blo16 + ob, fx->rhi16 + y0, fx->rlo16 + y0);
+                       fx->blo16 + ob);
     } else {
-        ft_fx_thresh8(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi8 + o, fx->lo8 + o, c);
+        ft_fx_thresh8(n, fx->mean + o, fx->sumsq + o, um, fx->hi8 + o, fx->lo8 + o, c);
         block_bounds8(fx->w, y1 - y0, fx->nblk, fx->hi8 + o, fx->lo8 + o, fx->bhi8 + ob,
-                      fx->blo8 + ob, fx->rhi8 + y0, fx->rlo8 + y0);
+                      fx->blo8 + ob);
     }
+}
+
+static void refresh_band_bounds(ft_fx *fx) {
+    if (fx->hi16)
+        band_bounds16(fx->h, fx->nblk, fx->bhi16, fx->blo16, fx->ghi16, fx->glo16, fx->whi16,
+                      fx->wlo16);
+    else
+        band_bounds8(fx->h, fx->nblk, fx->bhi8, fx->blo8, fx->ghi8, fx->glo8, fx->whi8, fx->wlo8);
 }
 
 /* Rows per band of the background update: about 2048 pixels, whose 16 kB of floats stay in the L1
@@ -329,6 +371,7 @@ static void refresh_thresholds(ft_fx *fx) {
     thr_cfg c = thr_config(fx);
     for (size_t y0 = 0, nb = band_rows(fx); y0 < fx->h; y0 += nb)
         refresh_rows(fx, c, y0, y0 + nb < fx->h ? y0 + nb : fx->h);
+    refresh_band_bounds(fx);
 }
 
 static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, int init) {
@@ -343,6 +386,7 @@ static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, i
             update8(fx->w, y1 - y0, band, stride_bytes, fx->mean + o, fx->sumsq + o, init, c);
         refresh_rows(fx, c, y0, y1);
     }
+    refresh_band_bounds(fx);
     fx->have_bg = 1;
 }
 
@@ -426,6 +470,7 @@ int ft_fx_set_mask(ft_fx *fx, const uint8_t *mask) {
             fx->mask[i] = mask[i] != 0;
     else
         memset(fx->mask, 1, fx->npix);
+    fx->has_mask = mask != NULL;
     if (fx->have_bg)
         refresh_thresholds(fx);
     return FT_FX_OK;

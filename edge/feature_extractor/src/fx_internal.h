@@ -9,7 +9,9 @@
 #include <stdint.h>
 
 #define FT_BLOCK 64u /* pixels per block of the scan's bounds pass: one 64-bit candidate mask */
-#define FT_BAND 4u   /* packed rows the scan tests at once before testing them one by one */
+#define FT_BAND                                                                                    \
+    4u /* rows the scan tests at once, block by block, before testing them one by one              \
+        */
 
 /* A run: candidates y, x0 .. x1 - 1 of one row, found in raster order; their differences are
  * cand_d[c0 .. c0 + x1 - x0 - 1]. Regions are unions of 8-connected runs. */
@@ -45,10 +47,15 @@ struct ft_fx {
     size_t nblk; /* blocks per row */
     uint8_t *bhi8, *blo8;
     uint16_t *bhi16, *blo16;
-    /* The same bounds per whole row: the scan's very first check. */
-    uint8_t *rhi8, *rlo8;
-    uint16_t *rhi16, *rlo16;
+    /* The same bounds per block of a band of FT_BAND rows (band y / FT_BAND, block b at
+     * [band * nblk + b]): the scan's first check. */
+    uint8_t *ghi8, *glo8;
+    uint16_t *ghi16, *glo16;
+    /* And per whole band (band y / FT_BAND): the very first check. */
+    uint8_t *whi8, *wlo8;
+    uint16_t *whi16, *wlo16;
     uint8_t *mask;   /* 1 = use, always allocated (all ones without a user mask) */
+    int has_mask;    /* a user mask is set (else the thresholds do not read mask) */
     uint8_t *luma;   /* YUYV: the luma plane of the current frame */
     uint32_t cap;    /* candidates (and so runs) per frame at most */
     uint32_t *queue; /* the scan's blocks to look at pixel by pixel: y << 8 | block (h x nblk) */

@@ -9,12 +9,13 @@
 #include <math.h>
 
 /* Branch-free on purpose: a conditional here lets the compiler skip the float loads for masked
- * pixels, and then it no longer vectorises the loop. */
-#define DEFINE_THRESH(NAME, T)                                                                     \
-    void NAME(size_t n, const float *restrict mean, const float *restrict sumsq,                   \
-              const uint8_t *restrict mask, T *restrict hi, T *restrict lo, thr_cfg c) {           \
+ * pixels, and then it no longer vectorises the loop. USE(i): whether pixel i is used. */
+#define DEFINE_THRESH_LOOP(NAME, T, USE)                                                           \
+    static void NAME(size_t n, const float *restrict mean, const float *restrict sumsq,            \
+                     const uint8_t *restrict mask, T *restrict hi, T *restrict lo, thr_cfg c) {    \
         const uint32_t bright = c.bright ? 1u : 0u, dark = c.dark ? 1u : 0u;                       \
         const uint32_t maxv = (uint32_t)c.maxv;                                                    \
+        (void)mask;                                                                                \
         for (size_t i = 0; i < n; i++) {                                                           \
             float m = mean[i];                                                                     \
             float var = sumsq[i] - m * m;                                                          \
@@ -28,12 +29,35 @@
             uint32_t h = (uint32_t)(int32_t)up;                                                    \
             int32_t di = (int32_t)dn;                                                              \
             uint32_t l = (uint32_t)(di + ((float)di < dn));                                        \
-            uint32_t use = mask[i] != 0;                                                           \
+            uint32_t use = USE(i);                                                                 \
             uint32_t mb = 0u - (use & bright), md = 0u - (use & dark);                             \
             hi[i] = (T)((h & mb) | (maxv & ~mb));                                                  \
             lo[i] = (T)(l & md);                                                                   \
         }                                                                                          \
     }
 
-DEFINE_THRESH(ft_fx_thresh8, uint8_t)
-DEFINE_THRESH(ft_fx_thresh16, uint16_t)
+#define MASKED(i) (mask[i] != 0)
+#define ALL(i) 1u
+DEFINE_THRESH_LOOP(thresh8_masked, uint8_t, MASKED)
+DEFINE_THRESH_LOOP(thresh16_masked, uint16_t, MASKED)
+DEFINE_THRESH_LOOP(thresh8_all, uint8_t, ALL)
+DEFINE_THRESH_LOOP(thresh16_all, uint16_t, ALL)
+
+/* Without a mask (NULL) every pixel is used and the mask is not read: one byte per pixel less to
+ * bring in at each update. */
+void ft_fx_thresh8(size_t n, const float *restrict mean, const float *restrict sumsq,
+                   const uint8_t *restrict mask, uint8_t *restrict hi, uint8_t *restrict lo,
+                   thr_cfg c) {
+    if (mask)
+        thresh8_masked(n, mean, sumsq, mask, hi, lo, c);
+    else
+        thresh8_all(n, mean, sumsq, mask, hi, lo, c);
+}
+void ft_fx_thresh16(size_t n, const float *restrict mean, const float *restrict sumsq,
+                    const uint8_t *restrict mask, uint16_t *restrict hi, uint16_t *restrict lo,
+                    thr_cfg c) {
+    if (mask)
+        thresh16_masked(n, mean, sumsq, mask, hi, lo, c);
+    else
+        thresh16_all(n, mean, sumsq, mask, hi, lo, c);
+}

@@ -5,6 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* Per-pixel thresholds of n pixels; mask NULL: every pixel used. */
 typedef struct {
     float a, a1, ns, dt, maxv;
     int bright, dark;
