@@ -29,9 +29,10 @@ test-edge-arm:
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/scan.c -o $(ARM_OUT)/scan.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/features.c -o $(ARM_OUT)/features.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/regions.c -o $(ARM_OUT)/regions.o
-	@for t in test_scan test_features; do \
+	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/background.c -o $(ARM_OUT)/background.o
+	@for t in test_scan test_features test_lazy_update; do \
 	  $(ARM_CC) $(ARM_FLAGS) -static $(FX_DIR)/tests/$$t.c $(ARM_OUT)/features.o $(ARM_OUT)/scan.o $(ARM_OUT)/regions.o \
-	    $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
+	    $(ARM_OUT)/background.o $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
 
 BENCH_TARGETS += bench-edge
 PART_TARGETS += test-edge bench-edge test-edge-arm

@@ -410,6 +410,8 @@ static inline void prefetch_means(const float *m, uint64_t mask) {
                 continue;                                                                          \
             for (uint32_t k = 0; k < nb; k++) { /* the failing blocks row by row: raster order */  \
                 const uint32_t y = y0 + k;                                                         \
+                if (fx->pending[y]) /* its bounds hold whatever the update: make them exact */     \
+                    ft_fx_bg_row(fx, y);                                                           \
                 const T *bh = fx->BHI + y * nblk, *bl = fx->BLO + y * nblk;                        \
                 for (size_t i = 0; i < nw; i++)                                                    \
                     for (uint64_t fw = fails[i]; fw; fw &= fw - 1) {                               \

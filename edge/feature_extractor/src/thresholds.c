@@ -61,3 +61,33 @@ void ft_fx_thresh16(size_t n, const float *restrict mean, const float *restrict 
     else
         thresh16_all(n, mean, sumsq, mask, hi, lo, c);
 }
+
+/* Bounds that a block's thresholds keep after the next background update, whatever that frame
+ * holds (pixel values v in [0, maxv]), from the block's background means now (lowest mn, highest
+ * mx). With m' = a1 m + a v and T' = max(dt, n_sigma std') >= dt:
+ *   hi' = floor(min(m' + T', maxv)) >= floor(min(a1 m + dt, maxv))
+ *   lo' = ceil(max(m' - T', 0))     <= ceil(max(a1 m + a maxv - dt, 0))
+ * Each float operation above rounds by at most one part in 2^24, and pixels that are masked or of
+ * the ignored polarity have hi = maxv and lo = 0; the bounds here are loosened by more than the
+ * rounding and by one more level. */
+#define DEFINE_NEXT_BOUNDS(NAME, T)                                                                \
+    void NAME(size_t w, size_t blk, const float *restrict mean, T *restrict nbhi,                  \
+              T *restrict nblo, thr_cfg c) {                                                       \
+        for (size_t x0 = 0, b = 0; x0 < w; x0 += blk, b++) {                                       \
+            const size_t x1 = x0 + blk < w ? x0 + blk : w;                                         \
+            float mn = mean[x0], mx = mean[x0];                                                    \
+            for (size_t x = x0; x < x1; x++) {                                                     \
+                mn = mean[x] < mn ? mean[x] : mn;                                                  \
+                mx = mean[x] > mx ? mean[x] : mx;                                                  \
+            }                                                                                      \
+            double up = ((double)c.a1 * mn * (1.0 - 1e-6) + c.dt) * (1.0 - 1e-6) - 1.0;            \
+            up = up < c.maxv ? up : c.maxv;                                                        \
+            nbhi[b] = up > 0.0 ? (T)floor(up) : 0;                                                 \
+            double dn = ((double)c.a1 * mx + (double)c.a * c.maxv) * (1.0 + 1e-6) - c.dt;          \
+            dn = dn > 0.0 ? ceil(dn * (1.0 + 1e-6)) + 1.0 : 0.0;                                   \
+            nblo[b] = (T)(dn < c.maxv ? dn : c.maxv);                                              \
+        }                                                                                          \
+    }
+
+DEFINE_NEXT_BOUNDS(ft_fx_next_bounds8, uint8_t)
+DEFINE_NEXT_BOUNDS(ft_fx_next_bounds16, uint16_t)
