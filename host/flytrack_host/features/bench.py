@@ -22,8 +22,8 @@ Two cache states, each the same for the C path and its floor:
   the C vs OpenCV ratio is taken here (both read the frame from memory).
 
 Every figure is the mean over a whole number of background-update intervals (so the periodic update is
-paid in it), with the P99 and the longest frame; the paths are interleaved one interval at a time so that load from elsewhere
-falls on all alike. Five rounds replay the same frames (400 at 640x480, 200 at 2048x2048), and each
+paid in it), with the P99 and the longest frame; the paths are interleaved one interval at a time so that
+load from elsewhere falls on all alike. Five rounds replay the same frames (400 at 640x480, 200 at 2048x2048), and each
 frame position counts with its best round: on a shared machine a frame preempted by another job in one
 round is not preempted in all five (the raw means over all rounds are in the JSON). The bench checks
 that both pipelines find the same centroids (to 1e-3 px) before it times them. BENCH_JSON=PATH (or
