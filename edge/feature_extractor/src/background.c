@@ -189,29 +189,42 @@ void ft_fx_bg_row(ft_fx *fx, uint32_t y) {
     refresh_band_bounds(fx, y / FT_BAND, y / FT_BAND + 1);
 }
 
-void ft_fx_bg_finish(ft_fx *fx) {
-    if (!fx->n_pending)
-        return;
-    for (uint32_t y = 0; y < fx->h; y++)
-        if (fx->pending[y]) {
-            const size_t bpp = fx->p.pixel_format == FT_FX_MONO16 ? 2 : 1;
-            update_rows(fx, fx->lazy_cfg, fx->saved, fx->w * bpp, y, y + 1, 0);
-            fx->pending[y] = 0;
+/* Brings up to date the pending rows among y0 .. y1 - 1, runs of consecutive ones a band of rows
+ * (band_rows) at a time as the whole update does (one row at a time costs about 15% more), then
+ * the bounds of their bands. */
+static void bring_rows(ft_fx *fx, uint32_t y0, uint32_t y1) {
+    const size_t bpp = fx->p.pixel_format == FT_FX_MONO16 ? 2 : 1, sb = fx->w * bpp;
+    const uint32_t nb = (uint32_t)band_rows(fx);
+    for (uint32_t y = y0; y < y1;) {
+        if (!fx->pending[y]) {
+            y++;
+            continue;
         }
-    fx->n_pending = 0;
-    refresh_band_bounds(fx, 0, n_bands(fx));
+        uint32_t e = y + 1;
+        while (e < y1 && e < y + nb && fx->pending[e])
+            e++;
+        update_rows(fx, fx->lazy_cfg, fx->saved, sb, y, e, 0);
+        memset(fx->pending + y, 0, e - y);
+        fx->n_pending -= e - y;
+        y = e;
+    }
+    if (y0 < y1)
+        refresh_band_bounds(fx, y0 / FT_BAND, (y1 - 1) / FT_BAND + 1);
+}
+
+void ft_fx_bg_finish(ft_fx *fx) {
+    if (fx->n_pending)
+        bring_rows(fx, 0, fx->h);
 }
 
 void ft_fx_bg_step(ft_fx *fx) {
     if (!fx->n_pending)
         return;
     const uint32_t iv = fx->p.bg_update_interval, spread = iv > 2 ? iv - 1 : 1;
-    uint32_t k = (fx->h + spread - 1) / spread;
-    for (; k && fx->lazy_next < fx->h; fx->lazy_next++)
-        if (fx->pending[fx->lazy_next]) {
-            ft_fx_bg_row(fx, fx->lazy_next);
-            k--;
-        }
+    const uint32_t k = (fx->h + spread - 1) / spread, y0 = fx->lazy_next;
+    const uint32_t y1 = fx->h - y0 < k ? fx->h : y0 + k;
+    bring_rows(fx, y0, y1); /* rows the scan brought up to date already are skipped */
+    fx->lazy_next = y1;
 }
 
 /* Swaps two arrays of block bounds (the current ones and those after the next update). */

@@ -73,19 +73,29 @@ void ft_fx_thresh16(size_t n, const float *restrict mean, const float *restrict 
 #define DEFINE_NEXT_BOUNDS(NAME, T)                                                                \
     void NAME(size_t w, size_t blk, const float *restrict mean, T *restrict nbhi,                  \
               T *restrict nblo, thr_cfg c) {                                                       \
-        for (size_t x0 = 0, b = 0; x0 < w; x0 += blk, b++) {                                       \
-            const size_t x1 = x0 + blk < w ? x0 + blk : w;                                         \
-            float mn = mean[x0], mx = mean[x0];                                                    \
-            for (size_t x = x0; x < x1; x++) {                                                     \
-                mn = mean[x] < mn ? mean[x] : mn;                                                  \
-                mx = mean[x] > mx ? mean[x] : mx;                                                  \
+        float mnv[64], mxv[64];                                                                    \
+        for (size_t c0 = 0; c0 < w; c0 += 64 * blk, nbhi += 64, nblo += 64) {                      \
+            size_t nb = 0; /* up to 64 blocks: their ranges of means, then their bounds */         \
+            for (size_t x0 = c0; x0 < w && nb < 64; x0 += blk, nb++) {                             \
+                const size_t x1 = x0 + blk < w ? x0 + blk : w;                                     \
+                float mn = mean[x0], mx = mean[x0];                                                \
+                for (size_t x = x0; x < x1; x++) {                                                 \
+                    mn = mean[x] < mn ? mean[x] : mn;                                              \
+                    mx = mean[x] > mx ? mean[x] : mx;                                              \
+                }                                                                                  \
+                mnv[nb] = mn;                                                                      \
+                mxv[nb] = mx;                                                                      \
             }                                                                                      \
-            double up = ((double)c.a1 * mn * (1.0 - 1e-6) + c.dt) * (1.0 - 1e-6) - 1.0;            \
-            up = up < c.maxv ? up : c.maxv;                                                        \
-            nbhi[b] = up > 0.0 ? (T)floor(up) : 0;                                                 \
-            double dn = ((double)c.a1 * mx + (double)c.a * c.maxv) * (1.0 + 1e-6) - c.dt;          \
-            dn = dn > 0.0 ? ceil(dn * (1.0 + 1e-6)) + 1.0 : 0.0;                                   \
-            nblo[b] = (T)(dn < c.maxv ? dn : c.maxv);                                              \
+            for (size_t b = 0; b < nb; b++) { /* apart: this loop vectorises over the blocks */    \
+                double up = ((double)c.a1 * mnv[b] * (1.0 - 1e-6) + c.dt) * (1.0 - 1e-6) - 1.0;    \
+                up = up < c.maxv ? up : c.maxv;                                                    \
+                up = up > 0.0 ? floor(up) : 0.0;                                                   \
+                nbhi[b] = (T)(int32_t)up;                                                          \
+                double dn = ((double)c.a1 * mxv[b] + (double)c.a * c.maxv) * (1.0 + 1e-6) - c.dt;  \
+                dn = dn > 0.0 ? ceil(dn * (1.0 + 1e-6)) + 1.0 : 0.0;                               \
+                dn = dn < c.maxv ? dn : c.maxv;                                                    \
+                nblo[b] = (T)(int32_t)dn;                                                          \
+            }                                                                                      \
         }                                                                                          \
     }
 
