@@ -571,8 +571,10 @@ class FrameSynchronizer:
         run.clear()
         for c in self.cams.values():
             c.lag_win.clear()
-            if c.lag_ewma is not None:
-                c.lag_ewma -= shift
+            # Each camera's lag is learnt again from its next frame: the estimate (its steps bounded
+            # against stalls) had followed only part of the pause, so taking the shift off it would
+            # leave it that far below the truth and misplace a camera joining in the next second.
+            c.lag_ewma = None
         self.reanchors += 1
         return [SyncEvent("reanchor", -1, f"fixed-rate clock re-anchored at trigger frame {f}: frames came "
                                           f"{shift * 1e3:.0f} ms after their expected time (a pause of the cameras?)")]
