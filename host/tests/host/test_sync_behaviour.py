@@ -738,3 +738,60 @@ def test_one_frame_held_up_in_the_network_does_not_misplace_a_camera_joining_rig
     # Its first frame came after the others completed bundle 66 (it was not waited for): late.
     assert [(u.frame.camera_index, u.trigger_frame, u.reason) for u in r.untracked] == [
         (0, 40, "late"), (2, 66, "late")]
+
+
+def test_a_camera_without_numbers_first_seen_when_an_edge_numbered_one_is_at_frame_1_is_frame_1() -> None:
+    """Camera 0's edge numbers its frames and its first is trigger frame 1 (the trigger was running);
+    camera 1, numbered by its counter, is first seen right after: not tied to frame 0 but placed by
+    arrival at frame 1, and its frames go on in step with camera 0's."""
+    r = make(cams=(0, 1))
+    frames = [frame(0, 50 + k, T0 + k * P + L, k) for k in range(1, 40)]
+    frames += [frame(1, 900 + k, T0 + k * P + L + 0.0003) for k in range(1, 40)]
+    r.feed(frames, poll_every=P)
+    assert all(cam_frames(r, 1)[k] == 900 + k for k in range(1, 40))
+    assert all(b.closed_by == "complete" for b in r.bundles) and len(r.bundles) == 39
+
+
+def test_an_early_frame_must_come_more_than_the_early_threshold_before_its_camera_usually_does() -> None:
+    """early_fraction 1, early_slack_s 0 (the threshold is exactly a period): an edge-numbered frame
+    claiming the next pulse arrives exactly a period earlier than its camera's usual lag: not early
+    (it is accepted); two periods earlier: early."""
+    for ahead, want in ((1, []), (2, ["early"])):
+        r = make(clock=OffsetClock(), early_fraction=1.0, early_slack_s=0.0)
+        frames = stream({0: 0, 1: 0, 2: 0}, range(20), edge=True)
+        for f in frames:
+            if f.camera_index == 1 and f.camera_frame == 10:
+                f.trigger_frame += ahead
+        r.feed([f for f in frames if f.camera_frame <= 10], poll_every=P)
+        assert [u.reason for u in r.untracked] == want, ahead
+
+
+def test_trigger_frames_no_camera_delivered_leave_nothing_behind_and_drift_is_still_checked() -> None:
+    """Every camera loses the same trigger frames (60 in a row, then 20 single ones): the drift check
+    skips them, keeps no record of them (its memory stays within drift_settle_s of frames), and still
+    finds camera 2's missed pulse afterwards."""
+    r = make()
+    lost = set(range(100, 160)) | set(range(200, 400, 10))
+    frames = [f for f in stream({0: 0, 1: 0}, range(600)) if f.camera_frame not in lost]
+    frames += [frame(2, k - (1 if k >= 450 else 0), T0 + k * P + L) for k in range(600) if k not in lost and k != 450]
+    most = 0
+    for f in sorted(frames, key=lambda f: f.recv_time):
+        r.feed([f], poll_every=P)
+        most = max(most, len(r.sync._arrivals))
+    assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)]
+    assert all(cam_frames(r, 2)[k] == k - 1 for k in range(520, 600))
+    # Arrival records: at most those of the frames not settled yet; none once all came and compared.
+    assert most <= r.sync.drift_settle + 2 and len(r.sync._arrivals) == 0
+
+
+def test_a_counter_jump_soon_after_synchronize_is_re_mapped_by_arrival_not_tied_to_frame_0() -> None:
+    """After synchronize(), camera 1's counter jumps by 5000 at trigger frame 10 (0.16 s in, inside the
+    frame-0 tie window): once confirmed (its third frame), it is mapped by arrival, and its next frames
+    sit in the bundles of the pulses they answered."""
+    r = make()
+    r.sync.synchronize()
+    frames = stream({0: 0, 2: 0}, range(60)) + [frame(1, k + (5000 if k >= 10 else 0), T0 + k * P + L)
+                                                 for k in range(60)]
+    r.feed(frames, poll_every=P)
+    assert [(e.kind, e.camera_index) for e in r.events] == [("clock_jump", 1)]
+    assert all(cam_frames(r, 1)[k] == 5000 + k for k in range(13, 60))
