@@ -207,7 +207,6 @@ class FrameSynchronizer:
         on_event: Callable[[SyncEvent], None] | None = None,
     ):
         self.period = 1.0 / fps
-        self.fps = fps
         self.clock: FrameClock = clock if clock is not None else FixedRateClock(fps)
         self.deadline_s = deadline_fraction * self.period
         self.dead_timeout_s = dead_timeout_s
@@ -290,7 +289,8 @@ class FrameSynchronizer:
             return self._place(cam, frame)
         if cam.last_cf is not None and frame.camera_frame == cam.last_cf:
             cam.stats.duplicate += 1
-            tf = frame.trigger_frame if frame.trigger_frame >= 0 else (cam.last_tf if cam.last_tf is not None else -1)
+            # last_tf is set whenever last_cf is (they are always set and cleared together).
+            tf = frame.trigger_frame if frame.trigger_frame >= 0 else cam.last_tf
             out.append(UntrackedFrame(frame, tf, "duplicate"))
             return out
         tf = self._map(cam, frame, now)
@@ -390,10 +390,7 @@ class FrameSynchronizer:
         return statistics.median(lags) if lags else 0.0
 
     def _frame_at(self, t: float) -> int:
-        clock = self.clock
-        if isinstance(clock, FixedRateClock) and not clock.anchored:
-            clock.anchor(0, t)
-            return 0
+        # A fixed-rate clock is anchored by then: the first frame mapped (_map) anchors it.
         ref = max(self.max_accepted, 0)
         t_ref = self.frame_time(ref)
         if not math.isfinite(t_ref):
@@ -543,7 +540,7 @@ class FrameSynchronizer:
                           f"camera {cam.index}: edge restarted; its camera frame {first.camera_frame} is trigger "
                           f"frame {new_tf} (by arrival); {missed} trigger frames missed while it was down")]
 
-    def _check_reanchor(self, f: int, first_arrival: float, n_frames: int = 2) -> list[SyncOutput]:
+    def _check_reanchor(self, f: int, first_arrival: float, n_frames: int) -> list[SyncOutput]:
         """Fixed-rate clock only: re-anchor after a pause of every camera (see the module doc)."""
         clock = self.clock
         if not isinstance(clock, FixedRateClock) or not clock.anchored:
@@ -571,8 +568,10 @@ class FrameSynchronizer:
         run.clear()
         for c in self.cams.values():
             c.lag_win.clear()
-            if c.lag_ewma is not None:
-                c.lag_ewma -= shift
+            # Each camera's lag is learnt again from its next frame: the estimate (its steps bounded
+            # against stalls) had followed only part of the pause, so taking the shift off it would
+            # leave it that far below the truth and misplace a camera joining in the next second.
+            c.lag_ewma = None
         self.reanchors += 1
         return [SyncEvent("reanchor", -1, f"fixed-rate clock re-anchored at trigger frame {f}: frames came "
                                           f"{shift * 1e3:.0f} ms after their expected time (a pause of the cameras?)")]
@@ -598,8 +597,6 @@ class FrameSynchronizer:
             global_jump = True  # the trigger's own count moved: every camera sees it
         else:
             # The camera's counter restarted or jumped: map it again by arrival time.
-            cam.offset = None
-            cam.last_cf = None
             new_tf = self._frame_at(frame.recv_time - self._lag(cam.index))
             cam.offset = frame.camera_frame - new_tf
             global_jump = False
