@@ -167,10 +167,11 @@ def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[
              side_size: tuple[int, int] = (512, 384), out: Path | None = None, noise: float = 3.0,
              progress: bool = False, plots: bool = True, cross_frame: int | None = None,
              top_zoom: float = 1.0, cfg: TrackerConfig | None = None, water: float | None = None,
-             incremental: bool = True, claims: bool = True, track_fish: int | None = None) -> dict:
+             incremental: bool = True, claims: bool = True, track_fish: int | None = None,
+             blas_threads: int | None = 1) -> dict:
     """Render, track and score a synthetic school of `n_fish`. `track_fish` caps the fish that get a model
-    (the others stay unmodelled silhouettes: the case the claims are for); `incremental`, `claims`: see
-    pipeline.track."""
+    (the others stay unmodelled silhouettes: the case the claims are for); `incremental`, `claims`,
+    `blas_threads` (None: the BLAS library's default): see pipeline.track."""
     cv2.setNumThreads(1)  # one core, as the figure is quoted
     school = make_school(n_fish, frames, seed=seed, cross_frame=cross_frame)
     rig = tank_rig(top_size, side_size, top_zoom=top_zoom, water=water)
@@ -192,13 +193,14 @@ def run_demo(n_fish: int = 4, frames: int = 200, seed: int = 0, top_size: tuple[
         task = bar.add_task("tracking", total=frames)
     try:
         res = track(stream, views, school.fps, n_background=n_bg, n_fish=track_fish or n_fish, cfg=cfg,
-                    incremental=incremental, claims=claims,
+                    incremental=incremental, claims=claims, blas_threads=blas_threads,
                     progress=(lambda n: bar.advance(task, n)) if bar else None)
     finally:
         if bar:
             bar.stop()
     summary = score(res, school, views, validation)
     summary["render_seconds"] = render_s
+    summary["blas_threads"] = blas_threads  # while tracking (None: the library's default)
     summary["events"] = [asdict(e) for e in school.events]
     summary["goals"] = GOALS
     summary["messages"] = res.messages

@@ -168,7 +168,7 @@ class OutsideMap:
 
         B = S_mm.shape[0]
         uv = self.view.project(S_mm.reshape(-1, 3) / MM + self.r0) - np.asarray(self.origin, float)
-        uv = np.nan_to_num(uv, nan=-1e4).astype(np.float32)
+        uv = np.where(np.isnan(uv), -1e4, uv).astype(np.float32)  # off the map (as np.nan_to_num, cheaper)
         vals = cv2.remap(self.field, uv[None, :, 0], uv[None, :, 1], cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=self.beyond)
         return vals.reshape(B, -1).astype(np.float64) * self.mm_per_px

@@ -42,30 +42,61 @@ def angles_from_heading(h: F64) -> tuple[F64, F64]:
 def body_axes(h: F64) -> F64:
     """Heading (B,3) -> rotation (B,3,3) whose columns are h, g x h, h x (g x h) (eq. 3.2)."""
     h = np.atleast_2d(np.asarray(h, dtype=float))
-    h = h / np.linalg.norm(h, axis=1, keepdims=True)
-    y = np.cross(G, h)
-    n = np.linalg.norm(y, axis=1, keepdims=True)
+    h = h / _norm(h)
+    y = _g_cross(h)
+    n = _norm(y)
     y = y / np.where(n > 1e-12, n, 1.0)  # a vertical heading has no defined pitch axis; keep it finite
-    z = np.cross(h, y)
+    z = _cross(h, y)
     return np.stack([h, y, z], axis=2)
 
 
-def midline_body(p: F64, s: F64) -> tuple[F64, F64, F64]:
-    """Midline f(s) in the body frame and its first and second s-derivatives, each (B, Ns, 3)."""
+# The fit evaluates the surface hundreds of thousands of times per run on small arrays, where np.cross and
+# np.linalg.norm cost more in argument handling than in arithmetic; these do the same operations in the
+# same order (the results are bit for bit those of np.cross / np.linalg.norm).
+def _norm(a: F64) -> F64:
+    """Euclidean norm over the last axis, kept as a length-1 axis."""
+    return np.sqrt(np.add.reduce(a * a, axis=-1, keepdims=True))
+
+
+def _cross(a: F64, b: F64) -> F64:
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
+
+
+def _g_cross(t: F64) -> F64:
+    """G x t for G = (0, 0, 1): (-t_y, t_x, 0)."""
+    out = np.zeros(t.shape)
+    np.negative(t[..., 1], out=out[..., 0])
+    out[..., 1] = t[..., 0]
+    return out
+
+
+def midline_body(p: F64, s: F64, second: bool = True) -> tuple[F64, F64, F64 | None]:
+    """Midline f(s) in the body frame and its first and second s-derivatives, each (B, Ns, 3) (the second
+    None when `second` is False: the surface and the arclength do not need it)."""
     p = np.atleast_2d(np.asarray(p, dtype=float))
     s = np.asarray(s, dtype=float)
     sp = np.clip(s, 0.0, None)  # the bending polynomial acts on the body only (s >= 0)
+    sp2 = sp**2
+    sp3 = sp**3
     p1, p2, p3, p4, p5 = (p[:, i : i + 1] for i in range(5))
     f = np.zeros((p.shape[0], s.size, 3))
     df = np.zeros_like(f)
-    d2f = np.zeros_like(f)
-    f[:, :, 0] = -(p1 * s + p2 * sp**2)
-    f[:, :, 1] = p3 * sp**2 + p4 * sp**3 + p5 * sp**4
+    f[:, :, 0] = -(p1 * s + p2 * sp2)
+    f[:, :, 1] = p3 * sp2 + p4 * sp3 + p5 * sp**4
     df[:, :, 0] = -(p1 + 2.0 * p2 * sp)
-    df[:, :, 1] = 2.0 * p3 * sp + 3.0 * p4 * sp**2 + 4.0 * p5 * sp**3
+    df[:, :, 1] = 2.0 * p3 * sp + 3.0 * p4 * sp2 + 4.0 * p5 * sp3
+    if not second:
+        return f, df, None
+    d2f = np.zeros_like(f)
     body = s >= 0
     d2f[:, :, 0] = np.where(body, -2.0 * p2, 0.0)
-    d2f[:, :, 1] = np.where(body, 2.0 * p3 + 6.0 * p4 * sp + 12.0 * p5 * sp**2, 0.0)
+    d2f[:, :, 1] = np.where(body, 2.0 * p3 + 6.0 * p4 * sp + 12.0 * p5 * sp2, 0.0)
     return f, df, d2f
 
 
@@ -73,19 +104,19 @@ def midline_world(X: F64, s: F64) -> tuple[F64, F64]:
     """Eq. 3.2: states (B,11) -> midline points m(s) (B,Ns,3) and unit tangents t(s) (B,Ns,3)."""
     X = np.atleast_2d(np.asarray(X, dtype=float))
     Rb = body_axes(X[:, 3:6])
-    f, df, _ = midline_body(X[:, 6:11], s)
+    f, df, _ = midline_body(X[:, 6:11], s, second=False)
     m = X[:, None, 0:3] + np.einsum("bij,bsj->bsi", Rb, f)
     t = np.einsum("bij,bsj->bsi", Rb, df)
-    t /= np.linalg.norm(t, axis=2, keepdims=True)
+    t /= _norm(t)
     return m, t
 
 
 def section_frames(t: F64) -> tuple[F64, F64]:
     """Curve framing (eq. 3.4): x(s) = g x t (normalised), y(s) = t x x. Inputs/outputs (..., 3)."""
-    x = np.cross(G, t)
-    n = np.linalg.norm(x, axis=-1, keepdims=True)
+    x = _g_cross(t)
+    n = _norm(x)
     x = x / np.where(n > 1e-12, n, 1.0)
-    y = np.cross(t, x)
+    y = _cross(t, x)
     return x, y
 
 
@@ -164,7 +195,7 @@ def arclength(p: F64, n: int = 24) -> F64:
         _GL[n] = np.polynomial.legendre.leggauss(n)
     xg, wg = _GL[n]
     s = 0.5 * (xg + 1.0)
-    _, df, _ = midline_body(p, s)
+    _, df, _ = midline_body(p, s, second=False)
     return 0.5 * (np.linalg.norm(df[:, :, :2], axis=2) @ wg)
 
 

@@ -4,6 +4,7 @@ leaving the view."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -124,3 +125,15 @@ def test_fewer_fish_in_clear_view_than_asked_tracks_those_and_says_so(scene: dic
     assert "only 1 of 2 fish were seen in clear view" in flat and "the first modelled in frame 2" in flat
     tr = read_tracks(d / "two.h5")
     assert len(tr["fish"]) == 1 and tr["frame"][0] == 2 and tr["fish"][0]["model_frame"] == 2
+
+
+def test_demo_reports_its_blas_threads_and_refuses_a_negative_count(tmp_path: Path) -> None:
+    out = tmp_path / "demo.json"
+    code, text = _run(["fish", "demo", "--fish", "1", "--frames", "20", "--small", "--blas-threads", "2",
+                       "--json", str(out)])
+    assert code == 0, text
+    assert "2 BLAS threads" in text
+    s = json.loads(out.read_text())
+    assert s["blas_threads"] == 2 and s["fish"] == 1 and s["fish_frames_per_cpu_s"] > 0
+    code, text = _run(["fish", "demo", "--blas-threads", "-1"])
+    assert code == 2 and "--blas-threads" in text

@@ -139,3 +139,37 @@ def test_eight_fish_each_modelled_in_its_own_first_clear_frame(tmp_path: Path) -
         assert g["model_frame"] == k
         assert np.all(np.isnan(g["position"][:k])) and np.all(g["seen"][:k] == 0)
         assert np.all(np.isfinite(g["position"][k:])) and np.all(np.isfinite(g["total_curvature"][k:]))
+
+
+def test_tracking_runs_on_one_blas_thread_and_restores_the_setting() -> None:
+    """The fit's matrices are tiny, so BLAS threads only spin and count as CPU time (8-fish demo: 189 CPU s
+    with OpenBLAS's two threads, 114 on one, the same tracks). `track` limits BLAS to one thread while it
+    runs and gives the caller's setting back."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from flytrack_host.fish.pipeline import track
+
+    school = make_school(1, 4)
+    rig = tank_rig((640, 512), (512, 384), top_zoom=2.0)
+    views = [AirView(rig["top"]), AirView(rig["side"])]
+    imgs = render_sequence(views, default_model(school.length), school.truth, np.random.default_rng(3), n_background=2)
+    during: list[set[int]] = []
+
+    def blas_threads() -> set[int]:
+        return {int(i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas"}
+
+    def frames() -> list[list[np.ndarray]]:
+        return [[imgs[0][k], imgs[1][k]] for k in range(len(imgs[0]))]
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert blas_threads() == {2}
+        res = track(frames(), views, school.fps, n_background=2, cfg=QUICK,
+                    progress=lambda n: during.append(blas_threads()))
+        assert during and all(d == {1} for d in during)
+        assert blas_threads() == {2}  # restored
+        during.clear()
+        res2 = track(frames(), views, school.fps, n_background=2, cfg=QUICK, blas_threads=None,
+                     progress=lambda n: during.append(blas_threads()))
+        assert during and all(d == {2} for d in during)
+    assert res.n_fish == res2.n_fish == 1
+    assert np.allclose(res.raw, res2.raw, atol=1e-6, equal_nan=True)  # the same fit on either setting
