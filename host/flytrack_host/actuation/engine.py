@@ -80,6 +80,10 @@ class ActuationEngine:
         # acknowledged): where the time from a frame's trigger to the device's acknowledgement goes.
         self.stages: deque[tuple[str, str, int, float, float, float, float, float, float]] = deque(
             maxlen=MAX_KEPT_FIRES)
+        # Per action of a device that says when its command left the host (`Output.written`): rule,
+        # output, sent (the device thread began the command), written (the write returned), acknowledged:
+        # the client library's own work apart from the device's answer.
+        self.sends: deque[tuple[str, str, float, float, float]] = deque(maxlen=MAX_KEPT_FIRES)
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
@@ -224,6 +228,8 @@ class ActuationEngine:
         j = o.job
         self.stages.append((j.rule, o.output, j.condition_frame, j.frame_time, j.estimate_time, j.queued_at,
                             o.time_started, o.time_sent, o.time_ack))
+        if math.isfinite(o.time_written):
+            self.sends.append((j.rule, o.output, o.time_sent, o.time_written, o.time_ack))
         late = o.error.startswith("late")
         if late:
             self.warn(f"{o.output}:late", f"output {o.output}: {o.error}")

@@ -12,7 +12,7 @@ import numpy as np
 from flytrack_host import hostclock
 from flytrack_host.actuation.devices import base
 from flytrack_host.actuation.devices.base import Handoff
-from flytrack_host.actuation.firings import STAGES, stage_latencies
+from flytrack_host.actuation.firings import STAGES, send_split, stage_latencies
 from flytrack_host.actuation.peers import ModbusPeerProcess, free_tcp_port
 from flytrack_host.rig import ActuatorConfig
 
@@ -92,10 +92,13 @@ def test_modbus_ack_is_the_kernel_stamp_of_the_response(act) -> None:  # noqa: A
         assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
         act.drive_entries(eng, 3)
         assert act.wait_for(lambda: eng.firings.count == 3)
+        assert out.client.socket is sock and out.client._configured is sock  # options set once, same socket
         eng.close()
         assert len(peer.coil_writes(3)) == 3
         for _, _, _, _, _, queued, started, sent, ack in eng.stages:
             assert queued <= started <= sent <= ack
+        # When each request left (the send returned), for the JSON's split of sent -> ack.
+        assert len(eng.sends) == 3 and all(s <= w for _, _, s, w, _ in eng.sends)
         # The response's arrival as the kernel stamped it (after the request was sent: sent <= ack above)
         # is the acknowledgement the firing recorded. It can come before the device thread, back from
         # its send, has the GIL again to stamp `time_written`: why the reply is stamped by the kernel.
@@ -118,3 +121,14 @@ def test_stage_latencies_per_output() -> None:
     assert math.isclose(s["a"]["sent_to_ack"]["max"], 1.4, rel_tol=1e-6)
     assert math.isclose(s["a"]["trigger_to_ack"]["p50"], 4.5, rel_tol=1e-6)
     assert math.isclose(s["b"]["queued_to_worker"]["p50"], 0.9, rel_tol=1e-6)
+
+
+def test_send_split_per_output() -> None:
+    rows = [("r", "valve", 1.0, 1.0001, 1.0004), ("r", "valve", 2.0, 2.0002, 2.0008),
+            ("r", "can", 3.0, 3.00005, 3.00005), ("other", "valve", 0.0, 1.0, 2.0)]
+    s = send_split(rows, "r")
+    assert sorted(s) == ["can", "valve"]
+    assert s["valve"]["sent_to_written"]["n"] == 2
+    assert math.isclose(s["valve"]["sent_to_written"]["p50"], 0.15, rel_tol=1e-6)
+    assert math.isclose(s["valve"]["written_to_ack"]["max"], 0.6, rel_tol=1e-6)
+    assert math.isclose(s["can"]["written_to_ack"]["p50"], 0.0, abs_tol=1e-9)
