@@ -45,26 +45,33 @@ class OutputError(RuntimeError):
 
 class Handoff:
     """Counts the commands of one frame still to be put on the wire by their device threads; the
-    tracking thread `wait`s (bounded) for them, its GIL released meanwhile."""
+    tracking thread `wait`s (bounded) for them, its GIL released meanwhile. Two plain locks, no
+    Condition: made and waited for on the tracking thread of every frame that fired."""
 
     def __init__(self) -> None:
         self._left = 0
-        self._cond = threading.Condition(threading.Lock())
+        self._mutex = threading.Lock()
+        self._gate = threading.Lock()  # held while commands are left
 
     def add(self) -> None:
-        with self._cond:
+        with self._mutex:
+            if self._left == 0:
+                self._gate.acquire()
             self._left += 1
 
     def done(self) -> None:
-        with self._cond:
-            self._left -= 1
-            if self._left <= 0:
-                self._cond.notify_all()
+        with self._mutex:
+            if self._left > 0:
+                self._left -= 1
+                if self._left == 0:
+                    self._gate.release()
 
     def wait(self, timeout_s: float) -> bool:
         """True when every command left in time."""
-        with self._cond:
-            return self._cond.wait_for(lambda: self._left <= 0, timeout_s)
+        if not self._gate.acquire(timeout=max(0.0, timeout_s)):
+            return False
+        self._gate.release()
+        return True
 
 
 @dataclass
