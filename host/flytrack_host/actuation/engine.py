@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
+import threading
 import time
 from collections import deque
 from pathlib import Path
@@ -34,7 +36,7 @@ import numpy as np
 
 from flytrack_host import hostclock
 from flytrack_host.actuation.devices import Output, make_output
-from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, Handoff, Job, Outcome, OutputWorker
+from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, WORKER_NICE, Handoff, Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
 from flytrack_host.actuation.prediction import StepVelocities, reachable_frame
@@ -100,6 +102,7 @@ class ActuationEngine:
         self._closed = False
         self._last_frame = -1
         self._switch_interval: float | None = None  # Python's, restored at close
+        self.tracking_priority_raised: bool | None = None  # the calling (tracking) thread's, at its first frame
 
     @classmethod
     def from_files(cls, rig: RigConfig, rules_path: Path | str, fps: float,
@@ -146,6 +149,8 @@ class ActuationEngine:
     # --- the tracking thread's part -----------------------------------------------------------
     def on_frame(self, result: Any, frame_time: float, estimate_time: float) -> None:
         t0 = time.perf_counter()
+        if self.tracking_priority_raised is None and self.workers:
+            self._raise_caller()
         now = hostclock.now()
         frame = int(result.trigger_frame)
         if frame < self._last_frame:  # the trigger was re-armed (frame 0 again, a new tracker)
@@ -181,18 +186,22 @@ class ActuationEngine:
         else:
             # Let the device threads put their commands on the wire now (this thread's GIL released),
             # rather than after this thread's next stretch of work: bounded, and only on a frame that fired.
-            # One device at a time: each thread then has the interpreter to itself from its wake-up to its
-            # send (woken together, they took it from each other at switch intervals, the first device's
-            # command leaving 0.08-0.24 ms after it was queued).
+            # All are woken at once (their wake-ups overlap) but send in this order, each after the one
+            # before it sent (`Job.after`): each thread then has the interpreter to itself from taking its
+            # job to its send (woken together without an order they took it from each other at switch
+            # intervals, the first device's command leaving 0.08-0.51 ms after it was queued; woken one
+            # after another, a loaded machine's wake-ups added up).
+            latches = []
+            for _, job in jobs:
+                if job.handoff is not None:
+                    job.after = latches[-1] if latches else None
+                    job.after_wait_s = self.handoff_max_s
+                    latches.append(job.handoff)  # kept: the device thread clears job.handoff once it sent
             t1 = time.perf_counter()
-            deadline = t1 + self.handoff_max_s
-            timed_out = False
             for worker, job in jobs:
-                h = job.handoff  # read before submit: the device thread clears it once it sent
                 worker.submit(job)
-                if h is not None and not timed_out and not h.wait(max(0.0, deadline - time.perf_counter())):
-                    timed_out = True
-            if timed_out:
+            deadline = t1 + self.handoff_max_s
+            if not all(h.wait(max(0.0, deadline - time.perf_counter())) for h in latches):
                 self.handoff_timeouts += 1
             w = time.perf_counter() - t1
             self.handoffs += 1
@@ -205,6 +214,17 @@ class ActuationEngine:
         dt = time.perf_counter() - t0
         self.eval_s_total += dt
         self.eval_s_max = max(self.eval_s_max, dt)
+
+    def _raise_caller(self) -> None:
+        """The thread that feeds the rules (the pipeline's tracking thread) runs at the device threads'
+        priority (nice WORKER_NICE, Linux, when allowed): in a closed loop the time from a frame's
+        datagrams to its commands is the host's part of the latency, and at nice 0 that thread waited for
+        a CPU behind the simulated cameras' processes (nice -5) and other jobs."""
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
+            self.tracking_priority_raised = True
+        except (PermissionError, OSError, AttributeError):
+            self.tracking_priority_raised = False
 
     def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float,
                   handoff: bool, jobs: list[tuple[OutputWorker, Job]]) -> bool:
@@ -281,6 +301,7 @@ class ActuationEngine:
             "frames": self.frames,
             "eval_us_mean": self.eval_s_total / self.frames * 1e6 if self.frames else math.nan,
             "eval_us_max": self.eval_s_max * 1e6,
+            "tracking_priority_raised": bool(self.tracking_priority_raised),
             "handoff": {"frames": self.handoffs, "timeouts": self.handoff_timeouts,
                         "us_mean": self.handoff_s_total / self.handoffs * 1e6 if self.handoffs else math.nan,
                         "us_max": self.handoff_s_max * 1e6},

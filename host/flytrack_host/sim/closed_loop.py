@@ -198,6 +198,7 @@ class ClosedLoopLab:
             "eval_us_mean": summary["eval_us_mean"],
             "eval_us_max": summary["eval_us_max"],
             "handoff": summary["handoff"],
+            "tracking_priority_raised": summary["tracking_priority_raised"],
             "outputs": summary["outputs"],
         }
 

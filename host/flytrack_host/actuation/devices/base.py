@@ -87,6 +87,8 @@ class Job:
     predicted: bool
     queued_at: float = field(default_factory=hostclock.now)
     handoff: Handoff | None = None  # the tracking thread waits for this job's command to leave
+    after: Handoff | None = None  # the command of the same frame that leaves first (the device thread waits)
+    after_wait_s: float = HANDOFF_MAX_S  # ... at most this long
 
     def handed_off(self) -> None:
         """The command is on the wire (or failed): release the tracking thread's wait. Idempotent."""
@@ -285,6 +287,10 @@ class OutputWorker:
                 self.idle = False
             if job is None:
                 break
+            if job.after is not None:
+                # Another device's command of the same frame goes first: wait (bounded) until it left,
+                # the interpreter released meanwhile, rather than taking it from that device's thread.
+                job.after.wait(job.after_wait_s)
             try:
                 self._do(job)
             finally:
