@@ -97,7 +97,7 @@ def test_modbus_ack_is_the_kernel_stamp_of_the_response(act) -> None:  # noqa: A
         assert act.wait_for(lambda: eng.firings.count == 3)
         assert out.client.socket is sock and out.client._configured is sock  # options set once, same socket
         eng.close()
-        assert len(peer.coil_writes(3)) == 3
+        assert act.wait_for(lambda: len(peer.coil_writes(3)) == 3, 5.0)  # logged by the server after it answered
         for _, _, _, _, _, queued, started, sent, ack in eng.stages:
             assert queued <= started <= sent <= ack
         # When each request left (the send returned), for the JSON's split of sent -> ack.
