@@ -219,7 +219,11 @@ class ActuationEngine:
         """The thread that feeds the rules (the pipeline's tracking thread) runs at the device threads'
         priority (nice WORKER_NICE, Linux, when allowed): in a closed loop the time from a frame's
         datagrams to its commands is the host's part of the latency, and at nice 0 that thread waited for
-        a CPU behind the simulated cameras' processes (nice -5) and other jobs."""
+        a CPU behind the simulated cameras' processes (nice -5) and other jobs. Not the program's main
+        thread (a benchmark's or a test's loop calling on_frame): that would raise the whole program."""
+        if threading.current_thread() is threading.main_thread():
+            self.tracking_priority_raised = False
+            return
         try:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
             self.tracking_priority_raised = True

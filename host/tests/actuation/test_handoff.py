@@ -194,3 +194,17 @@ def test_the_thread_that_feeds_the_rules_runs_at_the_device_threads_priority(act
             assert seen == [base.WORKER_NICE]
     finally:
         rx.close()
+
+
+def test_a_main_thread_calling_the_rules_keeps_its_priority(act) -> None:  # noqa: ANN001
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    try:
+        before = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        eng = _udp_engine(act, rx)
+        eng.on_frame(act.result(0, {1: (0.0, 0.0)}), hostclock.now(), hostclock.now())
+        eng.close()
+        assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == before
+        assert eng.summary()["tracking_priority_raised"] is False
+    finally:
+        rx.close()
