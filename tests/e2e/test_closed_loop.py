@@ -6,6 +6,7 @@ replay` finds the same firings in the recording."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import h5py
@@ -68,6 +69,13 @@ def test_entry_drives_the_pulse_the_coil_and_the_can_frame(demo) -> None:  # noq
         if d["trigger_to_ack"]["n"]:
             assert all(x["p50"] >= 0 for x in d.values())
             assert d["trigger_to_ack"]["p50"] >= d["trigger_to_estimate"]["p50"]
+    # sent -> acknowledged split where the send returned (Modbus: pymodbus's part, then the round trip).
+    sp = r["latency_send_split_ms"]
+    if outs["valve"]["done"]:
+        assert sp["valve"]["sent_to_written"]["n"] == outs["valve"]["done"]
+        assert sp["valve"]["sent_to_written"]["p50"] >= 0
+    # The tracking thread runs at the device threads' priority where the process may raise it (root here).
+    assert act["tracking_priority_raised"] == (os.geteuid() == 0)
     assert "kernel receive stamp" in act["outputs"]["valve"]["acknowledged_means"]
     assert "armed for its trigger frame" in act["outputs"]["hscam"]["acknowledged_means"]
     assert "trigger time" in act["latency_definition"]

@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
+import threading
 import time
 from collections import deque
 from pathlib import Path
@@ -34,7 +36,7 @@ import numpy as np
 
 from flytrack_host import hostclock
 from flytrack_host.actuation.devices import Output, make_output
-from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, Handoff, Job, Outcome, OutputWorker
+from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, WORKER_NICE, Handoff, Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
 from flytrack_host.actuation.prediction import StepVelocities, reachable_frame
@@ -80,6 +82,10 @@ class ActuationEngine:
         # acknowledged): where the time from a frame's trigger to the device's acknowledgement goes.
         self.stages: deque[tuple[str, str, int, float, float, float, float, float, float]] = deque(
             maxlen=MAX_KEPT_FIRES)
+        # Per action of a device that says when its command left the host (`Output.written`): rule,
+        # output, sent (the device thread began the command), written (the write returned), acknowledged:
+        # the client library's own work apart from the device's answer.
+        self.sends: deque[tuple[str, str, float, float, float]] = deque(maxlen=MAX_KEPT_FIRES)
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
@@ -96,6 +102,7 @@ class ActuationEngine:
         self._closed = False
         self._last_frame = -1
         self._switch_interval: float | None = None  # Python's, restored at close
+        self.tracking_priority_raised: bool | None = None  # the calling (tracking) thread's, at its first frame
 
     @classmethod
     def from_files(cls, rig: RigConfig, rules_path: Path | str, fps: float,
@@ -142,6 +149,8 @@ class ActuationEngine:
     # --- the tracking thread's part -----------------------------------------------------------
     def on_frame(self, result: Any, frame_time: float, estimate_time: float) -> None:
         t0 = time.perf_counter()
+        if self.tracking_priority_raised is None and self.workers:
+            self._raise_caller()
         now = hostclock.now()
         frame = int(result.trigger_frame)
         if frame < self._last_frame:  # the trigger was re-armed (frame 0 again, a new tracker)
@@ -154,7 +163,7 @@ class ActuationEngine:
         ids, states = estimates_arrays(result)
         step_vel = self.step_vel(frame, ids, states) if self._predicting else None  # once for all rules
         self.frames += 1
-        handoff: Handoff | None = None
+        handoff = False
         jobs: list[tuple[OutputWorker, Job]] = []
         targets = []
         for ev, outs in zip(self.evals, self.rule_outputs, strict=True):
@@ -167,17 +176,32 @@ class ActuationEngine:
                 self.shadow_fires.extend(fires)  # its own shadow
             for f in fires:
                 handoff = self._dispatch(f, ev, frame_time, estimate_time, handoff, jobs)
-        # Queued together (no device thread runs before the last is queued), the devices that act at once
-        # (a coil, a CAN frame) before those a command reaches a frame ahead (the PULSE: its lead counts
-        # this wait).
-        jobs.sort(key=lambda wj: wj[0].output.arm_frames)
-        for worker, job in jobs:
-            worker.submit(job)
-        if handoff is not None:
+        # The devices that act at once (a coil, a CAN frame), the slowest to acknowledge first (its round
+        # trip then overlaps the others' sends), before those a command reaches a frame ahead (the PULSE:
+        # its lead counts the wait for the others).
+        jobs.sort(key=lambda wj: (wj[0].output.arm_frames, -wj[0].output.lead_s))
+        if not handoff:
+            for worker, job in jobs:
+                worker.submit(job)
+        else:
             # Let the device threads put their commands on the wire now (this thread's GIL released),
             # rather than after this thread's next stretch of work: bounded, and only on a frame that fired.
+            # All are woken at once (their wake-ups overlap) but send in this order, each after the one
+            # before it sent (`Job.after`): each thread then has the interpreter to itself from taking its
+            # job to its send (woken together without an order they took it from each other at switch
+            # intervals, the first device's command leaving 0.08-0.51 ms after it was queued; woken one
+            # after another, a loaded machine's wake-ups added up).
+            latches = []
+            for _, job in jobs:
+                if job.handoff is not None:
+                    job.after = latches[-1] if latches else None
+                    job.after_wait_s = self.handoff_max_s
+                    latches.append(job.handoff)  # kept: the device thread clears job.handoff once it sent
             t1 = time.perf_counter()
-            if not handoff.wait(self.handoff_max_s):
+            for worker, job in jobs:
+                worker.submit(job)
+            deadline = t1 + self.handoff_max_s
+            if not all(h.wait(max(0.0, deadline - time.perf_counter())) for h in latches):
                 self.handoff_timeouts += 1
             w = time.perf_counter() - t1
             self.handoffs += 1
@@ -191,10 +215,25 @@ class ActuationEngine:
         self.eval_s_total += dt
         self.eval_s_max = max(self.eval_s_max, dt)
 
+    def _raise_caller(self) -> None:
+        """The thread that feeds the rules (the pipeline's tracking thread) runs at the device threads'
+        priority (nice WORKER_NICE, Linux, when allowed): in a closed loop the time from a frame's
+        datagrams to its commands is the host's part of the latency, and at nice 0 that thread waited for
+        a CPU behind the simulated cameras' processes (nice -5) and other jobs. Not the program's main
+        thread (a benchmark's or a test's loop calling on_frame): that would raise the whole program."""
+        if threading.current_thread() is threading.main_thread():
+            self.tracking_priority_raised = False
+            return
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
+            self.tracking_priority_raised = True
+        except (PermissionError, OSError, AttributeError):
+            self.tracking_priority_raised = False
+
     def _dispatch(self, f: Fire, ev: RuleEvaluator, frame_time: float, estimate_time: float,
-                  handoff: Handoff | None, jobs: list[tuple[OutputWorker, Job]]) -> Handoff | None:
+                  handoff: bool, jobs: list[tuple[OutputWorker, Job]]) -> bool:
         """Adds the firing's actions to `jobs` (queued by the caller); a command for an idle, connected
-        device joins `handoff` (made here when needed), which the tracking thread then waits for, bounded."""
+        device gets a `Handoff`, which the tracking thread then waits for, bounded. True when any did."""
         self.fires.append(f)
         self.fired[f.rule] += 1
         pos = (float(f.pos[0]), float(f.pos[1]), float(f.pos[2]))
@@ -213,9 +252,9 @@ class ActuationEngine:
             worker = self.workers[a.output]
             # An idle, connected device's first command of this frame joins the hand-off.
             if self.handoff_max_s > 0 and worker.ready and all(w is not worker for w, _ in jobs):
-                handoff = handoff or Handoff()
-                handoff.add()
-                job.handoff = handoff
+                job.handoff = Handoff()
+                job.handoff.add()
+                handoff = True
             jobs.append((worker, job))
         return handoff
 
@@ -224,6 +263,8 @@ class ActuationEngine:
         j = o.job
         self.stages.append((j.rule, o.output, j.condition_frame, j.frame_time, j.estimate_time, j.queued_at,
                             o.time_started, o.time_sent, o.time_ack))
+        if math.isfinite(o.time_written):
+            self.sends.append((j.rule, o.output, o.time_sent, o.time_written, o.time_ack))
         late = o.error.startswith("late")
         if late:
             self.warn(f"{o.output}:late", f"output {o.output}: {o.error}")
@@ -264,6 +305,7 @@ class ActuationEngine:
             "frames": self.frames,
             "eval_us_mean": self.eval_s_total / self.frames * 1e6 if self.frames else math.nan,
             "eval_us_max": self.eval_s_max * 1e6,
+            "tracking_priority_raised": bool(self.tracking_priority_raised),
             "handoff": {"frames": self.handoffs, "timeouts": self.handoff_timeouts,
                         "us_mean": self.handoff_s_total / self.handoffs * 1e6 if self.handoffs else math.nan,
                         "us_max": self.handoff_s_max * 1e6},

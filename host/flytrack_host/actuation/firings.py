@@ -123,3 +123,20 @@ def stage_latencies(stages: Any, rule: str) -> dict[str, dict[str, dict[str, flo
         d[STAGES[-1]] = percentiles_ms(a[:, 5] - a[:, 0])
         out[name] = d
     return out
+
+
+def send_split(sends: Any, rule: str) -> dict[str, dict[str, dict[str, float]]]:
+    """Per output of `rule` whose device stamps `Output.written`: P50/P99 (ms) of sent -> written and
+    written -> acknowledged. For Modbus TCP, CAN and UDP, written is when the send call returned: the
+    first part is the client library's own work (pymodbus building the request) and the send, the
+    second the link and the device (for Modbus TCP: loopback and the server's answer). HID, USB, RTU and
+    Python hooks stamp it before their transfer (so the tracking thread does not wait for it): for them
+    the second part is the whole transfer. Rows: the engine's `sends` (rule, output, sent, written,
+    acknowledged host times)."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    rows = [s for s in sends if s[0] == rule]
+    for name in sorted({s[1] for s in rows}):
+        a = np.array([s[2:] for s in rows if s[1] == name], dtype=float).reshape(-1, 3)
+        out[name] = {"sent_to_written": percentiles_ms(a[:, 1] - a[:, 0]),
+                     "written_to_ack": percentiles_ms(a[:, 2] - a[:, 1])}
+    return out

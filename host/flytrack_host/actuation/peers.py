@@ -203,7 +203,11 @@ def _serve_logged(host: str, port: int, log_path: str) -> None:
     async def action(func_code: int, start: int, address: int, count: int, registers: list,
                      values: list | None) -> None:
         if values is not None:
-            f.write(f"{hostclock.now():.6f} {func_code} {address} {' '.join(str(int(v)) for v in values)}\n")
+            # Stamped now, written to the log after the answer went out (the loop's next turn): the
+            # device's answer does not wait for this stand-in's bookkeeping (a write call per request,
+            # ~0.05 ms of the round trip measured here).
+            line = f"{hostclock.now():.6f} {func_code} {address} {' '.join(str(int(v)) for v in values)}\n"
+            asyncio.get_running_loop().call_soon(f.write, line)
 
     peer._action = action  # type: ignore[method-assign]
     stop = threading.Event()

@@ -57,8 +57,12 @@ class StepVelocities:
 
     def __call__(self, frame: int, ids: np.ndarray, states: np.ndarray) -> np.ndarray:
         """(N, 3) velocities for this frame's ids (N,) and states (N, 6); remembers this frame."""
-        id_list = np.asarray(ids, dtype=np.int64).tolist()
-        states = np.asarray(states, dtype=np.float64).reshape(-1, 6)
+        # Few NumPy calls: this runs on the tracking thread for every frame, before a firing's commands
+        # are queued (each call costs about a microsecond whatever the number of objects).
+        id_list = (ids.tolist() if isinstance(ids, np.ndarray) and ids.dtype == np.int64
+                   else np.asarray(ids, dtype=np.int64).tolist())
+        if not (isinstance(states, np.ndarray) and states.dtype == np.float64 and states.ndim == 2):
+            states = np.asarray(states, dtype=np.float64).reshape(-1, 6)
         if frame == self._frame and id_list == self._ids:
             return self._vel.copy()  # the same frame again (a second caller)
         vel = states[:, 3:6]
@@ -74,8 +78,9 @@ class StepVelocities:
                     if j is not None:
                         prev[i] = self._pos[j]
             step = (pos - prev) / self.period_s
+            d = step - vel
             # NaN (no previous position) fails the comparison: the filter's velocity then.
-            ok = np.sum((step - vel) ** 2, axis=1) <= STEP_VELOCITY_TOLERANCE_M_S**2
+            ok = (d * d).sum(axis=1) <= STEP_VELOCITY_TOLERANCE_M_S**2
             vel = np.where(ok[:, None], step, vel)
         else:
             vel = vel.copy()

@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import math
 import struct
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 
 from .errors import ProtocolError
 from .text import decode_text, encode_text
 from .udp_eventcam import DvsClusters, _check_dvs_clusters
-from .udp_frame import FEATURES_MAX_POINTS, FeatureFlags, FeatureFrame, ImageChunk, _check_image
+from .udp_frame import _SPLIT, FEATURES_MAX_POINTS, FeatureFlags, FeatureFrame, ImageChunk, _check_image
 from .udp_header import _BY_TYPE, HEADER, HEADER_SIZE, MAGIC, MAX_PARTS, UDP_VERSION, UdpMessage, _check_finite_records
 from .udp_live import LIVE_MAX_OBJECTS, LiveEstimates, LiveFlags
 
@@ -24,6 +24,37 @@ UDP_MESSAGE_TYPES: tuple[type[UdpMessage], ...] = tuple(sorted(_BY_TYPE.values()
 
 
 # ---------------------------------------------------------------- decoding
+
+# Per message type, what the decoder walks its fields for, listed once (field order kept, so the
+# first error found is the same): the count field, the float fields, the enum and text fields.
+_LAYOUT: dict[type, tuple[str | None, tuple[str, ...], tuple[tuple[str, str], ...]]] = {}
+
+
+def _layout(cls: type[UdpMessage]) -> tuple[str | None, tuple[str, ...], tuple[tuple[str, str], ...]]:
+    lay = _LAYOUT.get(cls)
+    if lay is None:
+        count_name = next((nm for nm, _, kind in cls._FIELDS if kind == "n"), None)
+        floats = tuple(nm for nm, _, kind in cls._FIELDS if kind in "fd")
+        checked = tuple((nm, kind) for nm, _, kind in cls._FIELDS if kind in ("e", "s"))
+        lay = _LAYOUT[cls] = (count_name, floats, checked)
+    return lay
+
+
+_FIELD_NAMES: dict[type, frozenset[str] | None] = {}
+
+
+def _message(cls: type[UdpMessage], vals: dict) -> UdpMessage:
+    """`cls(**vals)`; when `vals` gives every field (as decoding does), the instance's fields are set in
+    one step: a frozen dataclass's __init__ sets each through object.__setattr__ (a third of a FEATURES
+    datagram's decoding on the host's tracking thread). The messages have no __post_init__."""
+    if cls not in _FIELD_NAMES:
+        _FIELD_NAMES[cls] = None if hasattr(cls, "__post_init__") else frozenset(f.name for f in fields(cls))
+    names = _FIELD_NAMES[cls]
+    if names is None or len(vals) != len(names) or vals.keys() != names:
+        return cls(**vals)
+    msg = object.__new__(cls)
+    msg.__dict__.update(vals)
+    return msg
 
 
 def decode_datagram(buf: bytes | bytearray | memoryview) -> UdpMessage:
@@ -57,7 +88,7 @@ def decode_datagram(buf: bytes | bytearray | memoryview) -> UdpMessage:
 
     rec_off = HEADER_SIZE + fixed
     count = 0
-    count_name = next((nm for nm, _, kind in cls._FIELDS if kind == "n"), None)
+    count_name, floats, checked = _layout(cls)
     if count_name is None:
         if payload != fixed:
             raise ProtocolError("LENGTH_MISMATCH", f"{name}: {payload} payload bytes, the type fixes {fixed}")
@@ -71,7 +102,7 @@ def decode_datagram(buf: bytes | bytearray | memoryview) -> UdpMessage:
             raise ProtocolError(
                 "COUNT_OVERFLOW", f"{name}: {count_name} = {count} needs {need} payload bytes, {payload} received"
             )
-        if cls is FeatureFrame and not flags & FeatureFlags.SPLIT and count > vals["total_points"]:
+        if cls is FeatureFrame and not flags & _SPLIT and count > vals["total_points"]:
             raise ProtocolError(
                 "COUNT_OVERFLOW", f"FeatureFrame: n_points {count} > total_points {vals['total_points']}"
             )
@@ -81,14 +112,14 @@ def decode_datagram(buf: bytes | bytearray | memoryview) -> UdpMessage:
             )
 
     # NOT_FINITE: fixed floats, then records
-    for nm, _, kind in cls._FIELDS:
-        if kind in "fd" and not math.isfinite(vals[nm]):
+    for nm in floats:
+        if not math.isfinite(vals[nm]):
             raise ProtocolError("NOT_FINITE", f"{name}.{nm} is {vals[nm]}")
     if cls._DTYPE is not None:
         _check_finite_records(buf, rec_off, count, cls._DTYPE, cls._COLS, f"{name}.{cls._ARRAY}")
 
     # BAD_FIELD: enums, texts, cross-field rules
-    for nm, _code, kind in cls._FIELDS:
+    for nm, kind in checked:
         if kind == "e":
             enum = cls._ENUMS[nm]
             try:
@@ -116,7 +147,7 @@ def decode_datagram(buf: bytes | bytearray | memoryview) -> UdpMessage:
             vals[cls._ARRAY] = np.frombuffer(buf, cls._DTYPE, count, rec_off)
     if cls._FLAG_MASK:
         vals["flags"] = flags & cls._FLAG_MASK
-    return cls(**vals)
+    return _message(cls, vals)
 
 
 # ---------------------------------------------------------------- encoding

@@ -59,11 +59,13 @@ def _check_finite_records(buf: Any, offset: int, count: int, dtype: np.dtype, co
     if count == 0:
         return
     strict, nan_ok = cols
-    words = np.frombuffer(buf, "<u4", count * dtype.itemsize // 4, offset).reshape(count, -1)
-    # The common case on the per-datagram path: no word of any record has an all-ones exponent, so
-    # no float is NaN or inf (one pass, no column gathers); otherwise the column checks below decide.
-    if not ((words & _EXP) == _EXP).any():
+    f = np.frombuffer(buf, "<f4", count * dtype.itemsize // 4, offset)
+    # The common case on the per-datagram path: no word of any record has an all-ones exponent (read
+    # as float32, every word is finite), so no float is NaN or inf (one pass, no column gathers);
+    # otherwise the column checks below decide.
+    if np.isfinite(f).all():
         return
+    words = f.view("<u4").reshape(count, -1)
     if strict:
         w = words[:, strict]
         bad = (w & _EXP) == _EXP

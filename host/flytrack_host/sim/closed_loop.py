@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.actuation.engine import ActuationEngine
-from flytrack_host.actuation.firings import percentiles_ms, stage_latencies
+from flytrack_host.actuation.firings import percentiles_ms, send_split, stage_latencies
 from flytrack_host.actuation.history import RuleEvaluator
 from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
@@ -168,6 +168,8 @@ class ClosedLoopLab:
                 # Each stage per output: trigger -> estimate -> queued -> taken by the device thread -> sent
                 # -> acknowledged (ms, P50/P99).
                 "latency_stages_ms": stage_latencies(engine.stages, name),
+                # sent_to_ack split where the device stamps its write: the client's work, then the device's.
+                "latency_send_split_ms": send_split(engine.sends, name),
                 # Each device on its own: the firmware pulse's ACK, the Modbus response, the CAN send.
                 "latency_ms_by_output": latency_by_output(rr),
                 "pulse_ack_ms_p50": pp.get("p50", math.nan),
@@ -196,6 +198,7 @@ class ClosedLoopLab:
             "eval_us_mean": summary["eval_us_mean"],
             "eval_us_max": summary["eval_us_max"],
             "handoff": summary["handoff"],
+            "tracking_priority_raised": summary["tracking_priority_raised"],
             "outputs": summary["outputs"],
         }
 

@@ -37,6 +37,19 @@ from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 
 STAGE_TAIL = 64  # bytes of a staged frame written at its pulse (under PIPE_BUF: one atomic write)
+# Rendering the next frames (CPU-heavy, at the simulated hardware's priority) starts this fraction of
+# a period after the pulse, not at once: a real camera's next exposure costs the host nothing, while
+# here it took one of the machine's cores for ~2.5 ms (5 cameras) right while the host handled the
+# frame just pulsed (its receive -> track -> actuate window). Never so late that rendering, at its
+# measured pace, could miss the next pulse.
+RENDER_AHEAD_DELAY = 0.3
+RENDER_AHEAD_MARGIN = 3.0  # the delay leaves at least this many times the mean render time before the next pulse
+
+
+def render_ahead_delay(period_s: float, mean_render_s: float) -> float:
+    """How long after a pulse the next frames are rendered (s; <= 0: at once): RENDER_AHEAD_DELAY of the
+    period, shortened so that RENDER_AHEAD_MARGIN x the mean render time still fits before the next pulse."""
+    return min(RENDER_AHEAD_DELAY * period_s, period_s - RENDER_AHEAD_MARGIN * mean_render_s)
 F_SETPIPE_SZ = 1031  # Linux fcntl: grow a pipe so one whole frame fits without blocking
 
 
@@ -419,6 +432,8 @@ def _feed(
     links = [_CameraLink(fd, frame_format, c, gt.fps, written_t, i, len(cameras), written_cond)
              for i, (fd, c) in enumerate(zip(edge_fds, cameras, strict=True))]
     render_s = put_s = 0.0
+    ahead_s, ahead_count = 0.0, 0  # the renders made ahead, for the render-ahead delay
+    period = 1.0 / gt.fps
     buf = b""
     parser = EdgeLineParser()
     n_pulses = 0
@@ -480,6 +495,7 @@ def _feed(
                     if n is None:
                         continue
                     t_edge = time.time()  # noqa: TID251 - cross-process stamp (see t_start)
+                    t_pulse = time.perf_counter()
                     counters[0] += 1
                     if n >= gt.n_frames:
                         done = True
@@ -519,12 +535,20 @@ def _feed(
                     # with the edges for the CPU at the moment they work on the frame.
                     while time.perf_counter() < deadline and any(_pipe_bytes(lk.fd) > 0 for lk in links):
                         time.sleep(1e-4)
-                    # Render the next frame now, while waiting for its pulse.
+                    # Render the next frame while waiting for its pulse, once the host had its moment
+                    # (RENDER_AHEAD_DELAY).
                     ahead_n = n + 1
                     if ahead_n < gt.n_frames:
+                        mean = ahead_s / ahead_count if ahead_count else period  # unknown yet: at once
+                        wait = t_pulse + render_ahead_delay(period, mean) - time.perf_counter()
+                        if wait > 0:
+                            time.sleep(wait)
                         t0 = time.perf_counter()
                         imgs = render(ahead_n)
-                        render_s += time.perf_counter() - t0
+                        dt = time.perf_counter() - t0
+                        render_s += dt
+                        ahead_s += dt
+                        ahead_count += 1
                         for link, img in zip(links, imgs, strict=True):
                             if link.stage(img):
                                 counters[8] += 1

@@ -146,3 +146,55 @@ def _staged_run(feeder: FrameFeeder, src_w: int, got: list[bytearray], size: int
     for g in got:
         frames = np.frombuffer(bytes(g), np.uint8).reshape(3, 120, 160)
         assert 100 < frames.mean() < 200
+
+
+def test_render_ahead_waits_for_the_hosts_moment_unless_rendering_is_slow():
+    from flytrack_host.sim.frames import RENDER_AHEAD_DELAY, render_ahead_delay
+
+    assert render_ahead_delay(0.01, 0.0005) == RENDER_AHEAD_DELAY * 0.01  # fast rendering: the full delay
+    assert abs(render_ahead_delay(0.01, 0.003) - 0.001) < 1e-12  # 3 x 3 ms must fit: 1 ms
+    assert render_ahead_delay(0.01, 0.004) < 0  # slow rendering: at once, as before
+
+
+def test_next_frame_is_staged_after_the_render_ahead_delay():
+    """Once its render time is known, frame n+1 is rendered and staged RENDER_AHEAD_DELAY of a period
+    after pulse n, not at once (the host handles frame n meanwhile). A lower bound: load only delays."""
+    from flytrack_host.sim.frames import RENDER_AHEAD_DELAY, STAGE_TAIL
+
+    fps = 20.0  # a 50 ms period: the 15 ms delay stands far above the time to render two small frames
+    gt = simulate_flight(1, 0.2, fps, seed=0)
+    cams = make_cameras(2, Arena(), seed=0, width=160, height=120)
+    size = 160 * 120
+    pipes = [os.pipe() for _ in cams]
+    src_r, src_w = os.pipe()
+    feeder = FrameFeeder(gt, cams, [w for _, w in pipes], RenderParams(), seed=1)
+    for _, w in pipes:
+        os.close(w)
+    arrivals: list[list[tuple[float, int]]] = [[] for _ in cams]
+
+    def read(fd: int, log: list) -> None:
+        n = 0
+        with os.fdopen(fd, "rb", buffering=0) as f:
+            while b := f.read(1 << 20):
+                n += len(b)
+                log.append((time.monotonic(), n))
+
+    threads = [threading.Thread(target=read, args=(r, a), daemon=True)
+               for (r, _), a in zip(pipes, arrivals, strict=True)]
+    for t in threads:
+        t.start()
+    feeder.set_source(src_r)
+    os.close(src_r)
+    try:
+        pulses = []
+        for k in range(3):
+            time.sleep(0.3)  # each pulse's frames and the next ones' staging are done before the next
+            pulses.append(time.monotonic())
+            os.write(src_w, f"{10 * (k + 1)} trigger 1\n".encode())
+        time.sleep(0.3)
+        # After pulse 2 (the second render ahead: its time is known), frame 3 staged at the delay.
+        staged = [next(t for t, n in a if n >= 4 * size - STAGE_TAIL) for a in arrivals]
+        assert min(staged) - pulses[2] >= 0.9 * RENDER_AHEAD_DELAY / fps
+    finally:
+        os.close(src_w)
+        feeder.stop()

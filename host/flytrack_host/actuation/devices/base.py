@@ -45,26 +45,33 @@ class OutputError(RuntimeError):
 
 class Handoff:
     """Counts the commands of one frame still to be put on the wire by their device threads; the
-    tracking thread `wait`s (bounded) for them, its GIL released meanwhile."""
+    tracking thread `wait`s (bounded) for them, its GIL released meanwhile. Two plain locks, no
+    Condition: made and waited for on the tracking thread of every frame that fired."""
 
     def __init__(self) -> None:
         self._left = 0
-        self._cond = threading.Condition(threading.Lock())
+        self._mutex = threading.Lock()
+        self._gate = threading.Lock()  # held while commands are left
 
     def add(self) -> None:
-        with self._cond:
+        with self._mutex:
+            if self._left == 0:
+                self._gate.acquire()
             self._left += 1
 
     def done(self) -> None:
-        with self._cond:
-            self._left -= 1
-            if self._left <= 0:
-                self._cond.notify_all()
+        with self._mutex:
+            if self._left > 0:
+                self._left -= 1
+                if self._left == 0:
+                    self._gate.release()
 
     def wait(self, timeout_s: float) -> bool:
         """True when every command left in time."""
-        with self._cond:
-            return self._cond.wait_for(lambda: self._left <= 0, timeout_s)
+        if not self._gate.acquire(timeout=max(0.0, timeout_s)):
+            return False
+        self._gate.release()
+        return True
 
 
 @dataclass
@@ -80,6 +87,8 @@ class Job:
     predicted: bool
     queued_at: float = field(default_factory=hostclock.now)
     handoff: Handoff | None = None  # the tracking thread waits for this job's command to leave
+    after: Handoff | None = None  # the command of the same frame that leaves first (the device thread waits)
+    after_wait_s: float = HANDOFF_MAX_S  # ... at most this long
 
     def handed_off(self) -> None:
         """The command is on the wire (or failed): release the tracking thread's wait. Idempotent."""
@@ -278,6 +287,10 @@ class OutputWorker:
                 self.idle = False
             if job is None:
                 break
+            if job.after is not None:
+                # Another device's command of the same frame goes first: wait (bounded) until it left,
+                # the interpreter released meanwhile, rather than taking it from that device's thread.
+                job.after.wait(job.after_wait_s)
             try:
                 self._do(job)
             finally:

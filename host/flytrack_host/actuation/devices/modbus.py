@@ -32,14 +32,18 @@ def _stamped_tcp_client(output: ModbusOutput, **kw: Any) -> Any:
     from pymodbus.exceptions import ConnectionException
 
     class StampedTcpClient(ModbusTcpClient):
+        _configured: Any = None  # the socket the options below were set on
+
         def connect(self) -> bool:
             ok = super().connect()
-            if ok and self.socket is not None:
+            # pymodbus calls connect() before every request: the options are set once per socket.
+            if ok and self.socket is not None and self.socket is not self._configured:
                 self.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 try:
                     self.socket.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
                 except OSError:
                     pass  # no kernel stamps: the read time is the acknowledgement
+                self._configured = self.socket
             return ok
 
         def send(self, request: bytes, addr: tuple | None = None) -> int:
