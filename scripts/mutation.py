@@ -32,7 +32,8 @@ MODULES: dict[str, tuple[str, list[str]]] = {
     # catches counts as surviving).
     "sync": ("host/flytrack_host/sync.py",
              ["host/tests/host/test_sync.py", "host/tests/host/test_sync_bursty.py",
-              "host/tests/host/test_sync_behaviour.py", "host/tests/host/test_faults_units.py", "-k",
+              "host/tests/host/test_sync_behaviour.py", "host/tests/host/test_sync_window.py",
+              "host/tests/host/test_faults_units.py", "-k",
               "'(not faults_units or wrong_numbers or gap_in_the_good or edge_restart or reanchored "
               "or stall_and_burst or restarted_edge) and not repeated_random_stalls'"]),
     # The recorder's writer (raw files, flushes, disk errors) and finalisation (raw files -> HDF5,
