@@ -6,6 +6,7 @@ checked on a recorder whose writer thread has not started yet."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import socket
@@ -125,13 +126,14 @@ def test_a_full_queue_drops_counts_and_says_so_in_the_recording(tmp_path) -> Non
     rec = Recorder(folder, max_queue_bytes=1000, on_full="drop", flush_interval_s=0.05)
     rec.log("a" * 100)  # a log line counts 64 bytes plus its text
     assert rec.queue_bytes == 164
-    rec.log("b" * 900)  # 164 + 964 > 1000: dropped
-    assert rec.stats.dropped_log_lines == 1 and rec.stats.queue_full_drops == 1
     big = _rows(0, 1000 // DATA2D.itemsize + 1)
     rec.append("data2d_distorted", big)  # more than the room left: dropped, counted per row
     rec.append_many([("data2d_distorted", big), ("latency", np.zeros(2, LATENCY))])
     assert rec.stats.dropped_rows == {"data2d_distorted": 2 * len(big), "latency": 2}
-    assert rec.stats.queue_full_drops == 1 + 2 * len(big) + 2
+    assert rec.stats.queue_full_drops == 2 * len(big) + 2
+    rec.log("b" * 900)  # 164 + 964 > 1000: dropped
+    rec.log("d" * 900)
+    assert rec.stats.dropped_log_lines == 2 and rec.stats.queue_full_drops == 2 * len(big) + 4
     rec.log("c" * 10)  # 164 + 74 fits
     assert rec.queue_bytes == 164 + 74
     assert rec.stats.max_queue_bytes == 164 + 74  # the deepest the queue got (drops never queued)
@@ -142,9 +144,10 @@ def test_a_full_queue_drops_counts_and_says_so_in_the_recording(tmp_path) -> Non
     note = [x for x in lines if x["source"] == "recorder"]
     assert len(note) == 1
     assert note[0]["message"] == (
-        f"DATA LOST: {2 * len(big)} data2d_distorted rows, 2 latency rows, 1 log lines not recorded "
-        f"(recorder queue full (1000 bytes): {3 + 2 * len(big)} dropped so far)")
+        f"DATA LOST: {2 * len(big)} data2d_distorted rows, 2 latency rows, 2 log lines not recorded "
+        f"(recorder queue full (1000 bytes): {4 + 2 * len(big)} dropped so far)")
     assert rec.queue_bytes == 0 and rec.stats.log_lines == 2
+    assert rec.stats.max_queue_depth >= 2  # both lines queued before the writer started: one turn
 
 
 def test_block_mode_waits_for_room_and_loses_nothing(tmp_path) -> None:
@@ -167,12 +170,12 @@ def test_block_mode_waits_for_room_and_loses_nothing(tmp_path) -> None:
 
 
 def test_bad_arguments_are_clear(tmp_path) -> None:
-    with pytest.raises(ValueError, match="on_full must be 'drop' or 'block', not 'wait'"):
+    with pytest.raises(ValueError, match="^on_full must be 'drop' or 'block', not 'wait'$"):
         Recorder(tmp_path / "r", on_full="wait")
     rec = Recorder(tmp_path / "r", on_full="block")
-    with pytest.raises(TypeError, match=r"rows for latency have dtype .* expected"):
+    with pytest.raises(TypeError, match=r"^rows for latency have dtype \[.*\], expected \[.*\]$"):
         rec.append("latency", _rows(0, 1))
-    with pytest.raises(TypeError, match=r"rows for data2d_distorted have dtype .* expected"):
+    with pytest.raises(TypeError, match=r"^rows for data2d_distorted have dtype \[.*\], expected \[.*\]$"):
         rec.append_many([("data2d_distorted", np.zeros(1, LATENCY))])
 
 
@@ -253,10 +256,117 @@ def test_finalize_drops_a_cut_row_and_a_cut_line_and_counts_them(tmp_path) -> No
 
 
 def test_a_folder_that_is_not_a_recording_is_named(tmp_path) -> None:
-    with pytest.raises(RecordingError, match=r"no meta.json; this is not a FlyTrack recording folder"):
+    with pytest.raises(RecordingError, match=rf"^{tmp_path}: no meta.json; this is not a FlyTrack recording folder$"):
         read_meta(tmp_path)
+    assert read_raw_textlog(tmp_path) == ([], 0)  # no text log: nothing, nothing dropped
     (tmp_path / "meta.json").write_text("{not json")
-    with pytest.raises(RecordingError, match=r"meta.json: unreadable"):
+    with pytest.raises(RecordingError, match=rf"^{tmp_path}/meta.json: unreadable \(Expecting"):
         finalize(tmp_path)
     empty, partial = read_raw_table(tmp_path, "latency", LATENCY)  # a table never written: empty
     assert len(empty) == 0 and partial == 0 and empty.dtype == LATENCY
+
+
+def test_write_errors_are_counted_exactly_said_once_and_noted_in_the_recording(tmp_path, caplog) -> None:
+    """Two files of a running recording are pointed at /dev/full (a real ENOSPC from the kernel):
+    each failed write is one write error, its rows or lines are lost and counted, the first error of
+    the episode is logged at once with what was lost; once the files are back, writing goes on, that is
+    said, and the recording's text log says what was lost and why."""
+    folder = tmp_path / "r"
+    rec = Recorder(folder, flush_interval_s=0.05)
+    rec.start()
+    real = {k: rec._fds[k] for k in ("data2d_distorted", "__textlog__")}
+    full = os.open("/dev/full", os.O_WRONLY)
+    try:
+        with caplog.at_level("WARNING", logger="flytrack.recording"):
+            rec._fds["data2d_distorted"] = full
+            rec.append("data2d_distorted", _rows(0, 3))
+            assert _wait(lambda: rec.stats.write_errors == 1)
+            assert rec.stats.dropped_rows == {"data2d_distorted": 3}
+            assert rec.last_error == "recording: cannot write data2d_distorted (No space left on device); 3 rows lost"
+            rec._fds["__textlog__"] = full
+            rec.log("first")
+            rec.log("second")
+            assert _wait(lambda: rec.stats.dropped_log_lines == 2)
+            assert rec.last_error == "recording: cannot write __textlog__ (No space left on device); 2 lines lost"
+            rec._fds.update(real)  # the disk has room again
+            rec.append("data2d_distorted", _rows(3, 4))
+            assert _wait(lambda: rec.stats.rows.get("data2d_distorted") == 4)
+            rec.stop(finalize=False)
+    finally:
+        os.close(full)
+    st = rec.stats
+    assert st.write_errors == 2 and st.dropped_rows == {"data2d_distorted": 3} and st.dropped_log_lines == 2
+    assert st.queue_full_drops == 0
+    msgs = [(r.levelname, r.getMessage()) for r in caplog.records if r.name == "flytrack.recording"]
+    assert msgs[0] == ("ERROR", "recording: cannot write data2d_distorted (No space left on device); 3 rows lost")
+    assert ("WARNING", "recording: writing again after write errors (2 so far)") in msgs
+    assert sum(level == "ERROR" for level, _ in msgs) == 1  # one episode, logged once
+    rows, partial = read_raw_table(folder, "data2d_distorted", DATA2D)
+    assert partial == 0 and rows["trigger_frame"].tolist() == [3, 4, 5, 6]
+    lines, _ = read_raw_textlog(folder)
+    notes = [x["message"] for x in lines if x["source"] == "recorder"]
+    assert notes and notes[-1].startswith("DATA LOST: ")
+    assert "2 write errors so far, last: recording: cannot " in notes[-1]
+    assert sum(int(n.split()[2]) for n in notes if "data2d_distorted rows" in n) == 3
+    assert all(isinstance(x["host_time"], float) for x in lines)
+
+
+def _wait(cond, timeout: float = 10.0) -> bool:
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.005)
+    return cond()
+
+
+def test_finalize_reads_every_time_column_and_every_whole_log_line(tmp_path) -> None:
+    from flytrack_host.recording.schema import CAMERA_STATUS, TRIGGER_CLOCK
+
+    folder = tmp_path / "r"
+    rec = Recorder(folder, flush_interval_s=0.05)
+    rec.start()
+    rec.stop(finalize=False)
+    latest = {}
+    for table, dt, col, t in (("camera_status", CAMERA_STATUS, "host_time", 2000.0),
+                              ("trigger_clock_info", TRIGGER_CLOCK, "stop_timestamp", 3000.0),
+                              ("latency", LATENCY, "estimate_time", 4000.0)):
+        r = np.zeros(2, dt)
+        r[col] = [t - 1.0, t]
+        with open(folder / f"{table}.bin", "ab") as f:
+            f.write(r.tobytes())
+        latest[table] = t
+        assert finalize(folder).last_host_time == t  # each table's own time column counts
+        (folder / "recording.h5").unlink()
+    with open(folder / "textlog.jsonl", "ab") as f:
+        f.write(b'{"host_time": 1.0}\n\n{"host_time": 2.0, "source": "edge", "message": "m"}\n{"cut\n{"cut2\n')
+    report = finalize(folder)
+    assert report.log_lines == 2 and report.log_lines_dropped == 2  # a blank line is no line; both cut ones count
+    with h5py.File(report.h5_path, "r") as h5:
+        tl = h5["textlog"][...]
+        assert [(x["source"].decode(), x["message"].decode()) for x in tl] == [("", ""), ("edge", "m")]
+
+
+def test_finalize_onto_a_full_disk_says_how_much_is_needed_and_leaves_nothing(tmp_path) -> None:
+    import shutil
+
+    from flytrack_host.testing import small_tmpfs
+
+    folder = tmp_path / "r"
+    rec = Recorder(folder, flush_interval_s=0.05)
+    rec.start()
+    rec.append("data2d_distorted", _rows(0, 30000))  # ~3.4 MB
+    rec.stop(finalize=False)
+    (folder / "calibration.xml.tmp").write_bytes(bytes(5 << 20))  # a half-written file: not copied
+    need = sum(p.stat().st_size for p in folder.iterdir() if p.suffix != ".tmp") + (1 << 20)
+    with small_tmpfs(tmp_path / "small", "2m") as disk:
+        free = shutil.disk_usage(disk).free
+        with pytest.raises(OSError) as exc:
+            finalize(folder, disk / "r.h5")
+        assert exc.value.errno == errno.ENOSPC
+        assert exc.value.strerror == (f"not enough space: about {need / 1e6:.1f} MB needed, {free / 1e6:.1f} MB "
+                                      f"free on the disk of {disk} (the disk is full)")
+        assert list(disk.iterdir()) == []  # no half file
+    assert finalize(folder).rows["data2d_distorted"] == 30000  # the raw files are all still there
