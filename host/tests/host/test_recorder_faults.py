@@ -70,7 +70,7 @@ def _fill(disk, leave: int = 0) -> Path:
 def test_disk_full_is_reported_at_once_and_the_table_stays_whole(small_disk, caplog):
     rec = Recorder(small_disk / "r", flush_interval_s=0.05)
     rec.start()
-    with caplog.at_level(logging.ERROR, logger="flytrack.recording"):
+    with caplog.at_level(logging.WARNING, logger="flytrack.recording"):
         for k in range(10):
             rec.append("data2d_distorted", _rows(k, 1))
         assert _wait(lambda: rec.stats.rows.get("data2d_distorted") == 10)
@@ -87,7 +87,14 @@ def test_disk_full_is_reported_at_once_and_the_table_stays_whole(small_disk, cap
         assert _wait(lambda: rec.stats.rows["data2d_distorted"] + rec.stats.dropped_rows["data2d_distorted"] == 200)
         assert "No space left" in (rec.last_error or "")
         errors = [r for r in caplog.records if r.name == "flytrack.recording" and r.levelno >= logging.ERROR]
-        assert len(errors) == 1  # logged once per episode, not once per write
+        back_again = [r for r in caplog.records if r.name == "flytrack.recording"
+                      and r.getMessage().startswith("recording: writing again after write errors")]
+        # Logged once per episode, not once per write. An episode ends when a write succeeds: on a loaded
+        # host the writer takes bigger batches, and a small one may still fit in room a rolled-back write
+        # gave back (seen: 3 episodes, 129 rows in 3 failed writes, at load 10).
+        # (the last batch may have fitted: then the episodes all ended, as many recoveries as errors)
+        assert len(errors) >= 1 and len(errors) - len(back_again) in (0, 1)
+        assert len(errors) <= rec.stats.write_errors
         ballast.unlink()
         for k in range(200, 210):
             rec.append("data2d_distorted", _rows(k, 1))
