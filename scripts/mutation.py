@@ -83,7 +83,8 @@ def _recheck(work: Path, target: str, runner: str, env: dict, py: str) -> None:
     with sqlite3.connect(work / ".mutmut-cache") as db:
         ids = [i for (i,) in db.execute("SELECT id FROM Mutant WHERE status = 'bad_survived' ORDER BY id")]
         for i in ids:
-            shutil.copy2(ROOT / target, work / target)
+            for t in target.split(","):  # the unmutated file(s) back before each mutant
+                shutil.copy2(ROOT / t, work / t)
             ap = subprocess.run([py, "-m", "mutmut", "apply", str(i)], cwd=work, env=env, capture_output=True,
                                 text=True)
             if ap.returncode != 0:  # left as it was (survived)
