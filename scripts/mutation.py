@@ -95,7 +95,8 @@ def _recheck(work: Path, target: str, runner: str, env: dict, py: str) -> None:
             except subprocess.TimeoutExpired:
                 rc = 1  # as mutmut counts a time-out: caught
             finally:
-                shutil.copy2(ROOT / target, work / target)
+                for t in target.split(","):
+                    shutil.copy2(ROOT / t, work / t)
             if rc == 1:  # mutmut's rule: exit status 1 (tests failed) is a kill
                 db.execute("UPDATE Mutant SET status = 'ok_killed' WHERE id = ?", (i,))
                 db.commit()
