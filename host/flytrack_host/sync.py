@@ -30,9 +30,14 @@ model and the arrival lag of the other cameras. Afterwards the mapping is checke
   mapping, so the wrong ones never confirm a jump). Camera frames
   that jump back to numbers already seen are suspect the same way;
 - an edge restart (the receiver saw a new sender after silence, `CameraFrame.restarted`) maps the
-  camera again by arrival, never by the frame-0 tie: its first frames are held until one comes
-  paced (a starting process delivers them bunched), which places it; the trigger frames it missed
-  while down are counted (`missed`);
+  camera again by arrival, never by the frame-0 tie. A starting edge delivers its first frames late
+  and bunched (they queued while it started), so arrival alone places it too late. A frame cannot
+  arrive before its pulse plus the least lag the cameras have: each held frame bounds where the new
+  counter starts, and the lowest bound is the placement once `restart_settle_frames` frames in a
+  row came paced without lowering it (the edge caught up). Counted in frames, never seconds: on a
+  loaded host the edge takes longer to catch up and its frames wait until it did (recorded, not
+  tracked), instead of being tracked misnumbered. The trigger frames it missed while down are
+  counted (`missed`);
 - with the fixed-rate clock (no trigger), a frame arriving before its expected time moves the anchor
   earlier (the first frame came late); a pause of every camera (all frames paced but late by more
   than 2 periods for `reanchor_s`) re-anchors the clock, so later latencies are not the pause's.
@@ -172,6 +177,8 @@ class _Cam:
     ahead_check_at: float = 0.0
     restarted_at: float | None = None
     placing: list | None = None  # a restarted edge's first frames, held until it can be placed
+    place_best: int | None = None  # the lowest bound on the trigger frame of its camera frame 0 so far
+    place_at: int = 0  # index in `placing` of the frame that gave it
     suspects: list[tuple[CameraFrame, int]] = field(default_factory=list)
     stats: CameraSyncStats = field(default_factory=CameraSyncStats)
 
@@ -204,6 +211,8 @@ class FrameSynchronizer:
         early_slack_s: float = 0.005,
         early_confirm_s: float = 0.2,
         reanchor_s: float = 0.2,
+        restart_settle_frames: int = 10,
+        restart_hold_frames: int = 300,
         on_event: Callable[[SyncEvent], None] | None = None,
     ):
         self.period = 1.0 / fps
@@ -230,6 +239,10 @@ class FrameSynchronizer:
         self.early_confirm_s = early_confirm_s  # early frames confirm a jump only over this long
         self.lag_window_s = 1.0
         self.reanchor_frames = max(5, int(reanchor_s * fps))
+        # A restarted edge is placed once this many frames in a row came paced without a new lowest
+        # bound, or (an edge that never catches up) once this many frames were held.
+        self.restart_settle = max(2, restart_settle_frames)
+        self.restart_hold = max(self.restart_settle + 1, restart_hold_frames)
         self._late_run: deque = deque()  # (first arrival, lag, frame) of recent bundles (fixed-rate re-anchor)
         self.reanchors = 0
         self._arrivals: dict[int, dict[int, float]] = {}
@@ -282,12 +295,10 @@ class FrameSynchronizer:
             out.append(SyncEvent("alive", cam.index, f"camera {cam.index} is sending again"))
         self._edge_numbered[cam.index] = frame.trigger_frame >= 0
         if frame.restarted and cam.offset is not None and frame.trigger_frame < 0:
-            cam.placing = [frame]  # a restarted edge: placed once its frames come paced (see _place)
-            cam.stats.frames -= 1  # counted again when placed
-            return out
+            cam.placing, cam.place_best, cam.place_at = [], None, 0  # placed once it caught up (_place)
         if cam.placing is not None:
-            cam.stats.frames -= 1
-            return self._place(cam, frame)
+            cam.stats.frames -= 1  # counted again when placed
+            return out + self._place(cam, frame)
         if cam.last_cf is not None and frame.camera_frame == cam.last_cf:
             cam.stats.duplicate += 1
             tf = frame.trigger_frame if frame.trigger_frame >= 0 else (cam.last_tf if cam.last_tf is not None else -1)
@@ -372,10 +383,15 @@ class FrameSynchronizer:
         return min(p.deadline for p in self.pending.values())
 
     def flush(self) -> list[SyncOutput]:
-        """Close every pending bundle (at stop)."""
-        if not self.pending:
-            return []
-        return self._close_through(max(self.pending), "flush")
+        """Close every pending bundle (at stop); a restarted edge's frames still held are placed by
+        the best bound they gave and recorded."""
+        out: list[SyncOutput] = []
+        for cam in self.cams.values():
+            if cam.placing:
+                out.extend(self._place_held(cam))
+        if self.pending:
+            out.extend(self._close_through(max(self.pending), "flush"))
+        return out
 
     # --- mapping ------------------------------------------------------------------------------
     def frame_time(self, tf: int) -> float:
@@ -503,27 +519,52 @@ class FrameSynchronizer:
         return [SyncEvent("ahead", cam.index, f"camera {cam.index}: frames numbered {k} ahead of their arrival "
                                               f"against the other cameras{note}: re-mapped")]
 
+    def _floor_lag(self, cam: _Cam) -> float:
+        """The least lag to the trigger clock a frame has now: the lowest of the other cameras' last
+        few frames (the fastest camera's). Their recent frames only: on a loaded host the simulated
+        cameras, the edges and the trigger clock model each drift by tens of ms within a second, so
+        a floor over a longer span places a restart several frames off; what the other cameras
+        deliver at the same moment moves with all of that. The usual lag when no other camera has any."""
+        lows = [min(x[1] for x in list(c.lag_win)[-5:]) for c in self.cams.values()
+                if c is not cam and c.alive and c.lag_win]
+        return min(lows) if lows else self._lag(cam.index)
+
     def _place(self, cam: _Cam, frame: CameraFrame) -> list[SyncOutput]:
-        """A restarted edge's first frames come bunched (its process starting while frames queue for
-        it); placed by the first one that comes paced (half a period or more after the one before),
-        or after 0.3 s / 30 frames. The held frames then go through as usual, with their numbers."""
+        """Hold a restarted edge's frame; place the edge once it caught up (see the module doc).
+
+        Frame c arriving at r answered a pulse no later than the one at r - floor lag, so camera frame
+        0 is at most that trigger frame - c. While the edge works off its queue every frame lowers
+        this bound (they come bunched); once it caught up they come paced and the bound stays.
+        """
         held = cam.placing
         assert held is not None
         held.append(frame)
-        paced = frame.recv_time - held[-2].recv_time >= 0.5 * self.period
-        if not paced and frame.recv_time - held[0].recv_time < 0.3 and len(held) < 30:
+        bound = self._frame_at(frame.recv_time - self._floor_lag(cam)) - frame.camera_frame
+        if cam.place_best is None or bound < cam.place_best:
+            cam.place_best, cam.place_at = bound, len(held) - 1
+        k = self.restart_settle
+        since = len(held) - 1 - cam.place_at
+        # Paced: most of the last k frames came half a period or more after the one before (one long
+        # stall before a burst is no pacing: the burst's frames come together).
+        paced = since >= k and 2 * sum(held[-j].recv_time - held[-j - 1].recv_time >= 0.5 * self.period
+                                       for j in range(1, k)) >= k - 1
+        if not paced and len(held) < self.restart_hold:
             return []
-        cam.placing = None
-        out = self._restart(cam, frame, held[0])
+        return self._place_held(cam)
+
+    def _place_held(self, cam: _Cam) -> list[SyncOutput]:
+        held, best = cam.placing, cam.place_best
+        assert held and best is not None
+        cam.placing, cam.place_best = None, None
+        out = self._restart(cam, held[0], best)
         for f in held:
             f.restarted = False
             out.extend(self.add(f, f.recv_time))
         return out
 
-    def _restart(self, cam: _Cam, frame: CameraFrame, first: CameraFrame | None = None) -> list[SyncOutput]:
-        """An edge restarted (new sender): map its counter again by the arrival of `frame`; count what
+    def _restart(self, cam: _Cam, first: CameraFrame, first_tf: int) -> list[SyncOutput]:
+        """An edge restarted (new sender): its camera frame 0 is trigger frame `first_tf`; count what
         it missed before `first`, its first frame."""
-        first = first or frame
         old_tf = cam.last_tf
         cam.stats.restarts += 1
         cam.suspects.clear()
@@ -533,10 +574,10 @@ class FrameSynchronizer:
         # rel_base is kept: the camera arrives as it did against the others (same link, same edge), so
         # the drift check can correct a restart placed a few frames off, instead of taking the wrong
         # placement as the new normal.
-        cam.offset = frame.camera_frame - self._frame_at(frame.recv_time - self._lag(cam.index))
+        cam.offset = -first_tf
         new_tf = first.camera_frame - cam.offset
         cam.last_cf, cam.last_tf = None, None
-        cam.restarted_at = frame.recv_time
+        cam.restarted_at = first.recv_time
         missed = max(0, new_tf - (old_tf if old_tf is not None else new_tf) - 1)
         cam.stats.missed += missed
         return [SyncEvent("restart", cam.index,
