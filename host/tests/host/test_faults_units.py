@@ -147,11 +147,15 @@ def test_the_wall_clock_only_labels_and_steps_are_noticed():
 
 
 def test_wall_steps_from_the_environment_reach_a_real_process():
-    code = ("import time; from flytrack_host import hostclock as h; t=h.now(); w=h.wall(); time.sleep(0.3); "
-            "print(round(h.wall()-w), round(h.now()-t, 1))")
+    # Host time moves as the monotonic clock did, bracketed by monotonic reads on either side (a loaded
+    # machine sleeps 0.3 s for 0.35 s or more: `round(elapsed, 1) == 0.3` failed so), untouched by the
+    # -1 h step of the wall clock.
+    code = ("import time; from flytrack_host import hostclock as h; m=time.monotonic; "
+            "a=m(); t=h.now(); b=m(); w=h.wall(); time.sleep(0.3); c=m(); t2=h.now(); d=m(); "
+            "print(round(h.wall()-w-(t2-t)), int(c-b <= t2-t <= d-a), int(t2-t >= 0.3))")
     env = dict(os.environ, FLYTRACK_FAULT_WALL_STEPS="0.1:-3600")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
-    assert out.split() == ["-3600", "0.3"]
+    assert out.split() == ["-3600", "1", "1"], out
     bad = subprocess.run([sys.executable, "-c", "import flytrack_host.hostclock"], capture_output=True, text=True,
                          env=dict(os.environ, FLYTRACK_FAULT_WALL_STEPS="soon"))
     assert bad.returncode != 0 and "AT_SECONDS:STEP_SECONDS" in bad.stderr
