@@ -173,7 +173,7 @@ class _Cam:
     rel_base: float | None = None  # usual arrival relative to the other cameras (drift baseline)
     rel_window: deque = field(default_factory=deque)  # (trigger frame, d, arrival) of recent frames
     seen_cf: deque = field(default_factory=lambda: deque(maxlen=512))  # recent camera frames accepted
-    lag_win: deque = field(default_factory=deque)  # (arrival, lag to the trigger clock) over ~1 s
+    lag_win: deque = field(default_factory=deque)  # (arrival, lag to the trigger clock, trigger frame) over ~1 s
     ahead_check_at: float = 0.0
     restarted_at: float | None = None
     placing: list | None = None  # a restarted edge's first frames, held until it can be placed
@@ -296,6 +296,7 @@ class FrameSynchronizer:
         self._edge_numbered[cam.index] = frame.trigger_frame >= 0
         if frame.restarted and cam.offset is not None and frame.trigger_frame < 0:
             cam.placing, cam.place_best, cam.place_at = [], None, 0  # placed once it caught up (_place)
+            cam.lag_win.clear()  # the old edge's lags: stale, and no measure of the new one
         if cam.placing is not None:
             cam.stats.frames -= 1  # counted again when placed
             return out + self._place(cam, frame)
@@ -481,7 +482,7 @@ class FrameSynchronizer:
         if not math.isfinite(t):
             return
         w = cam.lag_win
-        w.append((frame.recv_time, frame.recv_time - t))
+        w.append((frame.recv_time, frame.recv_time - t, tf))
         while w and w[0][0] < frame.recv_time - self.lag_window_s:
             w.popleft()
 
@@ -493,12 +494,18 @@ class FrameSynchronizer:
         w = cam.lag_win
         if cam.offset is None or len(w) < 8 or w[-1][0] - w[0][0] < 0.1:
             return []
-        others = [min(x[1] for x in c.lag_win) for c in self.cams.values()
-                  if c is not cam and c.alive and len(c.lag_win) >= 8]
+        lag = self._lag_now()
+        if lag is None:
+            return []
+        others = [min(lag(x) for x in c.lag_win if x[0] >= now - self.lag_window_s)
+                  for c in self._lag_peers(cam, now) if len(c.lag_win) >= 8]
         if not others:
             return []
-        mine = min(x[1] for x in w)
-        d = mine - statistics.median(others)
+        mine = min(lag(x) for x in w)
+        # Against the fastest other camera: ahead of all of them, not of their middle (one other
+        # camera still late, e.g. a restarted edge working off its queue, must not make a camera
+        # on time look ahead).
+        d = mine - min(others)
         # Ahead of the others (a clock step moves all cameras alike) and before its own pulses (other
         # cameras late for longer than the window, in a stall, make no camera arrive before its pulse).
         if d >= -self.early_s or mine >= -self.early_s:
@@ -519,15 +526,37 @@ class FrameSynchronizer:
         return [SyncEvent("ahead", cam.index, f"camera {cam.index}: frames numbered {k} ahead of their arrival "
                                               f"against the other cameras{note}: re-mapped")]
 
-    def _floor_lag(self, cam: _Cam) -> float:
+    def _floor_lag(self, cam: _Cam, now: float) -> float:
         """The least lag to the trigger clock a frame has now: the lowest of the other cameras' last
         few frames (the fastest camera's). Their recent frames only: on a loaded host the simulated
         cameras, the edges and the trigger clock model each drift by tens of ms within a second, so
         a floor over a longer span places a restart several frames off; what the other cameras
         deliver at the same moment moves with all of that. The usual lag when no other camera has any."""
-        lows = [min(x[1] for x in list(c.lag_win)[-5:]) for c in self.cams.values()
-                if c is not cam and c.alive and c.lag_win]
+        lag = self._lag_now()
+        lows = [min(lag(x) for x in list(c.lag_win)[-5:]) for c in self._lag_peers(cam, now)] if lag else []
         return min(lows) if lows else self._lag(cam.index)
+
+    def _lag_now(self) -> Callable[[tuple], float] | None:
+        """A lag window entry's lag to the trigger clock as it is now. The clock model is refitted, and
+        restarts after a jump (a loaded host's late clock replies: it stepped by tens of ms at load
+        11): lags noted before and after a step are not comparable, and one camera's newest frame
+        after it, against the others' older ones, looked frames ahead (two healthy cameras re-mapped
+        by 2 and 4, 270 frames misnumbered). The model is a line in the frame number; None while it
+        is not ready."""
+        ref = max(self.max_accepted, 0)
+        t_ref = self.frame_time(ref)
+        t_far = self.frame_time(ref + 1000)
+        if not (math.isfinite(t_ref) and math.isfinite(t_far)):
+            return None
+        slope = (t_far - t_ref) / 1000.0
+        return lambda x: x[0] - (t_ref + (x[2] - ref) * slope)
+
+    def _lag_peers(self, cam: _Cam, now: float) -> list[_Cam]:
+        """The other cameras whose arrival lags describe now: alive, placed, and heard from within the
+        lag window (a camera's window is only pruned when it delivers: one held or silent for a while
+        keeps lags from before, perhaps from before a clock-model restart, and would tilt the others)."""
+        return [c for c in self.cams.values() if c is not cam and c.alive and c.placing is None and c.lag_win
+                and c.lag_win[-1][0] >= now - self.lag_window_s]
 
     def _place(self, cam: _Cam, frame: CameraFrame) -> list[SyncOutput]:
         """Hold a restarted edge's frame; place the edge once it caught up (see the module doc).
@@ -539,8 +568,10 @@ class FrameSynchronizer:
         held = cam.placing
         assert held is not None
         held.append(frame)
-        bound = self._frame_at(frame.recv_time - self._floor_lag(cam)) - frame.camera_frame
-        if cam.place_best is None or bound < cam.place_best:
+        bound = None
+        if math.isfinite(self.frame_time(max(self.max_accepted, 0))):  # else the clock model is not ready
+            bound = self._frame_at(frame.recv_time - self._floor_lag(cam, frame.recv_time)) - frame.camera_frame
+        if bound is not None and (cam.place_best is None or bound < cam.place_best):
             cam.place_best, cam.place_at = bound, len(held) - 1
         k = self.restart_settle
         since = len(held) - 1 - cam.place_at
@@ -554,7 +585,9 @@ class FrameSynchronizer:
 
     def _place_held(self, cam: _Cam) -> list[SyncOutput]:
         held, best = cam.placing, cam.place_best
-        assert held and best is not None
+        assert held
+        if best is None:  # the clock model was never ready while it was held: by its last arrival
+            best = self._frame_at(held[-1].recv_time - self._lag(cam.index)) - held[-1].camera_frame
         cam.placing, cam.place_best = None, None
         out = self._restart(cam, held[0], best)
         for f in held:

@@ -19,11 +19,14 @@ def _frame(cam: int, cf: int, t: float) -> CameraFrame:
     return CameraFrame(camera_index=cam, camera_frame=cf, trigger_frame=-1, points=None, recv_time=t)  # type: ignore[arg-type]
 
 
-def _run(arrivals: list[float], down: tuple[int, int] = (140, 160), end: int = 300, stop_early: bool = False):
+def _run(arrivals: list[float], down: tuple[int, int] = (140, 160), end: int = 300, stop_early: bool = False,
+         clock_step: tuple[float, float] | None = None):
     """Cameras 0 and 2 deliver every pulse 2 ms after it; camera 1 until `down[0]`, then its edge
     restarts: its camera frame i answers pulse down[1] + i and arrives at `arrivals[i]` (seconds after
-    T0), or paced 2.5 ms after its pulse beyond the list. Returns {trigger frame: camera frame} of
-    camera 1 in tracked bundles and as recorded untracked, the sync and its outputs' events."""
+    T0), or paced 2.5 ms after its pulse beyond the list. `clock_step` (at s after T0, by s): the
+    trigger clock model steps (as when it restarts after a jump on a loaded host). Returns {trigger
+    frame: camera frame} of camera 1 in tracked bundles and as recorded untracked, the sync and its
+    outputs' events."""
     s = FrameSynchronizer((0, 1, 2), FPS, clock=FixedRateClock(FPS, start_time=T0), start_time=T0)
     frames = []
     for k in range(end):
@@ -44,6 +47,9 @@ def _run(arrivals: list[float], down: tuple[int, int] = (140, 160), end: int = 3
     for f in frames:
         if f.recv_time > last:
             break
+        if clock_step is not None and f.recv_time >= T0 + clock_step[0]:
+            s.clock.start_time += clock_step[1]  # type: ignore[attr-defined]
+            clock_step = None
         outs = s.poll(f.recv_time) + s.add(f, f.recv_time)
         for o in outs:
             if isinstance(o, SyncedBundle) and 1 in o.frames:
@@ -99,3 +105,19 @@ def test_held_frames_of_a_restarted_edge_are_recorded_at_stop() -> None:
     mine = {cf for tf, cf in recorded.items() if tf >= 140}
     assert mine == set(range(16)), sorted(mine)
     assert s.stats()[1].restarts == 1
+
+
+def test_a_clock_step_while_a_restarted_edge_is_held_remaps_no_other_camera() -> None:
+    """Camera 1's restarted edge is held (its queue comes in bursts of 10 frames every 0.1 s for a
+    second) when the trigger clock model steps by 60 ms (seen at load 11: "trigger clock jumped
+    against the host clock: clock model restarted", then cameras 0 and 2 "numbered 2 / 4 ahead of
+    their arrival against the other cameras: re-mapped", 270 frames misnumbered). Camera 1's lags from
+    before its restart must not serve as the others' reference: no camera is re-mapped, none of
+    camera 0's or 2's frames is misnumbered, camera 1 is placed right."""
+    arr = [1.75 + 0.1 * (i // 10) + 0.0003 * (i % 10) for i in range(100)]
+    s_out = _run(arr, end=300, clock_step=(1.9, 0.06))
+    tracked, recorded, s, events = s_out
+    assert not [e.message for e in events if e.kind == "ahead"]
+    assert (s.stats()[0].ahead, s.stats()[2].ahead, s.stats()[0].drift, s.stats()[2].drift) == (0, 0, 0, 0)
+    wrong = {tf: cf for tf, cf in recorded.items() if tf >= 140 and cf != tf - 160}
+    assert not wrong, wrong
