@@ -29,9 +29,19 @@ test-edge-arm:
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/scan.c -o $(ARM_OUT)/scan.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/features.c -o $(ARM_OUT)/features.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/regions.c -o $(ARM_OUT)/regions.o
-	@for t in test_scan test_features; do \
+	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/background.c -o $(ARM_OUT)/background.o
+	@for t in test_scan test_features test_lazy_update; do \
 	  $(ARM_CC) $(ARM_FLAGS) -static $(FX_DIR)/tests/$$t.c $(ARM_OUT)/features.o $(ARM_OUT)/scan.o $(ARM_OUT)/regions.o \
-	    $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
+	    $(ARM_OUT)/background.o $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
+
+# Two builds of the extractor on the same random frames, every result and the background bit for bit:
+# OLD=path/to/libflytrack_features.so (e.g. main's, built in another build directory) against this
+# tree's build. Not in `make test` (it needs the other build).
+.PHONY: compare-edge
+compare-edge: cbuild
+	@test -n "$(OLD)" || { echo "compare-edge: give OLD=path/to/libflytrack_features.so" >&2; exit 2; }
+	@$(CC) -O2 -Wall -Wextra -Werror -I$(FX_DIR)/include $(FX_DIR)/bench/fx_compare.c -ldl -lm -o $(BUILD)/fx_compare
+	@$(BUILD)/fx_compare $(OLD) $(BUILD)/edge/feature_extractor/libflytrack_features.so $(FRAMES)
 
 BENCH_TARGETS += bench-edge
-PART_TARGETS += test-edge bench-edge test-edge-arm
+PART_TARGETS += test-edge bench-edge test-edge-arm compare-edge

@@ -35,13 +35,26 @@ MODULES: dict[str, tuple[str, list[str]]] = {
               "host/tests/host/test_faults_units.py", "-k",
               "'(not faults_units or wrong_numbers or gap_in_the_good or edge_restart or reanchored "
               "or stall_and_burst or restarted_edge) and not repeated_random_stalls'"]),
-    "recording": ("host/flytrack_host/recording", ["host/tests/recording"]),
+    # The recorder's writer (raw files, flushes, disk errors) and finalisation (raw files -> HDF5,
+    # recovery), against its fast tests (not the 12-22 s SIGKILL and real-disk-full end-to-end runs).
+    "recording": ("host/flytrack_host/recording/writer.py,host/flytrack_host/recording/finalize.py",
+                  ["host/tests/host/test_finalize.py", "host/tests/host/test_recorder_faults.py",
+                   "host/tests/host/test_recorder_contract.py"]),
 }
 GOAL = {"ekf": 0.85, "association": 0.85, "birth": 0.85, "sync": 0.85}
 
 
 def _module_name(target: str) -> str:
-    """host/flytrack_host/tracking/birth.py -> flytrack_host.tracking.birth (a folder: its package)."""
+    """host/flytrack_host/tracking/birth.py -> flytrack_host.tracking.birth (a folder: its package;
+    several comma-separated files: their common package)."""
+    if "," in target:
+        parts = [Path(t).relative_to("host").parent.parts for t in target.split(",")]
+        common = []
+        for level in zip(*parts, strict=False):
+            if len(set(level)) > 1:
+                break
+            common.append(level[0])
+        return ".".join(common)
     rel = Path(target).relative_to("host")
     return ".".join(rel.with_suffix("").parts if rel.suffix == ".py" else rel.parts)
 

@@ -87,3 +87,30 @@ def test_with_and_without_dvs_side_by_side(dvs_demo, tmp_path):
     write_json(r, path)
     data = json.loads(path.read_text())
     assert data["dvs_comparison"]["with_dvs"]["rmse_mm"] == pytest.approx(w["rmse_mm"])
+
+
+@pytest.mark.slow
+def test_retrack_of_the_recording_uses_the_dvs_points_with_their_covariance(dvs_demo, tmp_path):
+    """The recording keeps each DVS point's covariance (dvs_point_covariance), so `flytrack retrack`
+    weighs the event cameras' points as the live run did instead of dropping them."""
+    import h5py
+
+    from flytrack_host.io.retrack import cameras_for, load_2d, params_with, retrack
+
+    _, r = dvs_demo
+    with h5py.File(r.recording, "r") as f:
+        cov = f["dvs_point_covariance"][:]
+    assert len(cov) > 100 and set(cov["camera_index"].tolist()) <= {2, 3}
+    assert (cov["var_x"] > 0).all() and (cov["var_y"] > 0).all()
+    data = load_2d(r.recording)
+    assert data.dvs_cov is not None and len(data.dvs_cov) == len(cov)
+    res = retrack(data, cameras_for(data), params_with(data.tracking_params), data.fps or 100.0,
+                  out=tmp_path / "re", progress=False)
+    live_used = sum(d["points_used"] for d in r.dvs)
+    print(f"retrack: DVS points {res.stats['own_cov_points']}, used {res.stats['own_cov_used']} "
+          f"(live: {live_used} used of {sum(d['points_observed'] for d in r.dvs)}); notes {res.notes}")
+    assert res.stats["own_cov_points"] == len(cov)  # every recorded DVS point reached the tracker
+    assert res.stats["own_cov_used"] >= 0.8 * live_used  # and was weighed as live (offline nothing is late)
+    assert not any("event-camera points left out" in n for n in res.notes)
+    with h5py.File(res.out, "r") as f:  # the re-track's own recording can be re-tracked again
+        assert len(f["dvs_point_covariance"]) == len(cov)

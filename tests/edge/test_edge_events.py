@@ -300,3 +300,51 @@ def test_a_dvs128_in_the_simulated_rig_gives_clusters_with_its_support_options(e
     assert found["defaults"][0] < 10, found  # measured: 0
     assert found["options"][0] > 40, found  # measured: 59
     assert found["options"][1] < 1.0, found  # median px from the animal (measured 0.43)
+
+
+def test_event_edge_control_allow_list_as_the_frame_edge(edge_any: Path, receiver, tmp_path: Path,
+                                                           no_sanitizer_report) -> None:
+    """The event-camera daemon takes CONTROL from the same senders as the frame daemon
+    (edge_config_default_control; here --control-allow 127.0.0.2) and, as it, says a dropped sender
+    once in its log and in STATUS, answers an allowed one, logs malformed CONTROL, counts both at exit."""
+    import socket
+
+    from flytrack_host.protocol import AckStatus, Command, Control, ControlAck, decode_datagram, encode
+
+    cport = free_udp_port()
+    args = [str(edge_any), "--source", "events", "--input", "-", "--realtime", "0", "--host", "127.0.0.1",
+            "--port", str(receiver.port), "--control-port", str(cport), "--status-interval-ms", "100",
+            "--control-allow", "127.0.0.2"]
+    path = tmp_path / "live.raw"
+    write_events(path, events(2000, seed=4), 128, 128)
+    p = subprocess.Popen(args, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert p.stdin is not None
+    p.stdin.write(path.read_bytes())  # the stream stays open: the daemon runs on, waiting for more
+    p.stdin.flush()
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other.bind(("127.0.0.2", 0))
+    other.settimeout(10.0)
+    try:
+        assert receiver.wait_for(lambda m: isinstance(m, EdgeStatus), timeout=30), "no STATUS from the edge"
+        for rid in (1, 2, 3):  # from 127.0.0.1, the receiver: not listed
+            receiver.send(encode(Control(request_id=rid, camera_index=0xFFFF, command=int(Command.STOP))), cport)
+        st = receiver.wait_for(lambda m: isinstance(m, EdgeStatus) and "not in --control-allow" in m.last_error,
+                               10.0)
+        assert st and "127.0.0.1" in st[0].last_error
+        other.sendto(b"\x00garbage", ("127.0.0.1", cport))  # malformed, from an allowed sender
+        other.sendto(encode(Control(request_id=4, camera_index=0xFFFF, command=int(Command.SET_PARAM),
+                                    param="slice_us", value=2000.0)), ("127.0.0.1", cport))
+        ack = decode_datagram(other.recvfrom(2048)[0])
+        assert isinstance(ack, ControlAck) and ack.request_id == 4 and ack.status == AckStatus.OK
+        assert not [m for m in receiver.messages if isinstance(m, ControlAck)]  # the dropped ones: no answer
+    finally:
+        other.close()
+        if p.stdin:
+            p.stdin.close()
+        rc = p.wait(timeout=30)
+    err = p.stderr.read().decode() if p.stderr else ""
+    no_sanitizer_report(err)
+    assert rc == 0, err
+    assert err.count("not in --control-allow (further ones are only counted)") == 1
+    assert "malformed CONTROL from 127.0.0.2" in err
+    assert "3 datagrams from senders not in --control-allow dropped, 1 malformed" in err

@@ -123,9 +123,9 @@ def test_clock_model_recovers_a_crystal_off_by_37_ppm_and_drifting(built, figure
     really runs off the host's, so a gain of 1 would be 37 ppm wrong. 12 s of clock queries at
     ~100 Hz over the pty, fitted by the model with its delay filter (the tightest round trip of
     each 10, none shorter than the wire): the gain must match the crystal's true rate at the middle
-    of the span within 1 ppm, or 3 of the fit's own standard errors when the load scatters the
-    round trips more, and that standard error must itself stay small; every trigger edge's host
-    time must match the harness's truth."""
+    of the span within 2 ppm (1 ppm is the idle benchmark's goal), or 3 of the fit's own standard
+    errors when the load scatters the round trips more, and that standard error must itself stay
+    small; every trigger edge's host time must match the harness's truth."""
     ppm, drift = 37.0, 0.5
     harness, elf = built
     run = record_crystal_run(12.0, ppm, drift, elf=elf, harness=harness)
@@ -146,15 +146,15 @@ def test_clock_model_recovers_a_crystal_off_by_37_ppm_and_drifting(built, figure
     figures["crystal +37 ppm: trigger edge host time error (us)"] = (
         f"mean {f['edge_mean_us']:+.1f}, sd {f['edge_sd_us']:.1f}, worst {f['edge_max_us']:.1f}")
     assert f["used"] >= 0.05 * f["queries"] and f["span_s"] > 10.0  # half of the groups of 10 at least
-    # Measured over 10-12 s at load 5-13: standard error 0.3-0.9 ppm, error -1.4..+0.8 ppm (within 2.5
-    # standard errors); with the delay filter removed the standard error was 2.5 ppm, edges +135 us.
+    # The standard error is the larger of the textbook one and a block jackknife's (a loaded host's
+    # delays drift over seconds). Measured in 15 runs of 12 s at load 0-10: standard error 0.19-0.93
+    # ppm, error -0.86..+0.44 ppm, with two tails of -1.43 and -1.47 ppm (one in CI, 3.1 textbook
+    # standard errors); without the wire timing (midpoint samples) edges were +340..+360 us.
+    # So 2 ppm here, at any load and whether or not the starved harness fell behind the wall clock
+    # (its truth is then void for the late queries, which the delay filter drops); the 1 ppm goal is
+    # the benchmark's, over 10 s windows on an idle machine (`make bench-trigger-clock`).
     assert f["gain_se_ppm"] < 1.5
-    if f["sim_behind_max_ms"] < 1.0:
-        assert abs(f["gain_err_ppm"]) < max(1.0, 3.0 * f["gain_se_ppm"])
-    else:
-        # The starved harness fell behind the wall clock (its device answered before it was asked), so
-        # its truth is void there: at load 14 a 10 s fit was then 1.6 ppm (4.4 standard errors) off.
-        assert abs(f["gain_err_ppm"]) < max(2.0, 5.0 * f["gain_se_ppm"])
+    assert abs(f["gain_err_ppm"]) < max(2.0, 3.0 * f["gain_se_ppm"])
     # Measured: edges +20 us (the host's read latency is longer than its write latency, and the
     # model splits the excess evenly), sd 2-5 us (a straight line over a drifting rate).
     assert abs(f["edge_mean_us"]) < 80.0 and f["edge_sd_us"] < 25.0

@@ -499,6 +499,13 @@ int edge_config_load(edge_config *c, int argc, char **argv) {
     return 0;
 }
 
+void edge_config_default_control(edge_config *c, uint32_t host_addr) {
+    if (c->n_control_allow || c->control_allow_any || c->control_allow_loopback)
+        return; /* the user said who may control this edge */
+    c->control_allow[c->n_control_allow++] = host_addr;
+    c->control_allow_loopback = 1;
+}
+
 int edge_config_control_allowed(const edge_config *c, uint32_t addr) {
     if (c->control_allow_any || (c->control_allow_loopback && (ntohl(addr) >> 24) == 127))
         return 1;

@@ -63,4 +63,8 @@ int edge_config_load(edge_config *c, int argc, char **argv);
  * (127.0.0.0/8) when allowed, or one of the --control-allow addresses. */
 int edge_config_control_allowed(const edge_config *c, uint32_t addr);
 
+/* The default when no --control-allow was given: the --host address (network byte order) and
+ * 127.0.0.0/8. Both daemons (frame and event camera) call it, so they accept the same senders. */
+void edge_config_default_control(edge_config *c, uint32_t host_addr);
+
 #endif

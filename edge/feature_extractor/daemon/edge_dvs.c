@@ -49,6 +49,8 @@ typedef struct {
     uint8_t state;
     int64_t slice_us;
     uint64_t events, slices, send_errors;
+    uint64_t control_rejected; /* CONTROL datagrams from senders not in --control-allow */
+    uint64_t control_errors;   /* malformed CONTROL datagrams */
     uint32_t last_error_code;
     char last_error[FT_STATUS_ERROR_LEN + 1];
     ft_event *slice;
@@ -238,11 +240,29 @@ static void poll_control(dvs_edge *e) {
         if (n < 0)
             return;
         if (fl < sizeof from || from.sin_family != AF_INET ||
-            !edge_config_control_allowed(e->cfg, from.sin_addr.s_addr))
+            !edge_config_control_allowed(e->cfg, from.sin_addr.s_addr)) {
+            /* as the frame edge: said once (and in STATUS), then only counted; the count at exit */
+            if (e->control_rejected++ == 0) {
+                char text[96];
+                snprintf(text, sizeof text, "CONTROL from %s dropped: not in --control-allow",
+                         inet_ntoa(from.sin_addr));
+                edge_log("%s (further ones are only counted)", text);
+                set_error(e, 21, text);
+            }
             continue;
+        }
         ft_control c;
-        if (ft_control_decode(buf, (size_t)n, &c) != FT_OK)
+        ft_err r = ft_control_decode(buf, (size_t)n, &c);
+        if (r != FT_OK) {
+            char text[96];
+            snprintf(text, sizeof text, "malformed CONTROL from %s: %s", inet_ntoa(from.sin_addr),
+                     ft_err_name(r));
+            /* a flood must not flood the log: the first ten, then every thousandth */
+            if (++e->control_errors <= 10 || e->control_errors % 1000 == 0)
+                edge_log("%s (ignored; %llu so far)", text, (unsigned long long)e->control_errors);
+            set_error(e, 20, text);
             continue;
+        }
         if (c.camera_index != FT_CAMERA_ANY && c.camera_index != e->cfg->camera_index) {
             ack(e, &from, c.request_id, c.command, FT_ACK_FAILED, "not this camera");
         } else if (c.command == FT_CMD_START) {
@@ -319,13 +339,9 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
-    edge_config *c = cfg;
-    if (!c->n_control_allow && !c->control_allow_any && !c->control_allow_loopback)
-        c->control_allow_loopback = 1;
     if (open_socket(&e))
         return 2;
-    if (!c->n_control_allow && !c->control_allow_any)
-        c->control_allow[c->n_control_allow++] = e.host.sin_addr.s_addr;
+    edge_config_default_control(cfg, e.host.sin_addr.s_addr);
     int rc;
     if (!strcmp(cfg->source, "events"))
         rc = ft_ev_source_open_file(&e.src, cfg->input, cfg->event_format, cfg->realtime);
@@ -437,6 +453,10 @@ int edge_dvs_run(edge_config *cfg, const ft_usb_ops *usb) {
     edge_log("%llu events in %llu slices sent, %llu garbage words, %llu reconnects",
              (unsigned long long)e.events, (unsigned long long)e.slices,
              (unsigned long long)e.src.lost, (unsigned long long)e.src.reconnects);
+    if (e.control_rejected || e.control_errors)
+        edge_log(
+            "CONTROL: %llu datagrams from senders not in --control-allow dropped, %llu malformed",
+            (unsigned long long)e.control_rejected, (unsigned long long)e.control_errors);
     if (e.wb) {
         edge_wb_log_summary(e.wb);
         edge_wb_destroy(e.wb);

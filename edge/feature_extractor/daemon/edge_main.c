@@ -372,11 +372,7 @@ static int open_socket(edge *e) {
         edge_log("--host %s is not an IPv4 address", e->cfg.host);
         return -1;
     }
-    edge_config *c = &e->cfg;
-    if (!c->n_control_allow && !c->control_allow_any && !c->control_allow_loopback) {
-        c->control_allow[c->n_control_allow++] = e->host.sin_addr.s_addr;
-        c->control_allow_loopback = 1;
-    }
+    edge_config_default_control(&e->cfg, e->host.sin_addr.s_addr);
     int sz = 4 << 20;
     setsockopt(e->sock, SOL_SOCKET, SO_SNDBUF, &sz, sizeof sz);
     return 0;

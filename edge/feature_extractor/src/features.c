@@ -140,10 +140,20 @@ void ft_fx_destroy(ft_fx *fx) {
     free(fx->blo8);
     free(fx->bhi16);
     free(fx->blo16);
-    free(fx->rhi8);
-    free(fx->rlo8);
-    free(fx->rhi16);
-    free(fx->rlo16);
+    free(fx->ghi8);
+    free(fx->glo8);
+    free(fx->ghi16);
+    free(fx->glo16);
+    free(fx->nbhi8);
+    free(fx->nblo8);
+    free(fx->nbhi16);
+    free(fx->nblo16);
+    free(fx->saved);
+    free(fx->pending);
+    free(fx->whi8);
+    free(fx->wlo8);
+    free(fx->whi16);
+    free(fx->wlo16);
     free(fx->mask);
     free(fx->luma);
     free(fx->cand_d);
@@ -196,26 +206,41 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
     int ok = fx->mean && fx->sumsq && fx->mask && fx->cand_d && fx->runs && fx->run_parent &&
              fx->run_region && fx->regions && fx->ranks && fx->points;
     fx->nblk = (fx->w + FT_BLOCK - 1) / FT_BLOCK;
-    size_t nb = fx->nblk * fx->h;
+    const size_t nb = fx->nblk * fx->h, nbands = (fx->h + FT_BAND - 1) / FT_BAND;
+    const size_t ng = fx->nblk * nbands;
     fx->queue = malloc(nb * sizeof(uint32_t)); /* nblk <= 256: y << 8 | block */
     fx->qmask = malloc(nb * sizeof(uint64_t));
-    ok = ok && fx->queue && fx->qmask;
+    fx->saved = malloc(fx->npix * bpp);
+    fx->pending = calloc(fx->h, 1);
+    ok = ok && fx->queue && fx->qmask && fx->saved && fx->pending;
     if (p->pixel_format == FT_FX_MONO16) {
         fx->hi16 = malloc(fx->npix * sizeof(uint16_t));
         fx->lo16 = malloc(fx->npix * sizeof(uint16_t));
         fx->bhi16 = malloc(nb * sizeof(uint16_t));
         fx->blo16 = malloc(nb * sizeof(uint16_t));
-        fx->rhi16 = malloc(fx->h * sizeof(uint16_t));
-        fx->rlo16 = malloc(fx->h * sizeof(uint16_t));
-        ok = ok && fx->hi16 && fx->lo16 && fx->bhi16 && fx->blo16 && fx->rhi16 && fx->rlo16;
+        fx->ghi16 = malloc(ng * sizeof(uint16_t));
+        fx->glo16 = malloc(ng * sizeof(uint16_t));
+        fx->nbhi16 = malloc(nb * sizeof(uint16_t));
+        fx->nblo16 = malloc(nb * sizeof(uint16_t));
+        ok = ok && fx->nbhi16 && fx->nblo16;
+        fx->whi16 = malloc(nbands * sizeof(uint16_t));
+        fx->wlo16 = malloc(nbands * sizeof(uint16_t));
+        ok = ok && fx->hi16 && fx->lo16 && fx->bhi16 && fx->blo16 && fx->ghi16 && fx->glo16 &&
+             fx->whi16 && fx->wlo16;
     } else {
         fx->hi8 = malloc(fx->npix);
         fx->lo8 = malloc(fx->npix);
         fx->bhi8 = malloc(nb);
         fx->blo8 = malloc(nb);
-        fx->rhi8 = malloc(fx->h);
-        fx->rlo8 = malloc(fx->h);
-        ok = ok && fx->hi8 && fx->lo8 && fx->bhi8 && fx->blo8 && fx->rhi8 && fx->rlo8;
+        fx->ghi8 = malloc(ng);
+        fx->glo8 = malloc(ng);
+        fx->nbhi8 = malloc(nb);
+        fx->nblo8 = malloc(nb);
+        ok = ok && fx->nbhi8 && fx->nblo8;
+        fx->whi8 = malloc(nbands);
+        fx->wlo8 = malloc(nbands);
+        ok = ok && fx->hi8 && fx->lo8 && fx->bhi8 && fx->blo8 && fx->ghi8 && fx->glo8 && fx->whi8 &&
+             fx->wlo8;
         if (p->pixel_format == FT_FX_YUYV) {
             fx->luma = malloc(fx->npix);
             ok = ok && fx->luma;
@@ -229,121 +254,6 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
     fx->need_bg = 1;
     *out = fx;
     return FT_FX_OK;
-}
-
-/* ---------------------------------------------------------------------------------------------- */
-/* Background model and per-pixel thresholds                                                      */
-
-/* Per-pixel thresholds from the background. A pixel value x is a candidate when
- *   x > mean + T   <=>  x > floor(mean + T)      (x integer)  -> hi = floor(mean + T)
- *   x < mean - T   <=>  x < ceil(mean - T)                    -> lo = ceil(mean - T)
- * with T = max(diff_threshold, n_sigma * std). hi = maxval means "never brighter", lo = 0 "never
- * darker". Nonnegative float -> int conversion truncates, which is floor; it vectorises. */
-
-static thr_cfg thr_config(const ft_fx *fx) {
-    thr_cfg c;
-    c.a = (float)fx->p.alpha;
-    c.a1 = (float)(1.0 - fx->p.alpha);
-    c.ns = (float)fx->p.n_sigma;
-    c.dt = (float)fx->p.diff_threshold;
-    c.maxv = (float)fx->maxval;
-    c.bright = fx->p.polarity != FT_FX_POLARITY_DARK;
-    c.dark = fx->p.polarity != FT_FX_POLARITY_BRIGHT;
-    return c;
-}
-
-/* Running average: mean <- (1 - a) mean + a x, sumsq <- (1 - a) sumsq + a x^2; init: mean = x. */
-#define DEFINE_UPDATE(NAME, T)                                                                     \
-    static void NAME(size_t w, size_t h, const T *restrict img, size_t stride_px,                  \
-                     float *restrict mean, float *restrict sumsq, int init, thr_cfg c) {           \
-        for (size_t y = 0; y < h; y++) {                                                           \
-            const T *restrict r = img + y * stride_px;                                             \
-            float *restrict m = mean + y * w;                                                      \
-            float *restrict s = sumsq + y * w;                                                     \
-            if (init) {                                                                            \
-                for (size_t x = 0; x < w; x++) {                                                   \
-                    float v = (float)r[x];                                                         \
-                    m[x] = v;                                                                      \
-                    s[x] = v * v;                                                                  \
-                }                                                                                  \
-            } else {                                                                               \
-                for (size_t x = 0; x < w; x++) {                                                   \
-                    float v = (float)r[x];                                                         \
-                    m[x] = c.a1 * m[x] + c.a * v;                                                  \
-                    s[x] = c.a1 * s[x] + c.a * (v * v);                                            \
-                }                                                                                  \
-            }                                                                                      \
-        }                                                                                          \
-    }
-DEFINE_UPDATE(update8, uint8_t)
-DEFINE_UPDATE(update16, uint16_t)
-
-/* bhi = min(hi), blo = max(lo) over each block of FT_BLOCK pixels of a row (the last one may be
- * short). */
-#define DEFINE_BLOCK_BOUNDS(NAME, T)                                                               \
-    static void NAME(size_t w, size_t h, size_t nblk, const T *restrict hi, const T *restrict lo,  \
-                     T *restrict bhi, T *restrict blo, T *restrict rhi, T *restrict rlo) {         \
-        for (size_t y = 0; y < h; y++) {                                                           \
-            T rh = hi[y * w], rl = lo[y * w];                                                      \
-            for (size_t b = 0; b < nblk; b++) {                                                    \
-                size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK < w ? x0 + FT_BLOCK : w;              \
-                T mh = hi[y * w + x0], ml = lo[y * w + x0];                                        \
-                for (size_t x = x0; x < x1; x++) { /* from x0: whole vectors, no scalar tail */    \
-                    T vh = hi[y * w + x], vl = lo[y * w + x];                                      \
-                    mh = vh < mh ? vh : mh;                                                        \
-                    ml = vl > ml ? vl : ml;                                                        \
-                }                                                                                  \
-                bhi[y * nblk + b] = mh;                                                            \
-                blo[y * nblk + b] = ml;                                                            \
-                rh = mh < rh ? mh : rh;                                                            \
-                rl = ml > rl ? ml : rl;                                                            \
-            }                                                                                      \
-            rhi[y] = rh;                                                                           \
-            rlo[y] = rl;                                                                           \
-        }                                                                                          \
-    }
-DEFINE_BLOCK_BOUNDS(block_bounds8, uint8_t)
-DEFINE_BLOCK_BOUNDS(block_bounds16, uint16_t)
-
-/* Thresholds and bounds of rows y0 .. y1 - 1. */
-static void refresh_rows(ft_fx *fx, thr_cfg c, size_t y0, size_t y1) {
-    const size_t o = y0 * fx->w, n = (y1 - y0) * fx->w, ob = y0 * fx->nblk;
-    if (fx->hi16) {
-        ft_fx_thresh16(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi16 + o, fx->lo16 + o, c);
-        block_bounds16(fx->w, y1 - y0, fx->nblk, fx->hi16 + o, fx->lo16 + o, fx->bhi16 + ob,
-                       fx->blo16 + ob, fx->rhi16 + y0, fx->rlo16 + y0);
-    } else {
-        ft_fx_thresh8(n, fx->mean + o, fx->sumsq + o, fx->mask + o, fx->hi8 + o, fx->lo8 + o, c);
-        block_bounds8(fx->w, y1 - y0, fx->nblk, fx->hi8 + o, fx->lo8 + o, fx->bhi8 + ob,
-                      fx->blo8 + ob, fx->rhi8 + y0, fx->rlo8 + y0);
-    }
-}
-
-/* Rows per band of the background update: about 2048 pixels, whose 16 kB of floats stay in the L1
- * cache from the running average to the thresholds and bounds (one pass over memory, not three). */
-static size_t band_rows(const ft_fx *fx) {
-    return fx->w >= 2048 ? 1 : 2048 / fx->w;
-}
-
-static void refresh_thresholds(ft_fx *fx) {
-    thr_cfg c = thr_config(fx);
-    for (size_t y0 = 0, nb = band_rows(fx); y0 < fx->h; y0 += nb)
-        refresh_rows(fx, c, y0, y0 + nb < fx->h ? y0 + nb : fx->h);
-}
-
-static void update_background(ft_fx *fx, const void *img, size_t stride_bytes, int init) {
-    thr_cfg c = thr_config(fx);
-    for (size_t y0 = 0, nb = band_rows(fx); y0 < fx->h; y0 += nb) {
-        const size_t y1 = y0 + nb < fx->h ? y0 + nb : fx->h, o = y0 * fx->w;
-        const uint8_t *band = (const uint8_t *)img + y0 * stride_bytes;
-        if (fx->p.pixel_format == FT_FX_MONO16)
-            update16(fx->w, y1 - y0, (const uint16_t *)band, stride_bytes / 2, fx->mean + o,
-                     fx->sumsq + o, init, c);
-        else
-            update8(fx->w, y1 - y0, band, stride_bytes, fx->mean + o, fx->sumsq + o, init, c);
-        refresh_rows(fx, c, y0, y1);
-    }
-    fx->have_bg = 1;
 }
 
 static void luma_from_yuyv(size_t w, size_t h, const uint8_t *restrict img, size_t stride,
@@ -376,12 +286,14 @@ int ft_fx_process(ft_fx *fx, const void *frame, size_t nbytes, ft_fx_result *res
         stride = fx->w;
     }
     if (fx->need_bg) {
-        update_background(fx, img, stride, 1);
+        ft_fx_bg_take(fx, img, stride);
         fx->need_bg = 0;
         fx->since_update = 0;
         res->flags |= FT_FX_RES_BACKGROUND_TAKEN;
         return FT_FX_OK;
     }
+    if (fx->scalar_scan) /* the plain scan reads every row's thresholds */
+        ft_fx_bg_finish(fx);
     int overflow = 0;
     uint32_t n = 0;
     uint32_t nr = fx->p.pixel_format == FT_FX_MONO16
@@ -407,27 +319,33 @@ int ft_fx_process(ft_fx *fx, const void *frame, size_t nbytes, ft_fx_result *res
     /* The background learns from this frame after it was measured against the old one. */
     if (fx->p.bg_update_interval && ++fx->since_update >= fx->p.bg_update_interval) {
         fx->since_update = 0;
-        update_background(fx, img, stride, 0);
+        ft_fx_bg_update(fx, img, stride);
         res->flags |= FT_FX_RES_BG_UPDATED;
+    } else {
+        ft_fx_bg_step(fx);
     }
     return FT_FX_OK;
 }
 
 void ft_fx_take_background(ft_fx *fx) {
-    if (fx)
+    if (fx) {
+        ft_fx_bg_finish(fx); /* the model stays whole until the next frame replaces it */
         fx->need_bg = 1;
+    }
 }
 
 int ft_fx_set_mask(ft_fx *fx, const uint8_t *mask) {
     if (!fx)
         return FT_FX_E_ARG;
+    ft_fx_bg_finish(fx); /* the update in progress with the mask it began with */
     if (mask)
         for (size_t i = 0; i < fx->npix; i++)
             fx->mask[i] = mask[i] != 0;
     else
         memset(fx->mask, 1, fx->npix);
+    fx->has_mask = mask != NULL;
     if (fx->have_bg)
-        refresh_thresholds(fx);
+        ft_fx_bg_refresh(fx);
     return FT_FX_OK;
 }
 
@@ -494,9 +412,10 @@ int ft_fx_set_param(ft_fx *fx, const char *name, double value) {
     }
     if (check_tunables(&np, NULL, 0))
         return FT_FX_E_BAD_VALUE;
+    ft_fx_bg_finish(fx); /* the update in progress with the parameters it began with */
     fx->p = np;
     if (fx->have_bg)
-        refresh_thresholds(fx);
+        ft_fx_bg_refresh(fx);
     return FT_FX_OK;
 }
 
@@ -524,10 +443,16 @@ int ft_fx_get_param(const ft_fx *fx, const char *name, double *value) {
 const ft_fx_params *ft_fx_get_params(const ft_fx *fx) {
     return fx ? &fx->p : NULL;
 }
+/* The model is brought up to date first (a spread update may be in progress): the extractor was
+ * created non-const by ft_fx_create, so finishing it through this pointer is allowed. */
 const float *ft_fx_background_mean(const ft_fx *fx) {
+    if (fx)
+        ft_fx_bg_finish((ft_fx *)fx);
     return fx && fx->have_bg ? fx->mean : NULL;
 }
 const float *ft_fx_background_sumsq(const ft_fx *fx) {
+    if (fx)
+        ft_fx_bg_finish((ft_fx *)fx);
     return fx && fx->have_bg ? fx->sumsq : NULL;
 }
 

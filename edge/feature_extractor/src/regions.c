@@ -106,12 +106,22 @@ uint32_t ft_fx_measure(ft_fx *fx, uint32_t nr, uint32_t *total) {
         }
         const uint32_t len = q->x1 - q->x0;
         g->n_cand += len;
-        for (uint32_t j = 0; j < len; j++)
-            if (cd[q->c0 + j] > g->beta) { /* strict: on a tie the first in raster order */
-                g->beta = cd[q->c0 + j];
-                g->peak_x = q->x0 + j;
-                g->peak_y = q->y;
-            }
+        /* The run's first largest difference without a branch per pixel (rising and falling
+         * differences would mispredict it), then one strict compare with the region's: on a tie
+         * the first in raster order, as pixel by pixel. */
+        float best = cd[q->c0];
+        uint32_t bj = 0;
+        for (uint32_t j = 1; j < len; j++) {
+            const float v = cd[q->c0 + j];
+            const int better = v > best;
+            best = better ? v : best;
+            bj = better ? j : bj;
+        }
+        if (best > g->beta) {
+            g->beta = best;
+            g->peak_x = q->x0 + bj;
+            g->peak_y = q->y;
+        }
     }
     for (uint32_t r = 0; r < nreg; r++) {
         ft_region *g = &fx->regions[r];

@@ -1,11 +1,12 @@
 /* The per-frame candidate scan: the hot loop of libflytrack_features.
  *
  * It rules pixels out coarse to fine, reading the frame alone while it can:
- *  1. the brightest and darkest pixels of a band of FT_BAND packed rows, then of a row, against the
- *     band's or the row's bounds (the lowest hi and the highest lo over them): a vector max/min and
- *     one compare at the end, about the cost of reading the rows;
- *  2. if a row fails (a candidate, or a background that varies a lot along the row), each block of
- *     FT_BLOCK pixels against its own bounds in the same way;
+ *  1. the brightest and darkest pixels of a band of FT_BAND rows against the band's bounds (the
+ *     lowest hi and the highest lo over it): a vector max/min and one compare at the end, about the
+ *     cost of reading the rows;
+ *  2. if the band fails (a candidate, or a background that varies a lot along it), each block of
+ *     FT_BLOCK pixels of the band's rows at once against the band's bounds for that block, a bit
+ *     per block, then each failing block row by row against the row's bounds for it;
  *  3. in a block that still cannot be ruled out, every pixel against its own hi and lo, as a 64-bit
  *     mask of candidates.
  * The masks are turned into runs of candidates (one row, consecutive x), and each candidate's
@@ -160,6 +161,23 @@ DEFINE_OUT(out16, uint16_t, MAX16, MIN16, SET16, ANY_GT16, ANY_LT16)
     }
 DEFINE_BLOCK_OUT(block_out8, uint8_t, MAX8, MIN8, SET8, ANY_GT8, ANY_LT8)
 DEFINE_BLOCK_OUT(block_out16, uint16_t, MAX16, MIN16, SET16, ANY_GT16, ANY_LT16)
+
+/* The same for the block of FT_BLOCK pixels from x0 of FT_BAND rows at once (r[k]: row k; a band
+ * with fewer rows repeats its last one): the band's brightest and darkest pixels there. */
+#define DEFINE_BAND_OUT(NAME, T, MAX, MIN, SET, ANY_GT, ANY_LT)                                    \
+    static inline int NAME(const T *const *r, size_t x0, T h, T l) {                               \
+        const size_t nl = VB / sizeof(T);                                                          \
+        vec a = ld(r[0] + x0), b = ld(r[1] + x0), c = ld(r[2] + x0), d = ld(r[3] + x0);            \
+        vec mx = MAX(MAX(a, b), MAX(c, d)), mn = MIN(MIN(a, b), MIN(c, d));                        \
+        for (size_t j = x0 + nl; j < x0 + FT_BLOCK; j += nl) {                                     \
+            a = ld(r[0] + j), b = ld(r[1] + j), c = ld(r[2] + j), d = ld(r[3] + j);                \
+            mx = MAX(mx, MAX(MAX(a, b), MAX(c, d)));                                               \
+            mn = MIN(mn, MIN(MIN(a, b), MIN(c, d)));                                               \
+        }                                                                                          \
+        return ANY_GT(mx, SET(h)) | ANY_LT(mn, SET(l));                                            \
+    }
+DEFINE_BAND_OUT(band_out8, uint8_t, MAX8, MIN8, SET8, ANY_GT8, ANY_LT8)
+DEFINE_BAND_OUT(band_out16, uint16_t, MAX16, MIN16, SET16, ANY_GT16, ANY_LT16)
 
 /* Bit x set: pixel x of the block of FT_BLOCK pixels is a candidate (r > hi or r < lo). */
 #define DEFINE_MASK_SCALAR(NAME, T)                                                                \
@@ -331,14 +349,13 @@ static inline void prefetch_means(const float *m, uint64_t mask) {
         }
 }
 
-/* Two passes. The first reads the frame alone: bands, rows, and in a row that fails, its blocks
- * against their bounds (a bit per block, up to 64 blocks without a branch); a block that fails is
- * queued and its thresholds are prefetched. The second computes the queued blocks' candidate masks
- * (their thresholds have come in meanwhile, the misses overlapping), prefetches the background
- * means of their candidates, then keeps the candidates with their differences. The queue is in
- * raster order, and so are the candidates. (plain: every pixel of every row against its
- * thresholds.) */
-#define DEFINE_SCAN(NAME, T, HI, LO, BHI, BLO, RHI, RLO, OUT, MASK, ADD)                           \
+/* Two passes. The first reads the frame alone: bands, their blocks, and the failing blocks row by
+ * row against their bounds; a block that fails is queued (in raster order) and its thresholds are
+ * prefetched. The second computes the queued blocks' candidate masks (their thresholds have come in
+ * meanwhile, the misses overlapping), prefetches the background means of their candidates, then
+ * keeps the candidates with their differences, in raster order. (plain: every pixel of every row
+ * against its thresholds.) */
+#define DEFINE_SCAN(NAME, T, HI, LO, BHI, BLO, GHI, GLO, WHI, WLO, OUT, MASK, ADD)                 \
     uint32_t NAME(ft_fx *fx, const T *img, size_t stride_px, uint32_t *n_cand, int *overflow) {    \
         const size_t w = fx->w, nblk = fx->nblk, nfull = w / FT_BLOCK;                             \
         scan_state s = {fx, 0, 0, 0};                                                              \
@@ -354,41 +371,60 @@ static inline void prefetch_means(const float *m, uint64_t mask) {
             }                                                                                      \
             goto done;                                                                             \
         }                                                                                          \
-        uint32_t nq = 0, band_end = 0;                                                             \
-        for (uint32_t y = 0; y < fx->h; y++) {                                                     \
-            const T *r = img + y * stride_px;                                                      \
-            if (stride_px == w && y >= band_end) { /* packed rows: FT_BAND of them at once */      \
-                const uint32_t nb = fx->h - y < FT_BAND ? fx->h - y : FT_BAND;                     \
-                T bh = fx->RHI[y], bl = fx->RLO[y];                                                \
-                for (uint32_t k = 1; k < nb; k++) {                                                \
-                    bh = fx->RHI[y + k] < bh ? fx->RHI[y + k] : bh;                                \
-                    bl = fx->RLO[y + k] > bl ? fx->RLO[y + k] : bl;                                \
-                }                                                                                  \
-                band_end = y + nb;                                                                 \
-                if (!OUT(r, w * nb, bh, bl)) {                                                     \
-                    y = band_end - 1;                                                              \
-                    continue; /* the common case: rows smooth enough for one pair of bounds */     \
-                }                                                                                  \
+        uint32_t nq = 0;                                                                           \
+        const size_t nw = (nblk + 63) / 64;                                                        \
+        for (uint32_t y0 = 0; y0 < fx->h; y0 += FT_BAND) {                                         \
+            const uint32_t nb = fx->h - y0 < FT_BAND ? fx->h - y0 : FT_BAND;                       \
+            const T *r[FT_BAND];                                                                   \
+            for (uint32_t k = 0; k < FT_BAND; k++)                                                 \
+                r[k] = img + (size_t)(y0 + (k < nb ? k : nb - 1)) * stride_px;                     \
+            { /* the band against its loosest bounds: the common case, nothing there */            \
+                const T wh = fx->WHI[y0 / FT_BAND], wl = fx->WLO[y0 / FT_BAND];                    \
+                int f = 0;                                                                         \
+                if (stride_px == w) /* packed rows: one range */                                   \
+                    f = OUT(r[0], w * nb, wh, wl);                                                 \
+                else                                                                               \
+                    for (uint32_t k = 0; k < nb; k++)                                              \
+                        f |= OUT(r[k], w, wh, wl);                                                 \
+                if (!f)                                                                            \
+                    continue;                                                                      \
             }                                                                                      \
-            if (!OUT(r, w, fx->RHI[y], fx->RLO[y]))                                                \
+            const T *gh = fx->GHI + y0 / FT_BAND * nblk, *gl = fx->GLO + y0 / FT_BAND * nblk;      \
+            uint64_t fails[4] = {0, 0, 0, 0}, any = 0;  /* nblk <= 256 */                          \
+            for (size_t b0 = 0; b0 < nfull; b0 += 64) { /* no branch: a bit per block */           \
+                const size_t b1 = nfull - b0 < 64 ? nfull : b0 + 64;                               \
+                uint64_t fw = 0;                                                                   \
+                for (size_t b = b0; b < b1; b++)                                                   \
+                    fw |= (uint64_t)band_##OUT(r, b * FT_BLOCK, gh[b], gl[b]) << (b - b0);         \
+                fails[b0 / 64] = fw;                                                               \
+            }                                                                                      \
+            if (nfull < nblk) { /* a short last block */                                           \
+                int f = 0;                                                                         \
+                for (uint32_t k = 0; k < nb; k++)                                                  \
+                    f |= OUT(r[k] + nfull * FT_BLOCK, w - nfull * FT_BLOCK, gh[nfull], gl[nfull]); \
+                fails[nfull / 64] |= (uint64_t)f << (nfull % 64);                                  \
+            }                                                                                      \
+            for (size_t i = 0; i < nw; i++)                                                        \
+                any |= fails[i];                                                                   \
+            if (!any) /* every block of the band passes: no candidate */                           \
                 continue;                                                                          \
-            const T *bh = fx->BHI + y * nblk, *bl = fx->BLO + y * nblk;                            \
-            for (size_t b0 = 0; b0 < nblk; b0 += 64) {                                             \
-                const size_t b1 = nblk - b0 < 64 ? nblk : b0 + 64;                                 \
-                uint64_t fails = 0;                                                                \
-                for (size_t b = b0; b < b1; b++) {                                                 \
-                    const T *rb = r + b * FT_BLOCK;                                                \
-                    int f = b < nfull ? block_##OUT(rb, bh[b], bl[b])                              \
-                                      : OUT(rb, w - b * FT_BLOCK, bh[b], bl[b]);                   \
-                    fails |= (uint64_t)f << (b - b0);                                              \
-                }                                                                                  \
-                for (; fails; fails &= fails - 1) {                                                \
-                    const size_t b = b0 + (size_t)__builtin_ctzll(fails),                          \
-                                 i = y * w + b * FT_BLOCK;                                         \
-                    const size_t n = w - b * FT_BLOCK < FT_BLOCK ? w - b * FT_BLOCK : FT_BLOCK;    \
-                    prefetch_thresholds(fx->HI + i, fx->LO + i, n * sizeof(T));                    \
-                    fx->queue[nq++] = y << 8 | (uint32_t)b;                                        \
-                }                                                                                  \
+            for (uint32_t k = 0; k < nb; k++) { /* the failing blocks row by row: raster order */  \
+                const uint32_t y = y0 + k;                                                         \
+                if (fx->pending[y]) /* its bounds hold whatever the update: make them exact */     \
+                    ft_fx_bg_row(fx, y);                                                           \
+                const T *bh = fx->BHI + y * nblk, *bl = fx->BLO + y * nblk;                        \
+                for (size_t i = 0; i < nw; i++)                                                    \
+                    for (uint64_t fw = fails[i]; fw; fw &= fw - 1) {                               \
+                        const size_t b = 64 * i + (size_t)__builtin_ctzll(fw), x0 = b * FT_BLOCK;  \
+                        const size_t n = w - x0 < FT_BLOCK ? w - x0 : FT_BLOCK;                    \
+                        int f = n == FT_BLOCK ? block_##OUT(r[k] + x0, bh[b], bl[b])               \
+                                              : OUT(r[k] + x0, n, bh[b], bl[b]);                   \
+                        if (!f)                                                                    \
+                            continue;                                                              \
+                        prefetch_thresholds(fx->HI + y * w + x0, fx->LO + y * w + x0,              \
+                                            n * sizeof(T));                                        \
+                        fx->queue[nq++] = y << 8 | (uint32_t)b;                                    \
+                    }                                                                              \
             }                                                                                      \
         }                                                                                          \
         for (uint32_t k = 0; k < nq; k++) { /* the masks; the means of their candidates fetched */ \
@@ -411,9 +447,10 @@ static inline void prefetch_means(const float *m, uint64_t mask) {
         *overflow = s.overflow;                                                                    \
         return s.nr;                                                                               \
     }
-DEFINE_SCAN(ft_fx_scan8, uint8_t, hi8, lo8, bhi8, blo8, rhi8, rlo8, out8, mask8, add_run8)
-DEFINE_SCAN(ft_fx_scan16, uint16_t, hi16, lo16, bhi16, blo16, rhi16, rlo16, out16, mask16,
-            add_run16)
+DEFINE_SCAN(ft_fx_scan8, uint8_t, hi8, lo8, bhi8, blo8, ghi8, glo8, whi8, wlo8, out8, mask8,
+            add_run8)
+DEFINE_SCAN(ft_fx_scan16, uint16_t, hi16, lo16, bhi16, blo16, ghi16, glo16, whi16, wlo16, out16,
+            mask16, add_run16)
 
 void ft_fx_debug_scalar_scan(ft_fx *fx, int on) {
     if (fx)

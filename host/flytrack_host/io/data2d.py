@@ -31,6 +31,8 @@ class Data2D:
     cameras: dict[int, Camera] | None = None  # when the source carries a calibration in another form
     # trigger_clock_info rows (start_timestamp, framecount, tcnt or fraction, stop_timestamp), if any
     clock_samples: np.ndarray | None = None
+    # DVS_COVARIANCE rows: the event cameras' points' covariances (FlyTrack recordings since they are kept)
+    dvs_cov: np.ndarray | None = None
 
 
 def empty_rows(n: int) -> np.ndarray:
@@ -57,13 +59,42 @@ def fill_undistorted(rows: np.ndarray, cameras: Mapping[int, Camera]) -> int:
     return filled
 
 
-def iter_bundles(rows: np.ndarray, fps: float, camera_indices: list[int] | None = None) -> Iterator[FrameBundle]:
+def _usable(rows: np.ndarray, dvs_cov: np.ndarray | None) -> np.ndarray:
+    """Rows a re-track gives the tracker: never rejected ones, and event cameras' rows (FLAG_DVS)
+    only with their covariance (the tracker weighs them by it, SPEC 1.6; as plain frame points they
+    could start targets)."""
+    ok = (rows["trigger_frame"] >= 0) & ((rows["flags"] & FLAG_REJECTED) == 0)
+    dvs = (rows["flags"] & FLAG_DVS) != 0
+    if dvs_cov is None or len(dvs_cov) == 0:
+        return ok & ~dvs
+    have = np.isin(_dvs_keys(rows["trigger_frame"], rows["camera_index"], rows["frame_pt_idx"]),
+                   _dvs_keys(dvs_cov["trigger_frame"], dvs_cov["camera_index"], dvs_cov["frame_pt_idx"]))
+    return ok & (~dvs | have)
+
+
+def _dvs_keys(tf: np.ndarray, cam: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """One int64 per (trigger frame, camera, point index): frames below 2^31 (248 days at 100 fps)."""
+    return (tf.astype(np.int64) << 32) | (cam.astype(np.int64) << 16) | idx.astype(np.int64)
+
+
+def dvs_rows_left_out(rows: np.ndarray, dvs_cov: np.ndarray | None) -> int:
+    """Event cameras' points a re-track cannot use (no covariance recorded for them)."""
+    dvs = (rows["trigger_frame"] >= 0) & ((rows["flags"] & FLAG_DVS) != 0) & np.isfinite(rows["x_dist"])
+    return int((dvs & ~_usable(rows, dvs_cov)).sum())
+
+
+def iter_bundles(rows: np.ndarray, fps: float, camera_indices: list[int] | None = None,
+                 dvs_cov: np.ndarray | None = None) -> Iterator[FrameBundle]:
     """One FrameBundle per trigger frame present, in frame order. Rows never given to the tracker
     live (rejected ones) are left out; late rows are used: offline nothing is late. Event cameras'
-    rows (FLAG_DVS) are left out too: the tracker weighs them by their covariance (SPEC 1.6), which
-    the recording does not keep, and as frame points they could start targets."""
-    ok = (rows["trigger_frame"] >= 0) & ((rows["flags"] & (FLAG_REJECTED | FLAG_DVS)) == 0)
-    rows = rows[ok]
+    rows (FLAG_DVS) join with their covariance from `dvs_cov` (DVS_COVARIANCE rows) as the live run
+    gave them (FrameBundle.point_cov); without it they are left out."""
+    rows = rows[_usable(rows, dvs_cov)]
+    cov_of: dict[int, np.ndarray] = {}
+    if dvs_cov is not None and len(dvs_cov):
+        keys = _dvs_keys(dvs_cov["trigger_frame"], dvs_cov["camera_index"], dvs_cov["frame_pt_idx"])
+        cov_of = dict(zip(keys.tolist(), np.column_stack([dvs_cov["var_x"], dvs_cov["var_y"], dvs_cov["cov_xy"]]),
+                          strict=True))
     order = np.lexsort((rows["frame_pt_idx"], rows["camera_index"], rows["trigger_frame"]))
     rows = rows[order]
     if len(rows) == 0:
@@ -78,6 +109,7 @@ def iter_bundles(rows: np.ndarray, fps: float, camera_indices: list[int] | None 
         ts = grp["timestamp"][np.isfinite(grp["timestamp"])]
         t = float(ts[0]) if len(ts) else frame / fps
         det: dict[int, np.ndarray] = {}
+        point_cov: dict[int, np.ndarray] = {}
         for cam in np.unique(grp["camera_index"]):
             g = grp[grp["camera_index"] == cam]
             g = g[np.isfinite(g["x_dist"]) & np.isfinite(g["y_dist"])]
@@ -85,10 +117,14 @@ def iter_bundles(rows: np.ndarray, fps: float, camera_indices: list[int] | None 
             for f in _PT_FIELDS:
                 pts[f] = g[f]
             det[int(cam)] = pts
+            if len(g) and (g["flags"][0] & FLAG_DVS):
+                keys = _dvs_keys(g["trigger_frame"], g["camera_index"], g["frame_pt_idx"]).tolist()
+                point_cov[int(cam)] = np.array([cov_of[k] for k in keys], dtype=np.float64).reshape(-1, 3)
         missing = tuple(c for c in cams_all if c not in det)
-        yield FrameBundle(trigger_frame=frame, timestamp=t, detections=det, missing_cameras=missing)
+        yield FrameBundle(trigger_frame=frame, timestamp=t, detections=det, missing_cameras=missing,
+                          point_cov=point_cov)
 
 
-def n_frames(rows: np.ndarray) -> int:
-    ok = (rows["trigger_frame"] >= 0) & ((rows["flags"] & (FLAG_REJECTED | FLAG_DVS)) == 0)
-    return int(len(np.unique(rows["trigger_frame"][ok])))
+def n_frames(rows: np.ndarray, dvs_cov: np.ndarray | None = None) -> int:
+    """Bundles iter_bundles gives for these rows."""
+    return int(len(np.unique(rows["trigger_frame"][_usable(rows, dvs_cov)])))

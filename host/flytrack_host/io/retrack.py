@@ -19,7 +19,7 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from flytrack_host.camera import Camera
-from flytrack_host.io.data2d import Data2D, fill_undistorted, iter_bundles, n_frames
+from flytrack_host.io.data2d import Data2D, dvs_rows_left_out, fill_undistorted, iter_bundles, n_frames
 from flytrack_host.recording.finalize import RecordingError
 from flytrack_host.recording.reader import load_recording
 from flytrack_host.recording.schema import CAM_INFO, TRIGGER_CLOCK
@@ -36,8 +36,10 @@ def data2d_from_recording(path: Path) -> Data2D:
     names = {}
     for r in rec.table("cam_info"):
         names[int(r["camera_index"])] = r["calibration_id"].decode() or r["name"].decode()
+    dvs_cov = rec.table("dvs_point_covariance")
     return Data2D(rows=rec.table("data2d_distorted").copy(), cam_names=names, fps=rec.fps,
-                  calibration=rec.calibration, source=str(path), tracking_params=rec.meta.get("tracking_params"))
+                  calibration=rec.calibration, source=str(path), tracking_params=rec.meta.get("tracking_params"),
+                  dvs_cov=dvs_cov.copy() if len(dvs_cov) else None)
 
 
 def load_2d(path: Path | str) -> Data2D:
@@ -220,6 +222,10 @@ def retrack(
     tracker = tracker_factory(cameras, params, 1.0 / fps)
     clock, clock_lines = clock_from_samples(data, fps)
     notes = list(data.notes) + clock_lines
+    left_out = dvs_rows_left_out(rows, data.dvs_cov)
+    if left_out:
+        notes.append(f"{left_out} event-camera points left out: the source has no covariance for them "
+                     "(recorded before FlyTrack kept it), and the tracker weighs them by it")
     rec = None
     if out is not None:
         rec = Recorder(out, flush_interval_s=1.0, on_full="block", meta={
@@ -249,6 +255,8 @@ def retrack(
         for line in notes:
             rec.log(line)
         rec.append("data2d_distorted", rows)
+        if data.dvs_cov is not None:
+            rec.append("dvs_point_covariance", data.dvs_cov)
         if clock is not None:
             rec.append("trigger_clock_info", clock)
     from flytrack_host.pipeline import result_rows
@@ -257,8 +265,8 @@ def retrack(
     n = n_estimates = 0
     ids: set[int] = set()
     cams = sorted(data.cam_names) or None
-    for bundle in tqdm(iter_bundles(rows, fps, cams), total=n_frames(rows), disable=not progress,
-                       unit="frame", desc="retrack"):
+    for bundle in tqdm(iter_bundles(rows, fps, cams, data.dvs_cov), total=n_frames(rows, data.dvs_cov),
+                       disable=not progress, unit="frame", desc="retrack"):
         result = tracker.process(bundle)
         n += 1
         n_estimates += len(result.estimates)

@@ -35,7 +35,7 @@ from flytrack_host.live import LiveSender
 from flytrack_host.pipeline.cameras import calibration_problems
 from flytrack_host.pipeline.dvs import DvsIntake
 from flytrack_host.pipeline.report import PipelineReport
-from flytrack_host.pipeline.rows import data2d_rows, result_rows
+from flytrack_host.pipeline.rows import data2d_rows, dvs_covariance_rows, result_rows
 from flytrack_host.pipeline.sink import ResultSink
 from flytrack_host.ratelog import RateLimitedLog
 from flytrack_host.receiver import DvsSlice, Receiver, StatusReport
@@ -463,6 +463,12 @@ class HostPipeline(DvsIntake, PipelineReport):
                       "recorded as -1/0 and flagged rejected")
         return rows
 
+    @staticmethod
+    def _dvs_cov_items(bundle: FrameBundle) -> list[tuple[str, np.ndarray]]:
+        """The event cameras' point covariances, so that a re-track weighs their points as here."""
+        return [("dvs_point_covariance", dvs_covariance_rows(ci, bundle.trigger_frame, cov))
+                for ci, cov in bundle.point_cov.items() if len(cov)]
+
     def _track(self, sb: SyncedBundle) -> None:
         bundle: FrameBundle = sb.bundle
         result: FrameResult | None = None
@@ -476,11 +482,12 @@ class HostPipeline(DvsIntake, PipelineReport):
             self.behind_skipped += 1
             self.warn("behind", f"host {behind:.2f} s behind real time: frames recorded, not tracked, to "
                       f"catch up ({self.behind_skipped} so far)")
+            self._add_dvs(sb, count=False)  # the event cameras' points are recorded too
             if self.recorder is not None:
-                self.recorder.append_many([("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp,
-                                                                           FLAG_LATE)) for fr in sb.frames.values()])
+                self.recorder.append_many(
+                    [("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_LATE))
+                     for fr in sb.frames.values()] + self._dvs_cov_items(bundle))
             if self.dvs_bundles.maxlen:  # tracked later, by the comparison, with its event points
-                self._add_dvs(sb, count=False)
                 self.dvs_bundles.append(bundle)
             return
         self._add_dvs(sb)
@@ -526,6 +533,7 @@ class HostPipeline(DvsIntake, PipelineReport):
         if self.recorder is not None:
             items = [("data2d_distorted", self._rows(fr, bundle.trigger_frame, bundle.timestamp, FLAG_TRACKED))
                      for fr in sb.frames.values()]
+            items += self._dvs_cov_items(bundle)
             if result is not None:
                 k, a = result_rows(result, bundle.timestamp)
                 items += [("kalman_estimates", k), ("data_association", a)]

@@ -1,5 +1,6 @@
 """Recording rows of the host pipeline: DATA2D rows of a camera frame, KALMAN and ASSOCIATION rows
-of a tracked frame (also used by the synthetic recordings and retracking)."""
+of a tracked frame, DVS_COVARIANCE rows of an event camera's points (also used by the synthetic
+recordings and retracking)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from flytrack_host.recording.schema import (
     ASSOCIATION,
     COV_NAMES,
     DATA2D,
+    DVS_COVARIANCE,
     FLAG_DVS,
     FLAG_INCOMPLETE,
     FLAG_REJECTED,
@@ -75,6 +77,18 @@ def data2d_rows(fr: CameraFrame, tf: int, timestamp: float, flags: int,
     else:
         for f in _FLOAT_FIELDS:
             rows[f] = np.nan
+    return rows
+
+
+def dvs_covariance_rows(camera_index: int, tf: int, cov: np.ndarray) -> np.ndarray:
+    """DVS_COVARIANCE rows of an event camera's points at trigger frame tf ((n, 3) var_x, var_y,
+    cov_xy, in the order of the frame's points: frame_pt_idx 0..n-1, as data2d_rows numbers them)."""
+    cov = np.asarray(cov, dtype=np.float64).reshape(-1, 3)
+    rows = np.zeros(len(cov), dtype=DVS_COVARIANCE)
+    rows["trigger_frame"] = tf
+    rows["camera_index"] = camera_index
+    rows["frame_pt_idx"] = np.arange(len(cov))
+    rows["var_x"], rows["var_y"], rows["cov_xy"] = cov[:, 0], cov[:, 1], cov[:, 2]
     return rows
 
 

@@ -47,6 +47,21 @@ FLAG_INCOMPLETE = 8
 FLAG_REJECTED = 16  # recorded but never given to the tracker (future-dated, duplicate, unmapped)
 FLAG_DVS = 32  # the row is an event (DVS) camera's cluster, placed at this trigger frame (eventcam)
 
+# The position covariance of each event (DVS) camera point of data2d (a FLAG_DVS row, matched on
+# trigger_frame, camera_index and frame_pt_idx): the tracker weighs those points by it (SPEC 1.6
+# DVS_CLUSTERS var_x, var_y, cov_xy, in distorted px^2, grown by the time since the cluster's slice),
+# so a re-track needs it to use them as the live run did.
+DVS_COVARIANCE = np.dtype(
+    [
+        ("trigger_frame", "<i8"),
+        ("camera_index", "<u2"),
+        ("frame_pt_idx", "<u2"),
+        ("var_x", "<f8"),
+        ("var_y", "<f8"),
+        ("cov_xy", "<f8"),
+    ]
+)
+
 KALMAN = np.dtype(
     [("obj_id", "<u4"), ("trigger_frame", "<i8"), ("timestamp", "<f8")]
     + [(n, "<f8") for n in ("x", "y", "z", "xvel", "yvel", "zvel")]
@@ -128,6 +143,7 @@ TABLES: dict[str, np.dtype] = {
     "latency": LATENCY,
     "camera_status": CAMERA_STATUS,
     "actuation_firings": FIRINGS,
+    "dvs_point_covariance": DVS_COVARIANCE,
 }
 
 
