@@ -68,6 +68,21 @@ def measure(recording: str | None, fault: Fault, preroll: int, n_frames: int, n_
     out["message_count"] = len(lines)
     out["message"] = str(lines[0]["message"]) if lines else "(nothing logged)"
     lat = rec.table("latency")
+    if len(lat) and math.isfinite(fault.t_start):
+        # What a clock step would do to the timing: the latency of the 50 frames with a trigger time
+        # that arrived last before the fault began against the 50 first after it (a step of s seconds
+        # moves it by s; a loaded host's own drift is a few hundred ms at most). Counted in frames: on a
+        # loaded host the trigger clock can have no fit for a while, and a window in seconds around
+        # the fault then held none. `latency_before_p50_ms`: the run's own latency before the fault.
+        v = (lat["estimate_time"] - lat["trigger_time"]) * 1e3
+        t = lat["last_arrival"]
+        ok = np.isfinite(v) & np.isfinite(t)
+        order = np.argsort(t[ok], kind="stable")
+        v, t = v[ok][order], t[ok][order]
+        pre = v[t < fault.t_start][-50:]
+        post = v[t >= fault.t_start][:50]
+        out["latency_step_ms"] = float(np.median(post) - np.median(pre)) if pre.size and post.size else None
+        out["latency_before_p50_ms"] = float(np.median(pre)) if pre.size else None
     if len(lat) and math.isfinite(t_end):
         after = lat[lat["last_arrival"] > t_end + 0.5]
         v = (after["estimate_time"] - after["trigger_time"]) * 1e3
