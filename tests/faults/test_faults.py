@@ -57,14 +57,14 @@ def test_wall_clock_steps_change_no_timing(rows, name):
     r = _row(rows, name)
     assert r["host"]["wall_clock_steps"] == 1
     assert r["frames_misnumbered"] == 0, r
-    # Before: a +1 h step reported 3,600,026 ms; with --no-trigger tracking froze. Trigger -> estimate
-    # of the 50 frames after the step against the 50 before: it moves by
-    # less than half the step (the run's own latency is the reference: a loaded machine delays the
-    # simulated cameras by 0.3-0.8 s, measured P50 773 ms at load 11, so no fixed bound holds there).
+    # Before: a +1 h step reported 3,600,026 ms; with --no-trigger tracking froze. The least arrival
+    # lag (trigger -> frame) of the 100 frames after the step against the 100 before moves by less
+    # than half the step (a step moves every frame by it). The run's own floor is the reference: a
+    # loaded machine delays the simulated cameras by 0.3-0.9 s (P50 773 ms at load 11 failed a fixed
+    # 200 ms bound; medians moved by 875 ms across a -1 s step at load 13).
     step_ms = abs(float(name.removeprefix("wall").removesuffix("-fixed"))) * 1e3
-    assert r["latency_step_ms"] is not None and abs(r["latency_step_ms"]) < 0.5 * step_ms, r["latency_step_ms"]
-    # (No lower bound: simavr paced in real time falls behind on a loaded machine, P50 -5 ms seen.)
-    assert r["latency_p50_ms"] < 0.5 * step_ms + 1000, (r["latency_p50_ms"], r["latency_p99_ms"])
+    d = r["arrival_floor_step_ms"]
+    assert d is not None and abs(d) < 0.5 * step_ms, (d, r["latency_p50_ms"], r["latency_p99_ms"])
 
 
 @pytest.mark.slow
@@ -122,11 +122,11 @@ def test_a_stalled_host_catches_up_and_says_so(rows):
 @pytest.mark.slow
 def test_fixed_rate_clock_is_reanchored_after_a_pause(rows):
     r = _row(rows, "trigger-pause")
-    # Before: every frame after a 0.5 s pause reported ~508 ms (the median too). Against the run's own
-    # latency before the pause (a loaded machine delays the simulated cameras: after-pause P50 334 ms
-    # at load 12 failed a fixed 150 ms bound), less than half the pause more.
-    after, before = r["latency_after_p50_ms"], r["latency_before_p50_ms"]
-    assert after is not None and before is not None and after < before + 250, (after, before)
+    # Before: every frame after a 0.5 s pause reported ~508 ms (the median too). The least arrival lag
+    # after it holds no part of the pause: under half of it (a loaded machine delays frames, not all of
+    # them: after-pause P50 334 ms at load 12 failed a fixed 150 ms bound on the median).
+    assert r["latency_after_p50_ms"] is not None
+    assert r["arrival_after_min_ms"] is not None and r["arrival_after_min_ms"] < 250, r["arrival_after_min_ms"]
     assert r["frames_misnumbered"] == 0
 
 
