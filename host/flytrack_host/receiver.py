@@ -154,7 +154,7 @@ class Receiver:
         self.sock.setblocking(False)
         self.warn = RateLimitedLog(self.log)
         self.sender_switch_s = sender_switch_s
-        self._senders: dict[int, list] = {}  # camera -> [port, monotonic time last heard]
+        self._senders: dict[int, list] = {}  # camera -> [port, arrival (host time) last heard]
         self._restarted: set[int] = set()  # cameras whose next frame is the first after a restart
         self._candidates: dict[int, list] = {}  # camera -> [port, held datagrams] of a would-be new sender
 
@@ -211,7 +211,6 @@ class Receiver:
         st.datagrams += 1
         st.bytes += len(data)
         ip = addr[0]
-        mono = time.monotonic()
         if ip not in self.allowed_ips:
             st.rejected_address += 1
             self._warn_once(f"datagram from {ip}, which is no camera's edge in the rig file: rejected",
@@ -240,7 +239,7 @@ class Receiver:
                             key=f"wrong_address:{cam}")
             return
         cs = st.cameras[cam]
-        if not self._check_sender(cam, ip, addr[1], mono, data, now, out):
+        if not self._check_sender(cam, ip, addr[1], data, now, out):
             return
         cs.packets += 1
         if not self._check_seq(cam, msg.seq if hasattr(msg, "seq") else None, now):
@@ -279,18 +278,23 @@ class Receiver:
         cams = [i for i, a in self.allowed.items() if a == ip]
         return cams[0] if len(cams) == 1 else None
 
-    def _check_sender(self, cam: int, ip: str, port: int, mono: float, data: bytes = b"", now: float = 0.0,
+    def _check_sender(self, cam: int, ip: str, port: int, data: bytes = b"", now: float = 0.0,
                       out: list | None = None) -> bool:
-        """One sender per camera (see the module doc); False when the datagram is rejected or held."""
+        """One sender per camera (see the module doc); False when the datagram is rejected or held.
+        Silence is judged on the datagrams' arrival times (`now`, the kernel's stamp), not on when
+        this thread got to them: a host stalled for a while takes in the old edge's last datagrams
+        and the restarted edge's first ones in one batch, and by the time it handled them the old
+        edge had seemed silent for no time at all (at load 15 a restart 0.6 s after the kill was
+        rejected as a second sender for 41 frames, then lost)."""
         owner = self._senders.get(cam)
         if owner is None:
-            self._senders[cam] = [port, mono]
+            self._senders[cam] = [port, now]
             return True
         if owner[0] == port:
-            owner[1] = mono
+            owner[1] = max(owner[1], now)
             self._candidates.pop(cam, None)
             return True
-        silent = mono - owner[1]
+        silent = now - owner[1]
         if silent >= self.sender_switch_s:
             # The owner went quiet. A new sender takes over once it sent SWITCH_CONFIRM datagrams in a
             # row (a restarted edge does; one stray datagram of a flood does not); they are held until then.
@@ -301,7 +305,7 @@ class Receiver:
             if len(cand[1]) < SWITCH_CONFIRM:
                 return False
             del self._candidates[cam]
-            self._switch(cam, ip, port, mono, silent)
+            self._switch(cam, ip, port, now, silent)
             st = self.stats
             for d, a, t in cand[1][:-1]:  # the held ones, in order, then this one (counted once)
                 st.datagrams -= 1  # counted when it came; handled (and counted) now
@@ -314,7 +318,7 @@ class Receiver:
                   f"(two edges with camera index {cam}, or a replay): rejected")
         return False
 
-    def _switch(self, cam: int, ip: str, port: int, mono: float, silent: float) -> None:
+    def _switch(self, cam: int, ip: str, port: int, now: float, silent: float) -> None:
         owner = self._senders[cam]
         cs = self.stats.cameras[cam]
         cs.restarts += 1
@@ -322,7 +326,7 @@ class Receiver:
         self._restarted.add(cam)
         self.log(f"camera {cam}: edge restarted (new sender {ip}:{port} after {silent:.2f} s without datagrams "
                  f"from port {owner[0]}); mapped again by arrival")
-        self._senders[cam] = [port, mono]
+        self._senders[cam] = [port, now]
 
     def _check_seq(self, cam: int, seq: int | None, now: float) -> bool:
         """Update loss/duplicate/reorder counters; False for a duplicate (dropped). `now` is the

@@ -30,9 +30,14 @@ model and the arrival lag of the other cameras. Afterwards the mapping is checke
   mapping, so the wrong ones never confirm a jump). Camera frames
   that jump back to numbers already seen are suspect the same way;
 - an edge restart (the receiver saw a new sender after silence, `CameraFrame.restarted`) maps the
-  camera again by arrival, never by the frame-0 tie: its first frames are held until one comes
-  paced (a starting process delivers them bunched), which places it; the trigger frames it missed
-  while down are counted (`missed`);
+  camera again by arrival, never by the frame-0 tie. A starting edge delivers its first frames late
+  and bunched (they queued while it started), so arrival alone places it too late. A frame cannot
+  arrive before its pulse plus the least lag the cameras have: each held frame bounds where the new
+  counter starts, and the lowest bound is the placement once `restart_settle_frames` frames in a
+  row came paced without lowering it (the edge caught up). Counted in frames, never seconds: on a
+  loaded host the edge takes longer to catch up and its frames wait until it did (recorded, not
+  tracked), instead of being tracked misnumbered. The trigger frames it missed while down are
+  counted (`missed`);
 - with the fixed-rate clock (no trigger), a frame arriving before its expected time moves the anchor
   earlier (the first frame came late); a pause of every camera (all frames paced but late by more
   than 2 periods for `reanchor_s`) re-anchors the clock, so later latencies are not the pause's.
@@ -216,10 +221,13 @@ class _Cam:
     rel_base: float | None = None  # usual arrival relative to the other cameras (drift baseline)
     rel_window: _Window = field(default_factory=_Window)  # (trigger frame, d, arrival) of recent frames
     seen_cf: deque = field(default_factory=lambda: deque(maxlen=512))  # recent camera frames accepted
-    lag_win: _Window = field(default_factory=_Window)  # (arrival, lag to the trigger clock) over ~1 s
+    # (arrival, lag to the trigger clock, trigger frame) over ~1 s
+    lag_win: _Window = field(default_factory=_Window)
     ahead_check_at: float = 0.0
     restarted_at: float | None = None
     placing: list | None = None  # a restarted edge's first frames, held until it can be placed
+    place_best: int | None = None  # the lowest bound on the trigger frame of its camera frame 0 so far
+    place_at: int = 0  # index in `placing` of the frame that gave it
     suspects: list[tuple[CameraFrame, int]] = field(default_factory=list)
     stats: CameraSyncStats = field(default_factory=CameraSyncStats)
 
@@ -252,6 +260,8 @@ class FrameSynchronizer:
         early_slack_s: float = 0.005,
         early_confirm_s: float = 0.2,
         reanchor_s: float = 0.2,
+        restart_settle_frames: int = 10,
+        restart_hold_frames: int = 300,
         on_event: Callable[[SyncEvent], None] | None = None,
     ):
         self.period = 1.0 / fps
@@ -277,6 +287,10 @@ class FrameSynchronizer:
         self.early_confirm_s = early_confirm_s  # early frames confirm a jump only over this long
         self.lag_window_s = 1.0
         self.reanchor_frames = max(5, int(reanchor_s * fps))
+        # A restarted edge is placed once this many frames in a row came paced without a new lowest
+        # bound, or (an edge that never catches up) once this many frames were held.
+        self.restart_settle = max(2, restart_settle_frames)
+        self.restart_hold = max(self.restart_settle + 1, restart_hold_frames)
         self._late_run: deque = deque()  # (first arrival, lag, frame) of recent bundles (fixed-rate re-anchor)
         self.reanchors = 0
         self._arrivals: dict[int, dict[int, float]] = {}
@@ -329,12 +343,11 @@ class FrameSynchronizer:
             out.append(SyncEvent("alive", cam.index, f"camera {cam.index} is sending again"))
         self._edge_numbered[cam.index] = frame.trigger_frame >= 0
         if frame.restarted and cam.offset is not None and frame.trigger_frame < 0:
-            cam.placing = [frame]  # a restarted edge: placed once its frames come paced (see _place)
-            cam.stats.frames -= 1  # counted again when placed
-            return out
+            cam.placing, cam.place_best, cam.place_at = [], None, 0  # placed once it caught up (_place)
+            cam.lag_win.clear()  # the old edge's lags: stale, and no measure of the new one
         if cam.placing is not None:
-            cam.stats.frames -= 1
-            return self._place(cam, frame)
+            cam.stats.frames -= 1  # counted again when placed
+            return out + self._place(cam, frame)
         if cam.last_cf is not None and frame.camera_frame == cam.last_cf:
             cam.stats.duplicate += 1
             # last_tf is set whenever last_cf is (they are always set and cleared together).
@@ -420,10 +433,15 @@ class FrameSynchronizer:
         return min(p.deadline for p in self.pending.values())
 
     def flush(self) -> list[SyncOutput]:
-        """Close every pending bundle (at stop)."""
-        if not self.pending:
-            return []
-        return self._close_through(max(self.pending), "flush")
+        """Close every pending bundle (at stop); a restarted edge's frames still held are placed by
+        the best bound they gave and recorded."""
+        out: list[SyncOutput] = []
+        for cam in self.cams.values():
+            if cam.placing:
+                out.extend(self._place_held(cam))
+        if self.pending:
+            out.extend(self._close_through(max(self.pending), "flush"))
+        return out
 
     # --- mapping ------------------------------------------------------------------------------
     def frame_time(self, tf: int) -> float:
@@ -510,7 +528,7 @@ class FrameSynchronizer:
         if not math.isfinite(t):
             return
         w = cam.lag_win
-        w.append((frame.recv_time, frame.recv_time - t))
+        w.append((frame.recv_time, frame.recv_time - t, tf))
         while w and w[0][0] < frame.recv_time - self.lag_window_s:
             w.popleft()
 
@@ -522,12 +540,18 @@ class FrameSynchronizer:
         w = cam.lag_win
         if cam.offset is None or len(w) < 8 or w[-1][0] - w[0][0] < 0.1:
             return []
-        others = [c.lag_win.min1() for c in self.cams.values()
-                  if c is not cam and c.alive and len(c.lag_win) >= 8]
+        lag = self._lag_now()
+        if lag is None:
+            return []
+        others = [min(lag(x) for x in c.lag_win if x[0] >= now - self.lag_window_s)
+                  for c in self._lag_peers(cam, now) if len(c.lag_win) >= 8]
         if not others:
             return []
-        mine = w.min1()
-        d = mine - statistics.median(others)
+        mine = min(lag(x) for x in w)
+        # Against the fastest other camera: ahead of all of them, not of their middle (one other
+        # camera still late, e.g. a restarted edge working off its queue, must not make a camera
+        # on time look ahead).
+        d = mine - min(others)
         # Ahead of the others (a clock step moves all cameras alike) and before its own pulses (other
         # cameras late for longer than the window, in a stall, make no camera arrive before its pulse).
         if d >= -self.early_s or mine >= -self.early_s:
@@ -548,27 +572,78 @@ class FrameSynchronizer:
         return [SyncEvent("ahead", cam.index, f"camera {cam.index}: frames numbered {k} ahead of their arrival "
                                               f"against the other cameras{note}: re-mapped")]
 
+    def _floor_lag(self, cam: _Cam, now: float) -> float:
+        """The least lag to the trigger clock a frame has now: the lowest of the other cameras' last
+        few frames (the fastest camera's). Their recent frames only: on a loaded host the simulated
+        cameras, the edges and the trigger clock model each drift by tens of ms within a second, so
+        a floor over a longer span places a restart several frames off; what the other cameras
+        deliver at the same moment moves with all of that. The usual lag when no other camera has any."""
+        lag = self._lag_now()
+        lows = [min(lag(x) for x in list(c.lag_win)[-5:]) for c in self._lag_peers(cam, now)] if lag else []
+        return min(lows) if lows else self._lag(cam.index)
+
+    def _lag_now(self) -> Callable[[tuple], float] | None:
+        """A lag window entry's lag to the trigger clock as it is now. The clock model is refitted, and
+        restarts after a jump (a loaded host's late clock replies: it stepped by tens of ms at load
+        11): lags noted before and after a step are not comparable, and one camera's newest frame
+        after it, against the others' older ones, looked frames ahead (two healthy cameras re-mapped
+        by 2 and 4, 270 frames misnumbered). The model is a line in the frame number; None while it
+        is not ready."""
+        ref = max(self.max_accepted, 0)
+        t_ref = self.frame_time(ref)
+        t_far = self.frame_time(ref + 1000)
+        if not (math.isfinite(t_ref) and math.isfinite(t_far)):
+            return None
+        slope = (t_far - t_ref) / 1000.0
+        return lambda x: x[0] - (t_ref + (x[2] - ref) * slope)
+
+    def _lag_peers(self, cam: _Cam, now: float) -> list[_Cam]:
+        """The other cameras whose arrival lags describe now: alive, placed, and heard from within the
+        lag window (a camera's window is only pruned when it delivers: one held or silent for a while
+        keeps lags from before, perhaps from before a clock-model restart, and would tilt the others)."""
+        return [c for c in self.cams.values() if c is not cam and c.alive and c.placing is None and c.lag_win
+                and c.lag_win[-1][0] >= now - self.lag_window_s]
+
     def _place(self, cam: _Cam, frame: CameraFrame) -> list[SyncOutput]:
-        """A restarted edge's first frames come bunched (its process starting while frames queue for
-        it); placed by the first one that comes paced (half a period or more after the one before),
-        or after 0.3 s / 30 frames. The held frames then go through as usual, with their numbers."""
+        """Hold a restarted edge's frame; place the edge once it caught up (see the module doc).
+
+        Frame c arriving at r answered a pulse no later than the one at r - floor lag, so camera frame
+        0 is at most that trigger frame - c. While the edge works off its queue every frame lowers
+        this bound (they come bunched); once it caught up they come paced and the bound stays.
+        """
         held = cam.placing
         assert held is not None
         held.append(frame)
-        paced = frame.recv_time - held[-2].recv_time >= 0.5 * self.period
-        if not paced and frame.recv_time - held[0].recv_time < 0.3 and len(held) < 30:
+        bound = None
+        if math.isfinite(self.frame_time(max(self.max_accepted, 0))):  # else the clock model is not ready
+            bound = self._frame_at(frame.recv_time - self._floor_lag(cam, frame.recv_time)) - frame.camera_frame
+        if bound is not None and (cam.place_best is None or bound < cam.place_best):
+            cam.place_best, cam.place_at = bound, len(held) - 1
+        k = self.restart_settle
+        since = len(held) - 1 - cam.place_at
+        # Paced: most of the last k frames came half a period or more after the one before (one long
+        # stall before a burst is no pacing: the burst's frames come together).
+        paced = since >= k and 2 * sum(held[-j].recv_time - held[-j - 1].recv_time >= 0.5 * self.period
+                                       for j in range(1, k)) >= k - 1
+        if not paced and len(held) < self.restart_hold:
             return []
-        cam.placing = None
-        out = self._restart(cam, frame, held[0])
+        return self._place_held(cam)
+
+    def _place_held(self, cam: _Cam) -> list[SyncOutput]:
+        held, best = cam.placing, cam.place_best
+        assert held
+        if best is None:  # the clock model was never ready while it was held: by its last arrival
+            best = self._frame_at(held[-1].recv_time - self._lag(cam.index)) - held[-1].camera_frame
+        cam.placing, cam.place_best = None, None
+        out = self._restart(cam, held[0], best)
         for f in held:
             f.restarted = False
             out.extend(self.add(f, f.recv_time))
         return out
 
-    def _restart(self, cam: _Cam, frame: CameraFrame, first: CameraFrame | None = None) -> list[SyncOutput]:
-        """An edge restarted (new sender): map its counter again by the arrival of `frame`; count what
+    def _restart(self, cam: _Cam, first: CameraFrame, first_tf: int) -> list[SyncOutput]:
+        """An edge restarted (new sender): its camera frame 0 is trigger frame `first_tf`; count what
         it missed before `first`, its first frame."""
-        first = first or frame
         old_tf = cam.last_tf
         cam.stats.restarts += 1
         cam.suspects.clear()
@@ -578,10 +653,10 @@ class FrameSynchronizer:
         # rel_base is kept: the camera arrives as it did against the others (same link, same edge), so
         # the drift check can correct a restart placed a few frames off, instead of taking the wrong
         # placement as the new normal.
-        cam.offset = frame.camera_frame - self._frame_at(frame.recv_time - self._lag(cam.index))
+        cam.offset = -first_tf
         new_tf = first.camera_frame - cam.offset
         cam.last_cf, cam.last_tf = None, None
-        cam.restarted_at = frame.recv_time
+        cam.restarted_at = first.recv_time
         missed = max(0, new_tf - (old_tf if old_tf is not None else new_tf) - 1)
         cam.stats.missed += missed
         return [SyncEvent("restart", cam.index,

@@ -220,7 +220,10 @@ class _FedEdge:
     def feed_until(self, ctx: Any, end_mono: float, stop: threading.Event) -> None:
         seen = ctx.feeder.frames_rendered
         assert self.proc.stdin is not None
-        while time.monotonic() < end_mono and not stop.is_set() and not ctx.feeder.done:
+        while time.monotonic() < end_mono and not stop.is_set():
+            # Every frame rendered before the cameras were done is written, also when this thread
+            # runs behind them (a loaded host): stopping at `done` lost the last 17 of a run.
+            done = ctx.feeder.done
             now_seen = ctx.feeder.frames_rendered
             while seen < now_seen:
                 seen += 1
@@ -230,6 +233,8 @@ class _FedEdge:
                 except OSError:
                     return
                 self.written[len(self.written)] = seen - 1
+            if done:
+                return
             time.sleep(0.0005)
 
     def close(self) -> None:

@@ -68,6 +68,22 @@ def measure(recording: str | None, fault: Fault, preroll: int, n_frames: int, n_
     out["message_count"] = len(lines)
     out["message"] = str(lines[0]["message"]) if lines else "(nothing logged)"
     lat = rec.table("latency")
+    if len(lat) and math.isfinite(fault.t_start):
+        # What a clock step would do to the timing: the least arrival lag (trigger pulse -> last
+        # camera packet) of the 100 frames with a trigger time that arrived last before the fault
+        # began, against that of the 100 first after it. A step of s seconds moves every frame's lag,
+        # the least too, by s; a loaded host delays frames, by up to 0.9 s measured, but not all of
+        # 100 in a row, so the least stays near the floor (a median moved by 875 ms across a -1 s
+        # step at load 13). Counted in frames: a window in seconds once held no frame with a trigger
+        # time (the clock model not ready on a loaded host).
+        v = (lat["last_arrival"] - lat["trigger_time"]) * 1e3
+        t = lat["last_arrival"]
+        ok = np.isfinite(v) & np.isfinite(t)
+        order = np.argsort(t[ok], kind="stable")
+        v, t = v[ok][order], t[ok][order]
+        pre = v[t < fault.t_start][-100:]
+        post = v[t >= fault.t_start][:100]
+        out["arrival_floor_step_ms"] = float(post.min() - pre.min()) if pre.size and post.size else None
     if len(lat) and math.isfinite(t_end):
         after = lat[lat["last_arrival"] > t_end + 0.5]
         v = (after["estimate_time"] - after["trigger_time"]) * 1e3
@@ -75,6 +91,9 @@ def measure(recording: str | None, fault: Fault, preroll: int, n_frames: int, n_
         out["latency_after_p50_ms"] = float(np.percentile(v, 50)) if v.size else None
         out["latency_after_p99_ms"] = float(np.percentile(v, 99)) if v.size else None
         # The host's own part: from the frame's arrival (kernel stamp) to its estimate.
+        a = (after["first_arrival"] - after["trigger_time"]) * 1e3
+        a = a[np.isfinite(a)]
+        out["arrival_after_min_ms"] = float(a.min()) if a.size else None  # the floor: no pause left in it
         h = (after["estimate_time"] - after["last_arrival"]) * 1e3
         h = h[np.isfinite(h)]
         out["host_delay_after_p99_ms"] = float(np.percentile(h, 99)) if h.size else None

@@ -107,6 +107,7 @@ class ClockModel:
         jump_threshold_s: float = 0.020,
         jump_count: int = 3,
         min_samples: int = 3,
+        min_jump_span_s: float = 0.5,
         link: LinkTiming | None = None,
     ) -> None:
         if window < 2 or not 0 < keep_fraction <= 1 or max_rtt_s <= 0:
@@ -118,6 +119,11 @@ class ClockModel:
         self.outlier_sigmas = outlier_sigmas
         self.jump_threshold_s = jump_threshold_s
         self.jump_count = jump_count
+        # A fit over less device time than this is no reference for a jump: three samples a few ms
+        # apart, each off by the host's jitter, can give a gain of 2.3 (seen at load 11), and every
+        # later sample then looked far off, was held back, and (their offsets under that gain never
+        # agreeing) never let the fit move again: frame times 1.75 s off for the rest of the run.
+        self.min_jump_span_s = min_jump_span_s
         self.min_samples = min_samples
         # How a round trip maps to the device's sample instant; None: its midpoint. The driver that
         # knows the link (baud rate, frame sizes) sets it.
@@ -164,7 +170,8 @@ class ClockModel:
             return False
         if self._samples and device_time_s < self._samples[-1].device_time_s:
             self._restart()
-        elif self.fitted and abs(self.device_to_host(device_time_s) - s.host_sample) > self.jump_threshold_s:
+        elif (self.fitted and self.span_s >= self.min_jump_span_s
+              and abs(self.device_to_host(device_time_s) - s.host_sample) > self.jump_threshold_s):
             # Held back: an outlier unless the next ones agree with it (the same new offset).
             if self._held and abs(self._offset_of(s) - self._offset_of(self._held[-1])) > self.jump_threshold_s:
                 self._held.clear()

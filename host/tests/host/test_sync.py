@@ -388,8 +388,9 @@ def test_a_shift_shorter_than_half_a_second_is_no_drift_by_default() -> None:
 
 
 def test_a_restarted_edge_counts_each_of_its_frames_once() -> None:
-    """An edge restart (restarted=True, counter from 0): its first frames are held until placed, then
-    counted once each: frames received = tracked + reported untracked, one restart, 40 frames missed."""
+    """An edge restart (restarted=True, counter from 0): its first frames are held until placed (10
+    paced frames: recorded late, not tracked), then counted once each: frames received = tracked +
+    reported untracked, one restart, 40 frames missed."""
     d = make()
     frames = stream({0: 0, 1: 0, 2: 0}, range(100))
     for k in range(100, 200):
@@ -404,7 +405,7 @@ def test_a_restarted_edge_counts_each_of_its_frames_once() -> None:
     st = d.sync.stats()[1]
     sent = 100 + 60
     untracked = sum(1 for u in d.untracked if u.frame.camera_index == 1)
-    assert st.frames == sent and st.tracked + untracked == sent and st.tracked >= sent - 2
+    assert st.frames == sent and st.tracked + untracked == sent and st.tracked >= sent - 12
     assert st.restarts == 1 and st.missed == 40
     ev = [e for e in d.events if e.kind == "restart"]
     assert len(ev) == 1 and "40 trigger frames missed" in ev[0].message
@@ -519,10 +520,10 @@ def test_a_late_joiner_is_placed_by_arrival_minus_the_other_cameras_lag() -> Non
         assert all(by_tf[k].frames[2].camera_frame == 700 + k for k in range(first_k + 2, 100)), first_k
 
 
-def test_a_restart_placed_by_late_frames_is_moved_back_when_its_frames_come_ahead() -> None:
-    """Camera 1's edge restarts; its first 8 frames come 70 ms late, 6 ms apart (paced, so it is placed
-    by them: 7 pulses too late). Its next frames, on time, then arrive 70 ms before their mapped pulses
-    compared with the other cameras: it is found ahead and moved back by 7, its missed count corrected."""
+def test_a_restart_whose_first_frames_come_late_is_placed_by_its_frames_on_time() -> None:
+    """Camera 1's edge restarts; its first 8 frames come 70 ms late, 6 ms apart (paced: by them alone
+    it would be placed 7 pulses too late). Its frames are held until it caught up (10 frames paced
+    without a lower bound): placed right at once, no re-mapping needed, 40 frames missed."""
     d = make()
     frames = stream({0: 0, 1: 0, 2: 0}, range(100))
     for k in range(100, 260):
@@ -536,12 +537,10 @@ def test_a_restart_placed_by_late_frames_is_moved_back_when_its_frames_come_ahea
     d.feed(frames)
     d.advance(T0 + 260 * P + 0.1)
     st = d.sync.stats()[1]
-    assert (st.restarts, st.ahead, st.missed, st.frames) == (1, 1, 40, 220)
-    assert [e.kind for e in d.events] == ["restart", "ahead"]
-    assert d.events[1].message == ("camera 1: frames numbered 7 ahead of their arrival against the other cameras "
-                                   "(after its restart): re-mapped")
+    assert (st.restarts, st.ahead, st.missed, st.frames) == (1, 0, 40, 220)
+    assert [e.kind for e in d.events] == ["restart"]
     got = [(b.bundle.trigger_frame, b.frames[1].camera_frame) for b in d.bundles if 1 in b.frames]
-    assert all(tf == cf + 140 for tf, cf in got if tf >= 170) and sum(tf >= 170 for tf, _ in got) == 90
+    assert all(tf == cf + 140 for tf, cf in got if tf >= 140) and sum(tf >= 140 for tf, _ in got) >= 100
 
 
 def test_an_edge_restarted_twice_is_numbered_by_arrival_each_time_and_counted_twice() -> None:
@@ -569,8 +568,8 @@ def test_an_edge_restarted_twice_is_numbered_by_arrival_each_time_and_counted_tw
         "20 trigger frames missed while it was down",
     ]
     got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
-    assert all(got[tf] == tf - 140 for tf in range(141, 200))
-    assert all(got[tf] == tf - 220 for tf in range(221, 300))
+    assert all(got[tf] == tf - 140 for tf in range(150, 200))  # the first 10 held until placed
+    assert all(got[tf] == tf - 220 for tf in range(230, 300))
     assert not any(200 <= tf < 220 for tf in got)
 
 
@@ -591,7 +590,7 @@ def test_an_edge_restart_without_a_gap_misses_nothing() -> None:
     msg = d.kinds("restart")[0].message
     assert "its camera frame 0 is trigger frame 100 (by arrival); 0 trigger frames missed" in msg
     got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
-    assert all(got[tf] == tf - 100 for tf in range(101, 200))
+    assert all(got[tf] == tf - 100 for tf in range(110, 200))
 
 
 def test_a_camera_counter_that_jumps_twice_is_remapped_twice() -> None:
@@ -702,9 +701,9 @@ def test_an_edge_numbered_camera_that_drifts_is_reported_once_and_keeps_its_numb
 
 def test_a_late_joiner_placed_ahead_and_its_restart_placed_ahead_are_each_moved_back() -> None:
     """Camera 1 joins at trigger frame 100 with its first 8 frames 70 ms late, 6 ms apart (placed 7
-    pulses too late), then restarts its edge at 240 (after 40 missed pulses) the same way: found ahead
-    twice, moved back by 7 each time (the second time noted as after its restart, its missed count
-    corrected from 47 to 40), and its frames then sit in the bundles of the pulses they answered."""
+    pulses too late), then restarts its edge at 240 (after 40 missed pulses) the same way: the joiner
+    is found ahead and moved back by 7; the restart is held until it caught up and placed right at
+    once (40 missed); its frames then sit in the bundles of the pulses they answered."""
     d = make()
     frames = stream({0: 0, 2: 0}, range(400))
     for k in range(100, 400):
@@ -721,11 +720,9 @@ def test_a_late_joiner_placed_ahead_and_its_restart_placed_ahead_are_each_moved_
     d.feed(frames)
     d.advance(T0 + 400 * P + 0.1)
     st = d.sync.stats()[1]
-    assert (st.ahead, st.restarts, st.missed, st.frames) == (2, 1, 40, 260)
+    assert (st.ahead, st.restarts, st.missed, st.frames) == (1, 1, 40, 260)
     assert [e.message for e in d.kinds("ahead")] == [
         "camera 1: frames numbered 7 ahead of their arrival against the other cameras: re-mapped",
-        "camera 1: frames numbered 7 ahead of their arrival against the other cameras (after its restart): "
-        "re-mapped",
     ]
     got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
     assert all(got[tf] == tf for tf in range(130, 200))
@@ -773,59 +770,3 @@ def test_frames_coming_sooner_than_the_anchor_pull_the_frame_times_back_by_up_to
             assert all(abs(lag[k] - expect) < 0.0008 for k in range(60, 100)), (cams, drop, lag[99])
             assert not d.kinds("reanchor")
             assert sum(len(b.frames) for b in d.bundles) + len(d.untracked) == 100 * len(cams)
-
-
-def _restart_placed_at(spacing: float, n: int) -> tuple[int, float]:
-    """Camera 1's edge restarts and sends n frames `spacing` apart (bunched: less than half a period,
-    25 ms at 20 fps); returns its frame on whose arrival the restart was placed, and when (s after
-    the first)."""
-    fps = 20.0
-    d = Driver(FrameSynchronizer((0, 1, 2), fps, clock=FixedRateClock(fps), start_time=T0))
-    frames = []
-    for k in range(120):
-        t = T0 + k / fps + 0.002
-        frames += [frame(0, k, t), frame(2, k, t)]
-        if k < 40:
-            frames.append(frame(1, k, t + 0.0005))
-    t1 = T0 + 60 / fps
-    for i in range(n):
-        f = frame(1, i, t1 + i * spacing)
-        f.restarted = i == 0
-        frames.append(f)
-    for f in sorted(frames, key=lambda f: f.recv_time):
-        d.feed([f])
-        if d.kinds("restart"):
-            assert len(d.kinds("restart")) == 1 and d.sync.stats()[1].restarts == 1
-            return f.camera_frame, f.recv_time - t1
-    raise AssertionError("the restart was never placed")
-
-
-def test_a_restarted_edge_sending_bunched_frames_is_placed_after_a_third_of_a_second_or_30_frames() -> None:
-    """Its frames held while they come bunched: placed by the first one 0.3 s after its first frame
-    (frames 20 ms apart), or by its 30th frame if that comes sooner (frames 4 ms apart)."""
-    cf, dt = _restart_placed_at(0.020, 40)
-    assert cf in (15, 16) and 0.3 - 1e-9 <= dt <= 0.32 + 1e-9, (cf, dt)
-    cf, dt = _restart_placed_at(0.004, 40)
-    assert cf == 29, (cf, dt)
-
-
-def test_three_wrong_frames_in_a_row_that_do_not_count_up_together_are_no_jump() -> None:
-    """A jump is confirmed only by frames whose camera counter and trigger number both go up from one to
-    the next. Runs of three wrong frames that do not (a counter going back, a counter or a trigger
-    number repeated) are rejected one by one, and the camera goes on in its own numbering."""
-    for edge, wild in (
-        (False, {50: (5000, -1), 51: (3000, -1), 52: (7000, -1)}),
-        (True, {60: (61, 9000), 61: (61, 9001), 62: (62, 9002), 70: (71, 9000), 71: (72, 9000), 72: (73, 9001)}),
-    ):
-        d = make()
-        frames = stream({0: 0, 1: 0, 2: 0}, range(100), tf_from_edge=edge)
-        for f in frames:
-            if f.camera_index == 1 and f.camera_frame in wild:
-                f.camera_frame, f.trigger_frame = wild[f.camera_frame]
-        d.feed(frames)
-        d.advance(T0 + 100 * P + 0.1)
-        st = d.sync.stats()[1]
-        assert st.clock_jumps == 0 and not d.kinds("clock_jump") and st.future == len(wild)
-        assert sorted(u.frame.camera_frame for u in d.untracked) == sorted(cf for cf, _ in wild.values())
-        got = {b.bundle.trigger_frame: b.frames[1].camera_frame for b in d.bundles if 1 in b.frames}
-        assert [k for k in range(100) if got.get(k) != k] == sorted(wild)

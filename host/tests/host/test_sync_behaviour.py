@@ -455,9 +455,10 @@ LAG8 = {0: 0.008, 1: 0.008, 2: 0.008}
 
 
 def test_a_restarted_edge_is_placed_by_its_arrival_minus_the_other_cameras_lag() -> None:
-    """Camera 1's edge restarts at trigger frame 100 (counter from 0, 20 pulses missed): placed by the
-    arrival of its first paced frame, the others' 8 ms lag taken off, so its frames land in the
-    bundles of the pulses they answered from the first one on."""
+    """Camera 1's edge restarts at trigger frame 100 (counter from 0, 20 pulses missed): its frames are
+    held until restart_settle_frames (10) came paced without lowering the bound (arrival minus the
+    others' 8 ms lag), then placed so that every frame sits on the pulse it answered; the held ones
+    are recorded (late, with their right trigger frames), the rest tracked."""
     r = _lagged_run()
     frames = stream({0: 0, 2: 0}, range(160), lag=LAG8) + stream({1: 0}, range(80), lag=LAG8)
     for k in range(100, 160):
@@ -469,9 +470,9 @@ def test_a_restarted_edge_is_placed_by_its_arrival_minus_the_other_cameras_lag()
     assert r.events[0].message.endswith("its camera frame 0 is trigger frame 100 (by arrival); "
                                         "20 trigger frames missed while it was down")
     got = cam_frames(r, 1)
-    assert all(got[k] == k - 100 for k in range(101, 160))
-    # Its first frame, held until the next one came paced, missed its bundle (closed at its deadline).
-    assert [(u.frame.camera_frame, u.trigger_frame, u.reason) for u in r.untracked] == [(0, 100, "late")]
+    assert all(got[k] == k - 100 for k in range(110, 160)) and not [k for k in got if 100 <= k < 110]
+    assert [(u.frame.camera_frame, u.trigger_frame, u.reason) for u in r.untracked] == [
+        (k, 100 + k, "late") for k in range(10)]
 
 
 def test_a_counter_jump_is_re_mapped_by_arrival_minus_the_other_cameras_lag() -> None:
@@ -593,10 +594,11 @@ def test_a_late_joiner_after_a_re_anchor_is_placed_by_the_lag_to_the_new_anchor(
     assert all(got[k] == 700 + k for k in range(91, 120)), sorted(got.items())[:5]
 
 
-def test_a_restart_without_a_gap_placed_ahead_and_moved_back_counts_nothing_missed() -> None:
-    """Camera 1's edge restarts between pulses 99 and 100 (no pulse lost); its first frames come late,
-    half a period apart (paced), so it is placed 7 pulses ahead, then found ahead and moved back by 7:
-    the trigger frames it missed come back to 0, not below, not 1."""
+def test_a_restart_without_a_gap_is_placed_once_caught_up_and_counts_nothing_missed() -> None:
+    """Camera 1's edge restarts between pulses 99 and 100 (no pulse lost); its first frames come late
+    and bunched (8 ms apart, a period is 15.6 ms) until it caught up: held until then, and placed by
+    the lowest bound, not by the late first arrivals: frame 0 is trigger frame 100, nothing missed,
+    never mapped ahead (so never moved back)."""
     r = make()
     frames = stream({0: 0, 2: 0}, range(200)) + stream({1: 0}, range(100))
     t_prev = 0.0
@@ -607,33 +609,38 @@ def test_a_restart_without_a_gap_placed_ahead_and_moved_back_counts_nothing_miss
         frames.append(f)
     r.feed(frames, poll_every=P)
     st = r.sync.stats()[1]
-    assert (st.restarts, st.ahead, st.missed) == (1, 1, 0)
-    assert [e.kind for e in r.events] == ["restart", "ahead"]
+    assert (st.restarts, st.ahead, st.missed) == (1, 0, 0)
+    assert [e.kind for e in r.events] == ["restart"]
+    assert "its camera frame 0 is trigger frame 100 (by arrival); 0 trigger frames missed" in r.events[0].message
     got = cam_frames(r, 1)
     assert all(got[k] == k - 100 for k in range(150, 200))
 
 
-def _placed(fps: float, spacing: float) -> int:
-    """Camera 1's edge restarts and sends frames `spacing` apart; returns the camera frame on whose
-    arrival it was placed."""
-    r = make(fps=fps)
+def _placed(fps: float, spacing: float, n: int = 40, **kw) -> tuple[int, str] | None:
+    """Camera 1's edge restarts (its frame 0 answers trigger frame 30) and sends n frames `spacing`
+    apart; returns the camera frame on whose arrival it was placed and the restart message (None:
+    still held)."""
+    r = make(fps=fps, **kw)
     frames = stream({0: 0, 2: 0}, range(60), fps=fps) + stream({1: 0}, range(20), fps=fps)
     t1 = T0 + 30 / fps + L
-    frames += [frame(1, i, t1 + i * spacing) for i in range(40)]
-    frames[-40].restarted = True
+    frames += [frame(1, i, t1 + i * spacing) for i in range(n)]
+    frames[-n].restarted = True
     for f in sorted(frames, key=lambda f: f.recv_time):
         r.add(f)
         if r.kinds("restart"):
-            return f.camera_frame
-    raise AssertionError("never placed")
+            return f.camera_frame, r.kinds("restart")[0].message
+    return None
 
 
-def test_a_restarted_edge_is_placed_by_its_first_paced_frame_or_after_0_3_s_of_bunched_ones() -> None:
-    """Frames half a period apart (or more) are paced: placed on its second frame. Bunched frames
-    (1/64 s apart at 20 fps, less than half a period): placed by the first one 0.3 s or more after the
-    first (its 20th, 0.3125 s after)."""
-    assert _placed(32.0, 1 / 64) == 1
-    assert _placed(20.0, 1 / 64) == 20
+def test_a_restarted_edge_is_placed_after_10_paced_frames_and_held_while_bunched() -> None:
+    """Paced frames (one a period): placed on the 11th (restart_settle_frames 10 without a lower
+    bound), at the pulse it answered. Frames coming faster than the pulses (an edge working off its
+    queue) are held, however long: counted in frames, not seconds; only restart_hold_frames bounds it."""
+    assert _placed(32.0, 1 / 32) == (10, "camera 1: edge restarted; its camera frame 0 is trigger frame 30 "
+                                         "(by arrival); 10 trigger frames missed while it was down")
+    assert _placed(20.0, 1 / 64) is None and _placed(32.0, 1 / 64) is None
+    held = _placed(20.0, 1 / 64, restart_hold_frames=20)
+    assert held is not None and held[0] == 19  # the hold's bound: placed by the lowest bound so far
 
 
 # --- the drift check --------------------------------------------------------------------------------

@@ -215,3 +215,22 @@ def test_delay_filter_recovers_the_gain_within_1_ppm_on_a_loaded_link() -> None:
     assert max(np.abs(errs)) < 1.0
     rms, rms_all = np.sqrt(np.mean(np.square(errs))), np.sqrt(np.mean(np.square(errs_all)))
     assert rms_all > 3 * rms  # what the filter is for
+
+
+def test_a_first_fit_over_a_few_ms_does_not_lock_out_the_samples_after_it() -> None:
+    """The first three samples of a run on a loaded host (device times 27, 28 and 30 ms, each off by
+    the host's jitter: a fitted gain of 2.3) and then one every 30-500 ms: the fit follows them. Before,
+    every later sample was more than 20 ms off that fit, held back as a jump that never confirmed,
+    and the model kept gain 2.3 (frame 137 at 100 fps placed 1.75 s late; a `edge-stop` fault run then
+    remapped every camera by 173 frames, 483 misnumbered)."""
+    m = ClockModel(frame_period_s=0.01)
+    off = 1.7e9
+    for dev, err in ((0.027, -0.0103), (0.028, -0.0060), (0.030, -0.0062)):  # measured: host - device
+        m.add_sample(off + dev + err - 0.0002, off + dev + err + 0.0002, dev)
+    assert m.fitted and m.gain > 1.5  # the few-ms fit is as bad as it was
+    rng = np.random.default_rng(4)
+    for dev in (0.060, 0.191, 0.490, 0.512, 0.539, 0.632, 0.663, 1.382, 1.888):
+        h = off + dev - 0.006 + rng.normal(0, 0.001)
+        m.add_sample(h - 0.002, h + 0.002, dev)
+    assert m.restarts == 0
+    assert m.frame_to_host_time(137) == pytest.approx(off + 1.37 - 0.006, abs=0.005)

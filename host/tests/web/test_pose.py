@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -120,11 +121,14 @@ def test_udp_sender_keeps_its_rate_and_the_client_counts_garbage():
     assert [m.seq for m in msgs] == sorted(m.seq for m in msgs)
 
 
-def _send_poses(port: int, frames: int) -> None:
-    """One animal's poses to the example on `port` through a real PoseStream, one frame per 10 ms."""
+def _send_poses(port: int, frames: int, until: subprocess.Popen | None = None) -> None:
+    """One animal's poses to the example on `port` through a real PoseStream, one frame per 10 ms:
+    `frames` of them, or (`until`) as long as that process runs, for at most `frames`."""
     s = PoseStream([("127.0.0.1", port)], rate_hz=200.0, lock="auto")
     try:
         for f in range(frames):
+            if until is not None and until.poll() is not None:
+                break
             now = time.time()
             s.on_frame(make_result(f, 1, t=now), now, now)
             time.sleep(0.01)
@@ -144,8 +148,10 @@ def test_virtual_post_example_holds_the_post_ahead_of_the_animal():
     proc = subprocess.Popen([sys.executable, str(root / "examples" / "virtual_post.py"), "--port", str(port),
                              "--seconds", "2.5", "--distance", "0.1", "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(0.8)  # its interpreter starts and binds the port
-    _send_poses(port, 100)
+    # Poses until it exits (2.5 s after the first it got): its interpreter may take longer than any
+    # fixed wait to start and bind on a loaded machine (with 0.8 s then 1 s of poses it got at most
+    # 20 post updates in the whole suite at load 10).
+    _send_poses(port, 2000, until=proc)
     out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     lines = [json.loads(x) for x in out.splitlines() if x.startswith("{")]
@@ -171,7 +177,7 @@ def test_virtual_post_example_counts_its_seconds_from_the_first_pose():
                             text=True)
     time.sleep(2.0)  # longer than --seconds: the sender starts late
     assert proc.poll() is None, proc.communicate()
-    _send_poses(port, 60)
+    _send_poses(port, 2000, until=proc)  # until it exits: it may bind later still on a loaded machine
     out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert sum(x.startswith("{") for x in out.splitlines()) > 20, out[-500:]
