@@ -162,3 +162,23 @@ def test_compare_names_a_missing_column_instead_of_a_traceback(braidz: tuple[Pat
                 zout.writestr(n, zin.read(n))
     with pytest.raises(CompareError, match="kalman_estimates table has no column y, z"):
         load_tracks(path)
+
+
+def test_points_from_one_camera_only_say_so_not_blame_the_calibration(braidz: tuple[Path, dict],
+                                                                       tmp_path: Path) -> None:
+    """A Braid recording whose 2D points all come from one camera (Braid's own single-camera test
+    recording is such a case): the reason is the camera count, not a calibration mismatch."""
+    import dataclasses
+
+    from flytrack_host.io.retrack import cameras_for, load_2d, retrack
+
+    path, _ = braidz
+    data = load_2d(path)
+    cams = cameras_for(data)
+    one = data.rows[data.rows["camera_index"] == min(cams)]
+    res = retrack(dataclasses.replace(data, rows=one.copy()), cams, TrackingParams(kernel="numpy"), FPS,
+                  progress=False)
+    assert res.estimates == 0
+    why = " ".join(res.why_nothing)
+    assert f"2D points came from 1 calibrated camera(s) ({cams[min(cams)].name}) of {len(cams)}" in why, why
+    assert "agreed within" not in why
