@@ -76,6 +76,8 @@ def _retrack(task: Task, tmp: Path) -> dict[str, Any]:
     res = retrack(data, cams, params, fps, out=tmp, progress=False)
     row = _base_row(task)
     row.update(recording_metrics(load_recording(tmp), cams))
+    if res.why_nothing:  # why it tracked nothing although 2D points came (retrack's reasons, with numbers)
+        row["why_no_estimates"] = "; ".join(res.why_nothing)
     row.update({"frames": res.frames, "tracker_s": res.seconds,
                 "frames_per_s": res.frames / res.seconds if res.seconds > 0 else float("nan")})
     return row
