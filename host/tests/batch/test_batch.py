@@ -189,3 +189,14 @@ def test_a_task_that_tracks_nothing_says_why(recordings, tmp_path, capsys):
     assert "no estimates rec0 [death_position_std_m-1e-9]: every new target died" in err, err
     assert "failed broken.flytrack [death_position_std_m-1e-9]: " in err, err  # not taken for rich markup
     assert "died before confirmation" in pd.read_csv(tmp_path / "out" / "results.csv")["why_no_estimates"][0]
+
+
+def test_a_bad_recording_on_a_local_cluster_is_one_line_not_a_worker_traceback(tmp_path):
+    bad = tmp_path / "broken.flytrack"
+    bad.mkdir()
+    (bad / "meta.json").write_text("{not json")
+    r = _flytrack("batch", "retrack", bad, "--out", tmp_path / "out", "--workers", "1", "--no-progress")
+    assert r.returncode == 1, r.stdout + r.stderr
+    err = " ".join(r.stderr.split())
+    assert "failed broken.flytrack [base]: " in err, err
+    assert "Traceback" not in r.stderr and "Compute Failed" not in r.stderr, r.stderr
