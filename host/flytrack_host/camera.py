@@ -16,6 +16,7 @@ plane are seen through it: they project as their refraction point on the plane d
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -32,6 +33,39 @@ from flytrack_host.refraction import (
 
 F64 = NDArray[np.float64]
 
+
+
+def face_the_scene(cameras: list[Camera]) -> tuple[list[Camera], list[str]]:
+    """Cameras of one rig turned to face where their optical axes meet. A projection matrix fixes a
+    camera's side only up to the world's handedness: MultiCamSelfCal (flydra, Braid) often gives a
+    mirrored world, in which every real point lies behind every camera by the usual rule (det R = +1),
+    so `project` would return NaN for all of them. flydra and Braid never test the side. A camera whose
+    axis-meeting point lies behind it gets R, t negated (an improper R): the same projection of every
+    point, with the scene in front. Returns the cameras and the names of those turned."""
+    if len(cameras) < 2:
+        return cameras, []
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c in cameras:
+        d = c.R[2] / np.linalg.norm(c.R[2])  # the optical axis, in world coordinates
+        proj = np.eye(3) - np.outer(d, d)
+        A += proj
+        b += proj @ c.center
+    if np.linalg.cond(A) > 1e8:  # parallel axes meet nowhere: nothing to decide by
+        return cameras, []
+    X = np.linalg.solve(A, b)
+    turned = [c.name for c in cameras if float((c.R @ X + c.t)[2]) < 0.0]
+    if not turned:
+        return cameras, []
+    out = [dataclasses.replace(c, R=-c.R, t=-c.t) if c.name in turned else c for c in cameras]
+    return out, turned
+
+
+def mirrored_world_note(turned: list[str]) -> str:
+    """What face_the_scene did, for the loaders' warnings."""
+    return (f"camera(s) {', '.join(turned)}: the scene (where the optical axes meet) lies behind them by the "
+            "usual rule: the calibration's world is mirrored (as MultiCamSelfCal can give); taken as facing it "
+            "(the same projection of every point, as flydra and Braid use it)")
 
 def _distort_normalized(x: F64, y: F64, d: F64) -> tuple[F64, F64]:
     k1, k2, p1, p2, k3 = d

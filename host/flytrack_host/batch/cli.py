@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from flytrack_host.batch.plan import BatchError, param_sets, plan_exports, plan_retracks
 from flytrack_host.batch.results import plot_param_sets, results_frame, write_results
@@ -31,8 +32,14 @@ def _finish(rep: BatchReport, out: Path, plot: bool) -> None:
     console.print(f"{rep.ran} tasks run, {rep.skipped} already done (skipped), {len(rep.failures)} failed, "
                   f"in {rep.wall_s:.1f} s on {rep.workers} workers ({rep.scheduler or 'nothing to run'})",
                   highlight=False)
+    for row in rep.rows:
+        if row.get("why_no_estimates"):
+            err.print(f"[yellow]no estimates[/yellow] {escape(str(row.get('name')))} "
+                      f"{escape('[' + str(row.get('params')) + ']')}: {escape(row['why_no_estimates'])}",
+                      highlight=False)
     for label, msg in rep.failures:
-        err.print(f"[red]failed[/red] {label}: {msg}", highlight=False)
+        # escape: a label's "[parameter set]" is not rich markup (it vanished from the line before)
+        err.print(f"[red]failed[/red] {escape(label)}: {escape(str(msg))}", highlight=False)
     if rep.failures:
         raise typer.Exit(code=1)
 

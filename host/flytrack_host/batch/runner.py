@@ -19,7 +19,7 @@ from typing import Any
 from tqdm import tqdm
 
 from flytrack_host.batch.plan import BatchError, Task
-from flytrack_host.batch.tasks import finished_row, run_task
+from flytrack_host.batch.tasks import FAILED_KEY, finished_row, run_task, run_task_on_worker
 
 
 @dataclass
@@ -90,12 +90,16 @@ def run_batch(tasks: list[Task], scheduler: str | None = None, workers: int | No
         try:
             rep.scheduler = client.scheduler.address
             rep.workers = len(client.scheduler_info(n_workers=-1)["workers"])
-            futures = {client.submit(run_task, t, key=t.key, pure=False): t for t in todo}
+            futures = {client.submit(run_task_on_worker, t, key=t.key, pure=False): t for t in todo}
             for fut in as_completed(futures):
                 t = futures[fut]
                 if fut.status == "finished":
-                    rep.rows.append(fut.result())
-                    rep.ran += 1
+                    row = fut.result()
+                    if FAILED_KEY in row:
+                        rep.failures.append((t.label, str(row[FAILED_KEY])))
+                    else:
+                        rep.rows.append(row)
+                        rep.ran += 1
                 else:
                     exc = fut.exception()
                     rep.failures.append((t.label, f"{type(exc).__name__}: {exc}"))

@@ -58,6 +58,18 @@ def run_task(task: Task) -> dict[str, Any]:
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+FAILED_KEY = "_failed"
+
+
+def run_task_on_worker(task: Task) -> dict[str, Any]:
+    """run_task for a Dask worker: a task that fails returns {FAILED_KEY: "Type: message"} instead of
+    raising, so the worker does not log a traceback per bad recording; the runner lists it as failed."""
+    try:
+        return run_task(task)
+    except Exception as exc:  # reported per task by the runner; the worker and the other tasks go on
+        return {FAILED_KEY: f"{type(exc).__name__}: {exc}"}
+
+
 def _base_row(task: Task) -> dict[str, Any]:
     return {"recording": str(task.source), "name": source_stem(task.source), "params": task.params.name,
             "overrides": json.dumps(task.params.overrides), "output": str(task.out)}
@@ -76,6 +88,8 @@ def _retrack(task: Task, tmp: Path) -> dict[str, Any]:
     res = retrack(data, cams, params, fps, out=tmp, progress=False)
     row = _base_row(task)
     row.update(recording_metrics(load_recording(tmp), cams))
+    if res.why_nothing:  # why it tracked nothing although 2D points came (retrack's reasons, with numbers)
+        row["why_no_estimates"] = "; ".join(res.why_nothing)
     row.update({"frames": res.frames, "tracker_s": res.seconds,
                 "frames_per_s": res.frames / res.seconds if res.seconds > 0 else float("nan")})
     return row

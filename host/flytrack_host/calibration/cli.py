@@ -383,7 +383,11 @@ def convert_cmd(
     if not is_xml and any(c.K_dist is not None for c in cams.values()):
         # One K per camera in the output: refit the distortion about P's K; the check below measures it.
         out = {n: single_k_approximation(c) for n, c in cams.items()}
-    save_calibration(out, tmp, fmt=fmt)
+    try:
+        save_calibration(out, tmp, fmt=fmt)
+    except CalibrationFormatError as exc:  # name the file the user asked for, not the temporary one
+        tmp.unlink(missing_ok=True)
+        raise CalibrationFormatError(str(exc).replace(str(tmp), str(dst))) from None
     try:
         back = load_calibration(tmp, [])
         diff = compare_projections(cams, back)

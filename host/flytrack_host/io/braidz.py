@@ -44,7 +44,7 @@ from flytrack_host import __version__, hostclock
 from flytrack_host.io.data2d import Data2D, empty_rows
 from flytrack_host.io.reprojection import associated_reprojection
 from flytrack_host.recording.reader import Recording
-from flytrack_host.recording.schema import FLAG_REJECTED
+from flytrack_host.recording.schema import DVS_COVARIANCE, FLAG_DVS, FLAG_REJECTED
 
 BRAID_SCHEMA = 3
 KALMAN_COLUMNS = ["obj_id", "frame", "timestamp", "x", "y", "z", "xvel", "yvel", "zvel",
@@ -55,6 +55,11 @@ ASSOC_COLUMNS = ["obj_id", "frame", "cam_num", "pt_idx"]
 CAM_INFO_COLUMNS = ["camn", "cam_id"]
 CLOCK_COLUMNS = ["start_timestamp", "framecount", "tcnt", "stop_timestamp"]
 TEXTLOG_COLUMNS = ["mainbrain_timestamp", "cam_id", "host_timestamp", "message"]
+# FlyTrack's own table beside Braid's: which data2d rows are event (DVS) cameras' clusters, with their
+# covariance (px^2). Braid's data2d has no place for either; without it a re-track of the .braidz would
+# take those points as frame cameras' (weighed at 1 px^2, able to start targets).
+DVS_POINTS = "flytrack_dvs_points"
+DVS_POINTS_COLUMNS = ["frame", "camn", "frame_pt_idx", "var_x", "var_y", "cov_xy"]
 
 
 class BraidzError(Exception):
@@ -156,6 +161,9 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     data2d.loc[dev <= 0, "device_timestamp"] = pd.NA
     data2d.loc[d2["camera_frame"] == 0, "block_id"] = pd.NA
     counts["data2d_distorted"] = len(data2d)
+    dvs_points = _dvs_points(rec, d2)
+    if dvs_points is not None:
+        counts[DVS_POINTS] = len(dvs_points)
 
     k = rec.table("kalman_estimates")
     skipped["kalman_estimates not exported: no trigger frame"] = int((k["trigger_frame"] < 0).sum())
@@ -229,6 +237,8 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
         for name, df in (("kalman_estimates", kal), ("data2d_distorted", data2d), ("data_association", assoc),
                          ("cam_info", cam_info), ("trigger_clock_info", clock), ("textlog", textlog)):
             z.writestr(f"{name}.csv.gz", _csv_gz(df), compress_type=zipfile.ZIP_STORED)
+        if dvs_points is not None:
+            z.writestr(f"{DVS_POINTS}.csv.gz", _csv_gz(dvs_points), compress_type=zipfile.ZIP_STORED)
         for name, text in hlogs.items():
             z.writestr(name, text, compress_type=zipfile.ZIP_DEFLATED)
         for name, data in images.items():
@@ -295,6 +305,52 @@ class _Folder:
         return None
 
 
+def _dvs_points(rec: Recording, d2: np.ndarray) -> pd.DataFrame | None:
+    """The exported rows that are DVS clusters, keyed as Braid's data2d is (frame, camn, frame_pt_idx), with
+    the covariance the recording kept for each (NaN when it kept none)."""
+    dvs = d2[((d2["flags"] & FLAG_DVS) != 0) & np.isfinite(d2["x_dist"])]
+    if not len(dvs):
+        return None
+    pt = np.minimum(dvs["frame_pt_idx"], 255).astype(np.int64)
+    out = pd.DataFrame({"frame": dvs["trigger_frame"], "camn": dvs["camera_index"].astype(np.int64),
+                        "frame_pt_idx": pt, "var_x": np.nan, "var_y": np.nan, "cov_xy": np.nan},
+                       columns=DVS_POINTS_COLUMNS)
+    cov = rec.table("dvs_point_covariance")
+    if len(cov):
+        c = pd.DataFrame({"frame": cov["trigger_frame"], "camn": cov["camera_index"].astype(np.int64),
+                          "frame_pt_idx": np.minimum(cov["frame_pt_idx"], 255).astype(np.int64),
+                          "var_x": cov["var_x"], "var_y": cov["var_y"], "cov_xy": cov["cov_xy"]})
+        c = c.drop_duplicates(["frame", "camn", "frame_pt_idx"], keep="last")
+        out = out[["frame", "camn", "frame_pt_idx"]].merge(c, how="left", on=["frame", "camn", "frame_pt_idx"])
+    return out[DVS_POINTS_COLUMNS]
+
+
+def _apply_dvs_points(data: Data2D, dp: pd.DataFrame) -> None:
+    """Flag the rows FlyTrack's DVS table names as event-camera points and attach their covariances, as a
+    FlyTrack recording carries them (FLAG_DVS, dvs_point_covariance)."""
+    if not all(c in dp.columns for c in DVS_POINTS_COLUMNS) or not len(dp):
+        return
+    rows = data.rows
+
+    def key(frame: np.ndarray, camn: np.ndarray, pt: np.ndarray) -> np.ndarray:
+        return (frame.astype(np.int64) << 24) | (camn.astype(np.int64) << 8) | np.minimum(pt, 255).astype(np.int64)
+
+    num = {c: pd.to_numeric(dp[c], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+           for c in DVS_POINTS_COLUMNS}
+    ok = np.isfinite(num["frame"]) & np.isfinite(num["camn"]) & np.isfinite(num["frame_pt_idx"])
+    k = key(num["frame"][ok], num["camn"][ok], num["frame_pt_idx"][ok])
+    rows["flags"][np.isin(key(rows["trigger_frame"], rows["camera_index"], rows["frame_pt_idx"]), k)] |= FLAG_DVS
+    has = ok & np.isfinite(num["var_x"]) & np.isfinite(num["var_y"]) & np.isfinite(num["cov_xy"])
+    if has.any():
+        cov = np.zeros(int(has.sum()), dtype=DVS_COVARIANCE)
+        cov["trigger_frame"] = num["frame"][has]
+        cov["camera_index"] = num["camn"][has]
+        cov["frame_pt_idx"] = num["frame_pt_idx"][has]
+        for c in ("var_x", "var_y", "cov_xy"):
+            cov[c] = num[c][has]
+        data.dvs_cov = cov
+
+
 def _read_table(z: zipfile.ZipFile | _Folder, name: str) -> pd.DataFrame | None:
     names = set(z.namelist())
     # Braid archives may hold a top-level folder; accept "x/name" too.
@@ -344,6 +400,7 @@ def read_braidz(path: Path | str) -> Data2D:
             if n == "calibration.xml" or n.endswith("/calibration.xml"):
                 cal = ("calibration.xml", z.read(n))
         clock = _read_table(z, "trigger_clock_info")
+        dvs_points = _read_table(z, DVS_POINTS)
         fps, params = None, None
         tl = _read_table(z, "textlog")
         if tl is not None and "message" in tl.columns:
@@ -361,6 +418,8 @@ def read_braidz(path: Path | str) -> Data2D:
                         pass
     data = Data2D(rows=_rows_from_braid_df(d2), cam_names=names, fps=fps, calibration=cal,
                   source=str(path), tracking_params=None, notes=[f"braid tracking_params: {params}"] if params else [])
+    if dvs_points is not None:
+        _apply_dvs_points(data, dvs_points)
     if clock is not None and len(clock) and all(c in clock.columns for c in CLOCK_COLUMNS):
         data.clock_samples = np.array(
             list(clock[CLOCK_COLUMNS].itertuples(index=False, name=None)),

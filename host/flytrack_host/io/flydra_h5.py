@@ -25,7 +25,7 @@ import h5py
 import numpy as np
 import pandas as pd
 
-from flytrack_host.camera import Camera
+from flytrack_host.camera import Camera, face_the_scene, mirrored_world_note
 from flytrack_host.io.braidz import _rows_from_braid_df
 from flytrack_host.io.data2d import Data2D
 from flytrack_host.refraction import FlatInterface
@@ -104,6 +104,10 @@ def read_flydra_calibration(h5: h5py.File, warnings: list[str] | None = None) ->
                                          K_dist=K_dist if np.any(dist != 0) else None)
         except ValueError as exc:
             raise FlydraH5Error(str(exc)) from None
+    turned_cams, turned = face_the_scene(list(cams.values()))
+    if turned:
+        warns.append(mirrored_world_note(turned))
+        cams = {c.name: c for c in turned_cams}
     return cams
 
 

@@ -283,7 +283,9 @@ def retrack(
     if n_estimates == 0 and stats:
         from flytrack_host.tracking.diagnosis import why_no_estimates
 
-        why = why_no_estimates(stats, cameras, params)
+        with_points = np.unique(rows["camera_index"][np.isfinite(rows["x_dist"]) & np.isfinite(rows["y_dist"])])
+        why = why_no_estimates(stats, cameras, params,
+                               cameras_with_points=[int(c) for c in with_points if int(c) in cameras])
     h5 = None
     if rec is not None:
         rec.log(f"retrack done: {n} frames, {n_estimates} estimates, {len(ids)} objects in {dt:.2f} s")

@@ -70,7 +70,11 @@ def _load_raw(folder: Path) -> Recording:
 
 
 def _load_h5(path: Path) -> Recording:
-    with h5py.File(path, "r") as h5:
+    try:
+        h5 = h5py.File(path, "r")
+    except OSError as exc:  # truncated, not HDF5 at all, unreadable: name the file, never a traceback
+        raise RecordingError(f"{path}: not a readable HDF5 file ({exc})") from None
+    with h5:
         fmt = h5.attrs.get("format")
         if isinstance(fmt, bytes):
             fmt = fmt.decode(errors="replace")

@@ -26,9 +26,10 @@ def newborn_position_std(cameras: Mapping[int, Camera], params: TrackingParams) 
 
 def why_no_estimates(
     stats: Mapping[str, int], cameras: Mapping[int, Camera], params: TrackingParams,
-    missing_calibration: list[str] | None = None,
+    missing_calibration: list[str] | None = None, cameras_with_points: list[int] | None = None,
 ) -> list[str]:
-    """Reasons (one sentence each, with numbers) that a run with these counters reported nothing."""
+    """Reasons (one sentence each, with numbers) that a run with these counters reported nothing.
+    `cameras_with_points`: the calibrated camera indices that gave at least one point, when known."""
     why: list[str] = []
     if missing_calibration:
         why.append(f"camera(s) {', '.join(missing_calibration)} have 2D data but no calibration: their points "
@@ -44,7 +45,14 @@ def why_no_estimates(
     spread = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max())
     std = newborn_position_std(cameras, params)
     thr = params.death_position_std_m
-    if stats.get("births", 0) == 0:
+    need = max(2, params.birth_min_cameras)
+    seen = sorted(set(cameras_with_points)) if cameras_with_points is not None else sorted(cameras)
+    if stats.get("births", 0) == 0 and len(seen) < need:
+        # One camera alone cannot place a point in 3D: blaming the calibration here would mislead.
+        names = ", ".join(cameras[i].name if i in cameras else str(i) for i in seen) or "none"
+        why.append(f"no target was born: 2D points came from {len(seen)} calibrated camera(s) ({names}) of "
+                   f"{len(cameras)} in the calibration; a 3D position needs points from at least {need} cameras")
+    elif stats.get("births", 0) == 0:
         if stats.get("birth_hypotheses", 0) == 0:
             why.append(f"no target was born: no pair of points from two cameras agreed within "
                        f"{2.5 * params.birth_max_reproj_px:g} px (epipolar gate) in {stats.get('frames', 0)} frames; "

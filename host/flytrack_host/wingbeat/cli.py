@@ -117,7 +117,10 @@ def wingbeat_command(
         results = [track_wings(events, m, width=width, height=height, start_freq_hz=start_freq,
                                ekf=EkfParams(harmonics=harmonics, events_per_update=per_update)) for m in methods]
     except (OSError, ValueError, WingbeatError) as exc:
-        err.print(f"[red]error[/red] {file}: {exc}", highlight=False, soft_wrap=True)
+        msg = str(exc)
+        # The event readers' messages already start with the path: name it once.
+        msg = msg if msg.startswith(f"{file}:") else f"{file}: {msg}"
+        err.print(f"[red]error[/red] {msg}", highlight=False, soft_wrap=True)
         raise typer.Exit(code=2) from None
     g = results[0].geometry
     console.print(f"{len(events)} events, {results[0].events_in_roi} near the fly; body at ({g.body[0]:.1f}, "

@@ -167,3 +167,36 @@ def test_braidz_and_flytrack_sources_in_one_batch(recordings, tmp_path):
     assert not rep.failures and rep.ran == 2
     rows = {r["name"]: r for r in rep.rows}
     assert set(rows) == {"lab", "rec3"} and rows["lab"]["objects"] == 2 and rows["lab"]["coverage"] > 0.97
+
+
+def test_a_task_that_tracks_nothing_says_why(recordings, tmp_path, capsys):
+    """As `flytrack retrack` does: a task whose 2D points gave no estimate carries the reason, with numbers,
+    in its results row and on the console, instead of a silent 0."""
+    import typer
+
+    from flytrack_host.batch.cli import _finish
+
+    bad = tmp_path / "broken.flytrack"
+    bad.mkdir()
+    (bad / "meta.json").write_text("{not json")
+    tasks = plan_retracks([recordings[0], bad], param_sets(["death_position_std_m=1e-9"], []), tmp_path / "out")
+    rep = run_batch(tasks, progress=False, serial=True)
+    assert len(rep.failures) == 1 and rep.rows[0]["objects"] == 0
+    assert "every new target died before confirmation" in rep.rows[0]["why_no_estimates"]
+    with pytest.raises(typer.Exit):
+        _finish(rep, tmp_path / "out", plot=False)
+    err = " ".join(capsys.readouterr().err.split())
+    assert "no estimates rec0 [death_position_std_m-1e-9]: every new target died" in err, err
+    assert "failed broken.flytrack [death_position_std_m-1e-9]: " in err, err  # not taken for rich markup
+    assert "died before confirmation" in pd.read_csv(tmp_path / "out" / "results.csv")["why_no_estimates"][0]
+
+
+def test_a_bad_recording_on_a_local_cluster_is_one_line_not_a_worker_traceback(tmp_path):
+    bad = tmp_path / "broken.flytrack"
+    bad.mkdir()
+    (bad / "meta.json").write_text("{not json")
+    r = _flytrack("batch", "retrack", bad, "--out", tmp_path / "out", "--workers", "1", "--no-progress")
+    assert r.returncode == 1, r.stdout + r.stderr
+    err = " ".join(r.stderr.split())
+    assert "failed broken.flytrack [base]: " in err, err
+    assert "Traceback" not in r.stderr and "Compute Failed" not in r.stderr, r.stderr

@@ -107,3 +107,72 @@ def test_edge_undistortion_with_the_distortion_K_gives_Ps_ideal_pixels() -> None
     uv = cam.project(X)
     h = np.hstack([X, np.ones((len(X), 1))]) @ P.T
     assert np.abs(edge_model.undistort(uv) - h[:, :2] / h[:, 2:]).max() < 1e-6
+
+
+def _mirrored_rig() -> tuple[list[np.ndarray], np.ndarray]:
+    """Three cameras around the origin, and their P in a mirrored world (x -> -x), as MultiCamSelfCal gives
+    for Braid's own calibrations (strand-braid's cal-2018-11-13-good.xml, sample_calibration.xml): every real
+    point then lies behind every camera by the usual rule, yet flydra projects it into each image."""
+    cams = [Camera.look_at(f"c{i}", pos, (0, 0, 0.1), 1280, 1024, 1150.0)
+            for i, pos in enumerate([(1.2, -0.9, 0.8), (-1.1, -1.0, 0.9), (0.1, 1.4, 1.0)])]
+    mirror = np.diag([-1.0, 1.0, 1.0, 1.0])
+    rng = np.random.default_rng(3)
+    X = rng.uniform([-0.15, -0.15, 0.0], [0.15, 0.15, 0.25], (200, 3)) * [-1.0, 1.0, 1.0]  # mirrored world
+    return [c.P @ mirror for c in cams], X
+
+
+def test_a_mirrored_world_projects_as_flydra_does(tmp_path: Path) -> None:
+    Ps, X = _mirrored_rig()
+    nl = {"fc1": 1180.0, "fc2": 1165.0, "cc1": 670.5, "cc2": 492.5, "k1": -0.21, "k2": 0.06, "p1": 8e-4,
+          "p2": -4e-4, "alpha_c": 0.0}
+    body = "".join(re.search(r"(<single_camera_calibration>.*</single_camera_calibration>)",
+                             _xml(P, nl, f"c{i}")).group(1) for i, P in enumerate(Ps))
+    p = tmp_path / "mirrored.xml"
+    p.write_text(f"<multi_camera_reconstructor>{body}</multi_camera_reconstructor>")
+    warns: list[str] = []
+    cams = load_flydra_xml(p, warns)
+    assert len(warns) == 1 and "mirrored" in warns[0], warns
+    for i, P in enumerate(Ps):
+        uv = cams[f"c{i}"].project(X)
+        assert np.isfinite(uv).all()  # NaN for every point ("behind the camera") before
+        assert np.abs(uv - flydra_projection(P, nl, X)).max() < 1e-6
+    # flydra XML keeps it exactly; a format of rotations refuses it with one clear line.
+    r = CliRunner().invoke(app, ["calibrate", "convert", str(p), str(tmp_path / "back.xml")])
+    assert r.exit_code == 0, r.output
+    again = load_calibration(tmp_path / "back.xml", [])
+    assert np.abs(again["c1"].project(X) - flydra_projection(Ps[1], nl, X)).max() < 1e-6
+    r = CliRunner().invoke(app, ["calibrate", "convert", str(p), str(tmp_path / "out.json")])
+    assert r.exit_code == 2 and "mirrored" in r.output and "out.json:" in " ".join(r.output.split()), r.output
+
+
+def test_a_mirrored_world_in_a_flydra_h5_tracks(tmp_path: Path) -> None:
+    """A flydra .h5 whose calibration group is a mirrored world: the tracker (both kernels) follows the
+    animals there, at the mirror images of their true positions (0 estimates before: every point was
+    'behind' every camera)."""
+    import h5py
+
+    from flytrack_host.tracking.params import TrackingParams
+    from flytrack_host.tracking.synthetic import make_scenario
+    from flytrack_host.tracking.tracker import Tracker
+
+    sc = make_scenario(n_cameras=3, n_targets=2, duration_s=0.5, fps=100.0, close_pass_m=None, enter_exit=False,
+                       false_positives_per_camera=0.0, seed=4)
+    mirror = np.diag([-1.0, 1.0, 1.0, 1.0])
+    path = tmp_path / "m.h5"
+    with h5py.File(path, "w") as f:
+        for i, c in sc.cameras.items():
+            f[f"calibration/pmat/cam{i}"] = c.P @ mirror
+            f[f"calibration/resolution/cam{i}"] = np.array([c.width, c.height])
+    warns: list[str] = []
+    by_name = load_calibration(path, warns)
+    assert any("mirrored" in w for w in warns), warns
+    cams = {i: by_name[f"cam{i}"] for i in sc.cameras}
+    for kernel in ("numpy", "auto"):
+        tr = Tracker(cams, TrackingParams(kernel=kernel), sc.frame_period_s)
+        errs = []
+        for b, truth in zip(sc.bundles, sc.truth, strict=True):
+            for e in tr.process(b).estimates:
+                pos = e.state[:3] * [-1.0, 1.0, 1.0]  # back from the mirrored world
+                errs.append(min(np.linalg.norm(pos - t) for t in truth.values()))
+        assert len(errs) > 80, (kernel, len(errs))
+        assert np.median(errs) < 0.002, (kernel, np.median(errs))

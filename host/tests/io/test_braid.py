@@ -162,3 +162,66 @@ def test_compare_names_a_missing_column_instead_of_a_traceback(braidz: tuple[Pat
                 zout.writestr(n, zin.read(n))
     with pytest.raises(CompareError, match="kalman_estimates table has no column y, z"):
         load_tracks(path)
+
+
+def test_points_from_one_camera_only_say_so_not_blame_the_calibration(braidz: tuple[Path, dict],
+                                                                       tmp_path: Path) -> None:
+    """A Braid recording whose 2D points all come from one camera (Braid's own single-camera test
+    recording is such a case): the reason is the camera count, not a calibration mismatch."""
+    import dataclasses
+
+    from flytrack_host.io.retrack import cameras_for, load_2d, retrack
+
+    path, _ = braidz
+    data = load_2d(path)
+    cams = cameras_for(data)
+    one = data.rows[data.rows["camera_index"] == min(cams)]
+    res = retrack(dataclasses.replace(data, rows=one.copy()), cams, TrackingParams(kernel="numpy"), FPS,
+                  progress=False)
+    assert res.estimates == 0
+    why = " ".join(res.why_nothing)
+    assert f"2D points came from 1 calibrated camera(s) ({cams[min(cams)].name}) of {len(cams)}" in why, why
+    assert "agreed within" not in why
+
+
+def test_event_camera_points_survive_the_braidz_round_trip(tmp_path: Path) -> None:
+    """An event (DVS) camera's points keep their kind and covariance through the .braidz, so a re-track
+    of it weighs them as the live run did instead of taking them as a frame camera's points."""
+    from flytrack_host.io.data2d import dvs_rows_left_out
+    from flytrack_host.io.retrack import cameras_for, load_2d, retrack
+    from flytrack_host.recording.schema import DVS_COVARIANCE, FLAG_DVS, FLAG_TRACKED
+
+    sc = make_scenario(n_cameras=4, n_targets=2, duration_s=0.6, fps=FPS, close_pass_m=None, enter_exit=False,
+                       false_positives_per_camera=0.0, seed=7)
+    rec = start_synthetic_recording(tmp_path / "dvs.flytrack", sc, FPS)
+    dvs_cam, covs = 3, []
+    for b in sc.bundles:
+        b.timestamp = 1000.0 + b.trigger_frame / FPS
+        for cam, pts in b.detections.items():
+            flags = FLAG_TRACKED | (FLAG_DVS if cam == dvs_cam else 0)
+            rows = data2d_rows(CameraFrame(cam, b.trigger_frame, -1, pts, b.timestamp + 0.002), b.trigger_frame,
+                               b.timestamp, flags)
+            rec.append("data2d_distorted", rows)
+            if cam == dvs_cam:
+                got = rows[np.isfinite(rows["x_dist"])]
+                c = np.zeros(len(got), dtype=DVS_COVARIANCE)
+                c["trigger_frame"], c["camera_index"], c["frame_pt_idx"] = b.trigger_frame, cam, got["frame_pt_idx"]
+                c["var_x"], c["var_y"], c["cov_xy"] = 0.4, 0.6, 0.1
+                covs.append(c)
+    cov = np.concatenate(covs)
+    rec.append("dvs_point_covariance", cov)
+    rec.stop()
+    rec_path = tmp_path / "dvs.flytrack"
+    out = tmp_path / "dvs.braidz"
+    counts = export_braidz(load_recording(rec_path), out)
+    assert counts["flytrack_dvs_points"] == len(cov)
+    a, b = load_2d(rec_path), load_2d(out)
+    dvs_a = (a.rows["flags"] & FLAG_DVS) != 0
+    dvs_b = (b.rows["flags"] & FLAG_DVS) != 0
+    assert dvs_b.sum() == int((dvs_a & np.isfinite(a.rows["x_dist"])).sum()) == len(cov)
+    assert set(b.rows["camera_index"][dvs_b].tolist()) == {dvs_cam}
+    assert b.dvs_cov is not None and len(b.dvs_cov) == len(cov) and dvs_rows_left_out(b.rows, b.dvs_cov) == 0
+    assert np.allclose(np.sort(b.dvs_cov["var_y"]), 0.6) and np.allclose(b.dvs_cov["cov_xy"], 0.1)
+    res = retrack(b, cameras_for(b), TrackingParams(kernel="numpy"), FPS, progress=False)
+    assert res.stats["own_cov_points"] == len(cov)  # weighed by their covariance, not as frame points
+    assert res.objects == 2

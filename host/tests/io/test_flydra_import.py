@@ -304,3 +304,28 @@ def test_h5_refractive_interface_is_the_water_surface(tmp_path: Path) -> None:
         h5["calibration/refractive_interfaces"] = ri
     r = CliRunner().invoke(app, ["calibrate", "convert", str(path), str(tmp_path / "w2.xml")])
     assert r.exit_code == 2 and "only the plane z = 0" in _flat(r.output)
+
+
+def test_truncated_h5_files_are_one_error_line_naming_the_file(tmp_path: Path) -> None:
+    """A flydra .h5 or a FlyTrack recording.h5 cut short (a copy that stopped, a full disk): every command
+    that reads it says which file and exits 2, never an h5py traceback."""
+    from flytrack_host.recording.synthetic import write_synthetic_recording
+
+    fly = tmp_path / "fly.h5"
+    write_flydra_h5(fly, seed=3)
+    ours = write_synthetic_recording(tmp_path / "rec.flytrack", duration_s=0.5)
+    cut = {}
+    for name, src in (("fly_cut.h5", fly), ("rec_cut.h5", ours)):
+        data = src.read_bytes()
+        cut[name] = tmp_path / name
+        cut[name].write_bytes(data[: len(data) * 2 // 3])
+    commands = [["retrack", str(cut["fly_cut.h5"]), "--no-progress"],
+                ["compare", str(fly), str(cut["fly_cut.h5"])],
+                ["retrack", str(cut["rec_cut.h5"]), "--no-progress"],
+                ["recording", "info", str(cut["rec_cut.h5"])],
+                ["export", str(cut["rec_cut.h5"]), "--braidz", str(tmp_path / "x.braidz")]]
+    for args in commands:
+        r = CliRunner().invoke(app, args)
+        out = _flat(r.output)
+        assert r.exit_code == 2, (args, out)
+        assert out.startswith("error") and "_cut.h5" in out and "Traceback" not in out, (args, out)

@@ -155,3 +155,20 @@ def test_cli_simulates_tracks_prints_and_plots(tmp_path):
     assert ekf0 == pytest.approx(beats["freq_hz"], abs=1e-3) and {x["method"] for x in rows} == {"ekf", "wra"}
     bad = CliRunner().invoke(app, ["wingbeat", str(tmp_path / "missing.npy")])
     assert bad.exit_code == 2 and "missing.npy" in bad.output
+
+
+@pytest.mark.parametrize("content", [None, b"\x17garbage" * 200])
+def test_cli_bad_event_file_is_one_line_naming_the_file_once(tmp_path, content):
+    """A missing or unreadable event file: one error line, the path named once, exit 2."""
+    from typer.testing import CliRunner
+
+    from flytrack_host.cli import app
+
+    f = tmp_path / "rec.aedat4"
+    if content is not None:
+        f.write_bytes(content)
+    r = CliRunner().invoke(app, ["wingbeat", str(f)])
+    assert r.exit_code == 2, r.output
+    out = " ".join(r.output.split())
+    assert out.startswith("error ") and out.count(str(f)) == 1, out
+    assert "Traceback" not in r.output

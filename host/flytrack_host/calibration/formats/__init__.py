@@ -150,6 +150,11 @@ def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str |
         raise CalibrationFormatError(
             f"{path}: {fmt} has no place for refraction (these cameras look through water); write flydra XML "
             "(.xml), whose <water> element keeps it.")
+    mirrored = [n for n, c in cameras.items() if np.linalg.det(c.R) < 0]
+    if fmt != "flydra-xml" and mirrored:
+        raise CalibrationFormatError(
+            f"{path}: {fmt} holds rotations, but the world of camera(s) {', '.join(mirrored)} is mirrored (as "
+            "MultiCamSelfCal can give: an improper rotation); write flydra XML (.xml), which keeps it.")
     if fmt != "flydra-xml" and any(c.K_dist is not None for c in cameras.values()):
         raise CalibrationFormatError(
             f"{path}: {fmt} has one K per camera, but these cameras' distortion is about another K than their "

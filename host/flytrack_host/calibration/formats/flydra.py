@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flytrack_host.camera import Camera, distort_normalized
+from flytrack_host.camera import Camera, distort_normalized, face_the_scene, mirrored_world_note
 from flytrack_host.refraction import FlatInterface
 
 from .common import CalibrationFormatError, check_unique, fail, fmt, matrix, resolution
@@ -169,6 +169,9 @@ def load_flydra_xml(
     if not cams:
         raise fail(path, "has no <single_camera_calibration> element", "Give at least one camera.")
     check_unique([c.name for c in cams], path)
+    cams, turned = face_the_scene(cams)
+    if turned:
+        warns.append(mirrored_world_note(turned))
     water = _flydra_water(mcr, path)
     if water is not None:
         cams = [dataclasses.replace(c, interface=water) for c in cams]
