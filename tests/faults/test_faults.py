@@ -6,6 +6,8 @@ the figure that went wrong before is right now."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from flytrack_host.faults.suite import SCENARIOS, format_table, run_suite
@@ -32,6 +34,17 @@ def _row(rows, name):
     return r
 
 
+def _log_lines_bound(r) -> int:
+    """Lines a fault may take in the log: per kind of message the first at once, then one with a count
+    every 5 s while it goes on, and the counts at stop (ratelog.py). The kinds a flood names are its
+    error names (BAD_MAGIC, ...) and the unknown camera; every other fault is one kind. Measured at
+    most 6 on an idle machine; a loaded one stretches the run (7 lines at load 13 in a 6 s flood run),
+    so the bound follows the run's own wall time."""
+    rx = r.get("receiver") or {}
+    kinds = max(1, len(rx.get("errors_by_name") or {}) + (1 if rx.get("rejected_camera") else 0))
+    return max(6, kinds * (2 + math.ceil(float(r.get("wall_s") or 0.0) / 5.0)))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [s.name for s in SCENARIOS])
 def test_fault_loses_nothing_and_numbering_is_right_within_a_second(rows, name):
@@ -48,7 +61,7 @@ def test_fault_loses_nothing_and_numbering_is_right_within_a_second(rows, name):
         assert r["mota"] > 0.95 and r["frames_misnumbered"] == 0
         return
     # Named in the log: the first line at once, then at most a count now and then.
-    assert 1 <= r["message_count"] <= 6, (r["message"], r["message_count"])
+    assert 1 <= r["message_count"] <= _log_lines_bound(r), (r["message"], r["message_count"], r.get("wall_s"))
 
 
 @pytest.mark.slow
@@ -107,7 +120,7 @@ def test_a_flood_is_counted_and_logged_with_counts(rows):
     # machine: the edges' own datagrams lost that way show in the receiver's loss count).
     assert sum(rx["errors_by_name"].values()) + rx["rejected_camera"] >= 10_000
     assert r["frames_lost"] <= r["receiver_lost"], (r["frames_lost"], r["receiver_lost"])
-    assert r["message_count"] <= 6
+    assert r["message_count"] <= _log_lines_bound(r), (r["message_count"], r.get("wall_s"))
 
 
 @pytest.mark.slow

@@ -30,6 +30,7 @@ log = logging.getLogger(__name__)
 # The firmware's time from a CLOCK_QUERY's last byte (its RX interrupt) to the clock sample: frame
 # decode (COBS, CRC) and dispatch, measured in simavr on both MCUs (899 and 881 cycles at 16 MHz).
 FIRMWARE_SAMPLE_DELAY_S = 56e-6
+CONTROL_TIMEOUT_S = 2.0  # see TriggerDevice.control_timeout_s
 
 
 def clock_link_timing(baudrate: float) -> LinkTiming:
@@ -91,6 +92,11 @@ class TriggerDevice(SerialTrigger):
         at once (the SoftwareTrigger's pty): the model then takes the round trip's midpoint."""
         self.port = port
         self.timeout_s = timeout_s
+        # Control requests (info, rate, start, stop, pulse, outputs) wait longer than clock queries: a
+        # simulated box (simavr on a pty) on a loaded host missed 0.5 s for Start ("no reply to Start
+        # from /dev/pts/0 within 0.5 s" ended fault-suite and closed-loop runs at load 10-13); a clock
+        # query keeps `timeout_s` (a late one is useless to the clock model anyway).
+        self.control_timeout_s = max(timeout_s, CONTROL_TIMEOUT_S)
         self.model = model or ClockModel()
         self.model.link = clock_link_timing(baudrate) if wire_timed else None
         self.stats = {"bad_frames": 0, "stray_replies": 0, "device_errors": 0, "events": 0}
@@ -118,7 +124,7 @@ class TriggerDevice(SerialTrigger):
             try:
                 # A leading delimiter ends whatever partial frame the device may hold.
                 self._ser.write(b"\0")
-                info = self._request(tl.GetInfo())
+                info = self._request(tl.GetInfo(), self.timeout_s)  # probing: retried, short
                 assert isinstance(info, tl.Info)
                 break
             except TriggerError:
@@ -187,7 +193,7 @@ class TriggerDevice(SerialTrigger):
         self.stats["stray_replies"] += 1
 
     def _request(self, msg: tl.SerialMessage, timeout_s: float | None = None) -> tl.SerialMessage:
-        return self._request_timed(msg, timeout_s)[0]
+        return self._request_timed(msg, timeout_s or self.control_timeout_s)[0]
 
     def _request_timed(
         self, msg: tl.SerialMessage, timeout_s: float | None = None, on_written: Callable[[], None] | None = None
