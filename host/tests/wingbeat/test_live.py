@@ -194,8 +194,12 @@ def test_ctrl_c_stops_the_listener_and_writes_what_came(tmp_path):
 
     port = _free_port()
     out_csv = tmp_path / "c.csv"
+    # SIGINT as a terminal gives it: a suite started in the background of a script has SIGINT ignored,
+    # which children inherit, and Python then installs no KeyboardInterrupt handler (seen: the
+    # listener ran on to its 10 s silence time-out instead of stopping).
     p = subprocess.Popen([sys.executable, "-m", "flytrack_host.cli", "wingbeat", "--live", "--port", str(port),
-                          "--csv", str(out_csv)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                          "--csv", str(out_csv)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         assert "listening for DVS_WINGBEAT" in p.stdout.readline()  # bound: datagrams from now on are taken
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
