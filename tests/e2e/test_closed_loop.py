@@ -134,3 +134,18 @@ def test_rules_replay_on_the_recording(demo, tmp_path: Path) -> None:  # noqa: A
     late = json.loads(js.read_text())["firings"]
     # Without prediction, the same entries, never on an earlier frame (both replays: same leads).
     assert len(late) == len(replayed) and all(a["frame"] >= b["frame"] for a, b in zip(late, replayed, strict=True))
+
+
+def test_the_demo_ran_the_host_and_the_simulated_hardware_on_separate_cpus(demo) -> None:  # noqa: ANN001
+    """As on a rig, where cameras, edges, trigger and PLC are machines of their own (sim/placement.py);
+    the test process (which ran the demo in-process) has its CPUs back afterwards."""
+    report, _ = demo
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        assert report.cpu_placement is None
+        return
+    p = report.cpu_placement
+    assert p is not None and sorted(p["host"] + p["simulated_hardware"]) == cpus
+    assert p["host"] == cpus[:len(cpus) // 2]
+    for tid in os.listdir("/proc/self/task"):
+        assert sorted(os.sched_getaffinity(int(tid))) == cpus

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from flytrack_host.protocol import trigger_link as tl
-from flytrack_host.sim.frames import raise_priority
+from flytrack_host.sim.frames import run_as_hardware
 from flytrack_host.trigger.clock_model import ClockModel
 from flytrack_host.trigger.crystal import record_crystal_run, score_fit
 from flytrack_host.trigger.device import TriggerDevice, TriggerError, clock_link_timing
@@ -73,7 +73,7 @@ def test_clock_model_residual_and_bias_realtime(built, figures) -> None:
     cycle placed on the host clock by the harness's pacing anchor (cycle c due at t0 + c / f_cpu)."""
     harness, elf = built
     with SimulatedTrigger(elf=elf, harness=harness, realtime=True) as sim:
-        raise_priority(sim.proc.pid)  # silicon's clock is not delayed by a busy host (crystal.py)
+        run_as_hardware(sim.proc.pid)  # silicon's clock is not delayed by a busy host (crystal.py)
         dev = TriggerDevice(sim.pty, reset_wait_s=0, model=ClockModel(window=200, max_rtt_s=0.02))
         dev.set_rate(100.0)
         dev.start()

@@ -64,6 +64,10 @@ def summary_table(r: DemoReport) -> Table:
     if r.cpu_seconds:
         t.add_row("CPU seconds", f"{sum(r.cpu_seconds.values()):.1f} s", ", ".join(
             f"{k.replace('simulated ', 'sim ')} {v:.1f}" for k, v in r.cpu_seconds.items()))
+    cp = r.cpu_placement
+    t.add_row("CPUs", "split" if cp else "shared",
+              f"host {_cpus(cp['host'])}, sim hardware {_cpus(cp['simulated_hardware'])}" if cp
+              else "host and simulated hardware on the same CPUs")
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
     for d in r.dvs:
@@ -86,6 +90,10 @@ def summary_table(r: DemoReport) -> Table:
     return t
 
 
+def _cpus(cpus: list[int]) -> str:
+    return ("CPU " if len(cpus) == 1 else "CPUs ") + ",".join(str(c) for c in cpus)
+
+
 def demo_command(
     cameras: int = typer.Option(5, "--cameras", help="Number of simulated cameras."),
     animals: int = typer.Option(3, "--animals", help="Number of flying insects."),
@@ -98,6 +106,9 @@ def demo_command(
     json_path: Path | None = typer.Option(None, "--json", help="Write every figure of the summary here."),
     trigger: str = typer.Option("auto", "--trigger", help="auto | simavr | software"),
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    share_cpus: bool = typer.Option(False, "--share-cpus", help="Run the host and the simulated hardware "
+                                    "(cameras, edges, trigger, lab devices) on the same CPUs. By default they "
+                                    "are split, as on a rig where they are machines of their own."),
     rules: Path | None = typer.Option(
         None, "--rules", help="Closed-loop rules file (e.g. examples/closed_loop.toml): its rules drive the "
         "firmware's high-speed camera line, a Modbus TCP server and a CAN bus on loopback, scored against the "
@@ -120,7 +131,7 @@ def demo_command(
     extractors, UDP on loopback, the real host; scores against ground truth."""
     console = Console()
     cfg = DemoConfig(cameras=cameras, animals=animals, fps=fps, seconds=seconds, noise=noise, seed=seed,
-                     out=out, trigger=trigger, progress=not no_progress, rules=rules,
+                     out=out, trigger=trigger, progress=not no_progress, split_cpus=not share_cpus, rules=rules,
                      dvs=dvs, dvs_sensor=dvs_sensor)
     try:
         outputs = LiveOutputs.from_options(http=http if serve else None, pose=pose, pose_rate=pose_rate,

@@ -31,7 +31,7 @@ from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
-from flytrack_host.sim.frames import raise_priority
+from flytrack_host.sim.frames import run_as_hardware
 
 MATCH_WINDOW_S = 0.3  # a firing further than this from every true entry is a false fire
 LATENCY_DEFINITION = (
@@ -98,7 +98,7 @@ class ClosedLoopLab:
         if self.modbus.proc is not None:
             # A PLC is a machine of its own: it runs at the simulated hardware's priority (as the cameras
             # and the trigger), so a loaded machine delays the host under test rather than the device.
-            raise_priority(self.modbus.proc.pid)
+            run_as_hardware(self.modbus.proc.pid)
         self.can_channel = f"flytrack-demo-{uuid.uuid4().hex[:8]}"
         self.can = CanListener("virtual", self.can_channel)
 

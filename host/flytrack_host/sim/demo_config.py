@@ -55,6 +55,7 @@ class DemoConfig:
     match_threshold_m: float = 0.02
     close_distance_m: float = 0.02
     progress: bool = True
+    split_cpus: bool = True  # host and simulated hardware on separate CPUs (sim/placement.py)
     flight: FlightParams = field(default_factory=FlightParams)
     render: RenderParams | None = None
     rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)

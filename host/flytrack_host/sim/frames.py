@@ -34,6 +34,7 @@ import numpy as np
 from flytrack_host.camera import Camera
 from flytrack_host.sim.dvs import evt2_header
 from flytrack_host.sim.flight import GroundTruth
+from flytrack_host.sim.placement import threads_of, to_hardware
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 
 STAGE_TAIL = 64  # bytes of a staged frame written at its pulse (under PIPE_BUF: one atomic write)
@@ -265,17 +266,24 @@ class FrameFeeder:
 SIM_NICE = -5
 
 
-def raise_priority(pid: int = 0) -> bool:
-    """Run simulated hardware (cameras, trigger) ahead of the software under test.
+def run_as_hardware(pid: int = 0) -> bool:
+    """Run a simulated hardware process (cameras, trigger, an edge, a lab device; 0: this one) ahead
+    of, and when the demo splits the CPUs apart from, the software under test.
 
     Real cameras and trigger boxes are silicon: a busy host PC never delays an exposure. Here they are
-    processes sharing the CPU with the edges and the host, so they get a somewhat higher priority (nice
-    -5, when allowed) and a loaded machine delays the software under test, not the simulated clock."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, pid, SIM_NICE)
-        return True
-    except (PermissionError, OSError):
-        return False
+    processes sharing the machine with the host, so each of their threads gets a somewhat higher
+    priority (nice -5, when allowed) and a loaded machine delays the software under test, not the
+    simulated clock; and the hardware's CPUs (`placement`), so they do not take the host's. Returns
+    whether the priority was raised."""
+    to_hardware(pid)
+    raised = False
+    for tid in threads_of(pid):
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, SIM_NICE)
+            raised = True
+        except (PermissionError, OSError):
+            continue
+    return raised
 
 
 class _CameraLink:
@@ -425,7 +433,7 @@ def _feed(
     dvs=(),
     dvs_sent=None,
 ) -> None:
-    counters[6] = raise_priority()
+    counters[6] = run_as_hardware()
     dvs_links = [_DvsLink(r, fd) for r, fd in dvs]
     renderers = [CameraRenderer(c, params, seed=seed * 1000 + i) for i, c in enumerate(cameras)]
     written_cond = threading.Condition()

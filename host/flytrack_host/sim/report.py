@@ -63,6 +63,8 @@ class DemoReport:
     notes: list[str] = field(default_factory=list)
     host_summary: dict[str, Any] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=dict)  # per part of the simulated rig
+    # CPUs of the host and of the simulated hardware when split (sim/placement.py); None: shared
+    cpu_placement: dict[str, list[int]] | None = None
     actuation: dict[str, Any] = field(default_factory=dict)  # closed loop vs ground truth (with --rules)
     dvs: list[dict[str, Any]] = field(default_factory=list)  # per DVS camera: events sent and received
     # the same bundles tracked with and without the DVS cameras' points (eventcam.comparison)

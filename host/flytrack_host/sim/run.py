@@ -32,7 +32,8 @@ from flytrack_host.sim.demo_config import (
 )
 from flytrack_host.sim.dvs_run import DVS_SLICE_US, _dvs_comparison, _dvs_counts, dvs_edge_command, dvs_support_options
 from flytrack_host.sim.flight import Arena, simulate_flight
-from flytrack_host.sim.frames import FrameFeeder, raise_priority
+from flytrack_host.sim.frames import FrameFeeder, run_as_hardware
+from flytrack_host.sim.placement import Placement
 from flytrack_host.sim.processes import (
     CpuSampler,
     EdgeFleet,
@@ -110,6 +111,8 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     cpu = CpuSampler()
     cpu.add("host", os.getpid())
+    # The host on its own CPUs, the simulated hardware on the others, as on a rig (sim/placement.py).
+    placement = Placement(split=cfg.split_cpus).__enter__()
     edges = dvs_edges = feeder = host = live = session = lab = engine = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
@@ -137,12 +140,12 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             dvs_edges.check_started()
             for p in dvs_edges.procs:
                 cpu.add("edges", p.pid)
-                raise_priority(p.pid)
+                run_as_hardware(p.pid)
         for p in edges.procs:
             cpu.add("edges", p.pid)
             # On a rig each edge has its own computer: here they run at the simulated hardware's
             # priority, so only the host competes with the rest of this machine.
-            raise_priority(p.pid)
+            run_as_hardware(p.pid)
         cpu.add("simulated cameras", feeder.pid)
         feeder.set_source(str(trig.fifo))
 
@@ -245,6 +248,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
         cpu.sample()
     finally:
+        placement.__exit__()
         if cfg.fault is not None:
             cfg.fault.stop()
         if session is not None:
@@ -267,6 +271,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
                      notes, wall0, cams, warmup, trigger_summary, preroll)
     report.cpu_seconds = cpu.totals()
+    report.cpu_placement = placement.describe()
     report.dvs = _dvs_counts(dvs_cams, len(cams), fs, host_summary, cfg.dvs_sensor)
     if any(d["events_lost"] for d in report.dvs):
         report.notes.append("DVS events lost between the simulated sensors and the host: "

@@ -68,12 +68,12 @@ class DemoTrigger:
         """Start the simulated box (call after the frame feeder is following the FIFO); returns the
         serial port for the rig file ("software" for the stand-in, which the host opens itself)."""
         if self.mode == "simavr":
-            from flytrack_host.sim.frames import raise_priority
+            from flytrack_host.sim.frames import run_as_hardware
             from flytrack_host.trigger.simulator import SimulatedTrigger
 
             self.sim = SimulatedTrigger(elf=self.firmware, realtime=True, edge_log=self.fifo)
             self.port = self.sim.pty
-            self.priority_raised = raise_priority(self.sim.proc.pid)
+            self.priority_raised = run_as_hardware(self.sim.proc.pid)
         else:
             self.port = "software"
         return self.port

@@ -55,13 +55,13 @@ def record_crystal_run(seconds: float, ppm: float = 37.0, drift_ppm_per_s: float
                        query_period_s: float = 0.01, elf: object = None, harness: object = None) -> CrystalRun:
     """Runs the firmware paced with the given crystal error for `seconds`, querying its clock every
     query_period_s (plus the round trip) over the pty, as TriggerDevice does."""
-    from flytrack_host.sim.frames import raise_priority
+    from flytrack_host.sim.frames import run_as_hardware
 
     with SimulatedTrigger(elf=elf, harness=harness, realtime=True, ppm=ppm, drift_ppm_per_s=drift_ppm_per_s) as sim:
         # The harness stands for silicon, whose crystal a busy host never delays: it runs ahead of the
         # software under test (nice -5, when allowed), as in the simulated rig (sim/trigger_source.py).
         # Starved (nice 10 at load 8), it fell up to 140 ms behind the wall clock, and the truth with it.
-        priority_raised = raise_priority(sim.proc.pid)
+        priority_raised = run_as_hardware(sim.proc.pid)
         # The device's own model is not scored here (score_fit refits): a small window keeps it cheap.
         dev = TriggerDevice(sim.pty, reset_wait_s=0, timeout_s=2.0, model=ClockModel(window=20, max_rtt_s=0.05))
         try:
