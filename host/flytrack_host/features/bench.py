@@ -21,6 +21,15 @@ Two cache states, each the same for the C path and its floor:
   a camera has just written by DMA. The C path, its floor and OpenCV take turns along the ring, and
   the C vs OpenCV ratio is taken here (both read the frame from memory).
 
+Where the in-cache time goes: the C path is also timed, hot and interleaved with the others, with the
+background update turned off (bg_update_interval 0: the same frames against the background taken at the
+start; the timed path's model, updated ten times over the repeating frames, has partly learned where
+the targets pass, so at 640x480 with 10 targets the path without updates tests about 8% more
+candidates: its targets' share is a little high and the update's a little low), so
+that each row splits into the floor, the rest of the scan, the spread update and the targets' own work
+(per target: the no-update figure less that of the same frame size without targets, over the count).
+This is a breakdown only: every headline figure and ratio keeps the update every 200 frames.
+
 Every figure is the mean over a whole number of background-update intervals (so the periodic update is
 paid in it), with the P99 and the longest frame; the paths are interleaved one interval at a time so that
 load from elsewhere falls on all alike. Five rounds replay the same frames (400 at 640x480, 200 at 2048x2048), and each
@@ -34,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import dataclasses
 import json
 import os
 import platform
@@ -228,11 +238,14 @@ def run(quick: bool = False, ring_mb: float = 128.0) -> dict:
         fx_hot, fx_ring = FeatureExtractor(w, h, params=params), FeatureExtractor(w, h, params=params)
         fx_hot.process(bg)
         fx_ring.process(bg)
+        # The breakdown only: the same path without the background update.
+        fx_nu = FeatureExtractor(w, h, params=dataclasses.replace(params, bg_update_interval=0))
+        fx_nu.process(bg)
         cvp = OpenCVPipeline(bg, params)
         # Rounds of whole update intervals; in each, the paths take turns one interval at a time. Each
         # round replays the same frame sequence from its start, so that frame position i does the same
         # work in every round (the background update included, at the interval's last frame).
-        rounds: dict[str, list[np.ndarray]] = {k: [] for k in ("ch", "fh", "cr", "fr", "cv")}
+        rounds: dict[str, list[np.ndarray]] = {k: [] for k in ("ch", "fh", "cr", "fr", "cv", "cn")}
         base = 0  # along the ring (a multiple of nf: ring buffer base + i holds frame i % nf)
         step = -(-3 * iv // nf) * nf
         for _ in range(n_rounds):
@@ -241,6 +254,7 @@ def run(quick: bool = False, ring_mb: float = 128.0) -> dict:
                 at = k * iv
                 got["ch"].append(timer.process(fx_hot, hot_p, at, iv, warm=True))
                 got["fh"].append(timer.read(hot_p, frames[0].nbytes, at, iv, warm=True))
+                got["cn"].append(timer.process(fx_nu, hot_p, at, iv, warm=True))
                 got["cr"].append(timer.process(fx_ring, ring_p, base + at, iv, warm=False))
                 base = (base + step) % len(ring)
                 got["fr"].append(timer.read(ring_p, frames[0].nbytes, base + at, iv, warm=False))
@@ -252,6 +266,7 @@ def run(quick: bool = False, ring_mb: float = 128.0) -> dict:
                 rounds[key].append(np.concatenate(parts))
         fx_hot.close()
         fx_ring.close()
+        fx_nu.close()
         # Per frame position, the best of the rounds (a frame preempted by another job in one round is
         # not in all of them), then the mean over the positions: the updates stay in it. The raw
         # figures over all rounds, preemptions included, are kept in the JSON.
@@ -266,7 +281,8 @@ def run(quick: bool = False, ring_mb: float = 128.0) -> dict:
             "width": w, "height": h, "targets": nt, "points_found_median": npts,
             "centroid_max_diff_px": worst, "ring_buffers": len(ring),
             "ring_mb": len(ring) * frames[0].nbytes / 2**20,
-            "c_hot": c_hot, "read_floor_hot": fl_hot, "c_ring": c_ring, "read_floor_ring": fl_ring,
+            "c_hot": c_hot, "c_hot_no_update": stats["cn"], "read_floor_hot": fl_hot,
+            "c_ring": c_ring, "read_floor_ring": fl_ring,
             "opencv_ring": o,
             "speedup_vs_opencv": o["mean_us"] / c_ring["mean_us"],
             "c_over_floor_hot": c_hot["mean_us"] / fl_hot["mean_us"],
@@ -281,6 +297,20 @@ def run(quick: bool = False, ring_mb: float = 128.0) -> dict:
         "load_avg_1min": [load_before[0], os.getloadavg()[0]],
         "results": results,
     }
+
+
+def print_breakdown(results: list[dict]) -> None:
+    """Where each in-cache mean goes: floor, the rest of the scan, the spread update, the targets."""
+    print("where the C hot mean goes (us per frame): read floor + rest of the scan with no target + targets' "
+          "own work + background update (C hot less C hot without updates)")
+    empty = {r["width"]: r["c_hot_no_update"]["mean_us"] for r in results if r["targets"] == 0}
+    for r in results:
+        nu, fl = r["c_hot_no_update"]["mean_us"], r["read_floor_hot"]["mean_us"]
+        scan0 = empty.get(r["width"], nu)
+        tgt = nu - scan0
+        per = f" ({tgt / r['targets']:.2f} per target)" if r["targets"] else ""
+        print(f"{r['width']:>5}x{r['height']:<4} {r['targets']:>3}: {r['c_hot']['mean_us']:6.1f} = floor {fl:5.1f} "
+              f"+ scan {scan0 - fl:+5.1f} + targets {tgt:5.1f}{per} + update {r['c_hot']['mean_us'] - nu:4.1f}")
 
 
 def main() -> None:
@@ -316,6 +346,7 @@ def main() -> None:
     print("longest frame (best of the rounds) us, C hot / C ring: " + "; ".join(
         f"{r['width']}x{r['height']} {r['targets']}: {r['c_hot']['max_us']:.0f} / {r['c_ring']['max_us']:.0f}"
         for r in fig["results"]))
+    print_breakdown(fig["results"])
     worst_cv = min(r["speedup_vs_opencv"] for r in fig["results"])
     worst_hot = max(r["c_over_floor_hot"] for r in fig["results"])
     worst_ring = max(r["c_over_floor_ring"] for r in fig["results"])
