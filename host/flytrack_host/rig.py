@@ -95,6 +95,13 @@ class HostConfig(_Strict):
         le=10,
         description="A frame bundle is tracked at latest this fraction of a frame period after its first packet.",
     )
+    cpu_wake_latency_us: Literal["auto", "off"] | Annotated[int, Field(ge=0, le=1_000_000)] = Field(
+        "auto",
+        description="While the host runs, ask Linux (PM QoS, /dev/cpu_dma_latency) to keep idle CPUs at most "
+        "this many microseconds from waking: a closed loop's commands and replies then do not wait for a CPU "
+        "to leave a deep idle state. 'auto': 0 when rules drive actuators, else not asked; 'off': never. "
+        "Costs power (idle CPUs poll); needs root or write access to the device.",
+    )
 
     @field_validator("listen")
     @classmethod

@@ -33,6 +33,7 @@ from flytrack_host.eventcam.observations import DvsObservations
 from flytrack_host.latency import LatencyStats
 from flytrack_host.live import LiveSender
 from flytrack_host.pipeline.cameras import calibration_problems
+from flytrack_host.pipeline.cpu_latency import CpuWakeLatency, wanted_us
 from flytrack_host.pipeline.dvs import DvsIntake
 from flytrack_host.pipeline.report import PipelineReport
 from flytrack_host.pipeline.rows import data2d_rows, dvs_covariance_rows, result_rows
@@ -153,6 +154,7 @@ class HostPipeline(DvsIntake, PipelineReport):
         self._wall_checked = 0.0
         self.loop_errors = 0  # exceptions caught per item in the tracking thread (it goes on)
         self.recorder: Recorder | None = None
+        self.cpu_wake: CpuWakeLatency | None = None  # PM QoS request while running (pipeline/cpu_latency.py)
         self.receiver: Receiver | None = None
         self.live: LiveSender | None = None
         self.sync: FrameSynchronizer | None = None
@@ -186,6 +188,11 @@ class HostPipeline(DvsIntake, PipelineReport):
         if self.record:
             self._start_recorder()
         self._make_tracker(first=True)  # after the recorder: what it says goes into the text log too
+        target = wanted_us(self.rig.host.cpu_wake_latency_us,
+                           drives_devices=bool(self.rig.rules and self.rig.actuators))
+        if target is not None:  # last: nothing after it can fail and leave the request held
+            self.cpu_wake = CpuWakeLatency(target)
+            self.log(self.cpu_wake.hold(), level=logging.INFO if self.cpu_wake.held else logging.WARNING)
         self._started_at = hostclock.now()
         self.log(f"pipeline started: {len(self.rig.cameras)} cameras, {self.fps:g} fps, "
                  f"listening on {self.receiver.address[0]}:{self.receiver.address[1]}")
@@ -248,6 +255,8 @@ class HostPipeline(DvsIntake, PipelineReport):
             self.receiver.close()
         if self.live is not None:
             self.live.close()
+        if self.cpu_wake is not None:
+            self.cpu_wake.release()
         self._summary = self.summary(recording_h5=h5)
         if self._error is not None:
             raise RuntimeError(f"tracking thread failed: {self._error}") from self._error

@@ -68,6 +68,10 @@ def summary_table(r: DemoReport) -> Table:
     t.add_row("CPUs", "split" if cp else "shared",
               f"host {_cpus(cp['host'])}, sim hardware {_cpus(cp['simulated_hardware'])}" if cp
               else "host and simulated hardware on the same CPUs")
+    wake = (r.host_summary or {}).get("cpu_wake_latency")
+    if wake:
+        t.add_row("CPU wake-up latency", f"{wake['requested_us']} us" if wake["held"] else "not held",
+                  "PM QoS while the closed loop ran" if wake["held"] else wake["note"])
     t.add_row("frames rendered/tracked", f"{r.frames_rendered}/{r.frames_tracked}",
               f"{r.live_frames} live frames sent")
     for d in r.dvs:

@@ -224,13 +224,18 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         # 4. Run until every frame was rendered, with a progress bar.
         budget = cfg.seconds * 4 + 30
         t_end = time.monotonic() + budget
+        # Drawn by this loop twice a second, not by rich's refresh thread at 10 Hz: each redraw holds the
+        # host's GIL for about a millisecond, which the tracking and device threads then wait for.
         with Progress(TextColumn("[bold]simulated rig[/bold]"), BarColumn(), TextColumn("{task.description}"),
-                      TimeRemainingColumn(), console=console, disable=not cfg.progress, transient=True) as prog:
+                      TimeRemainingColumn(), console=console, disable=not cfg.progress, transient=True,
+                      auto_refresh=False) as prog:
             task = prog.add_task("", total=gt.n_frames)
+            turn = 0
             while not feeder.done and feeder.alive() and time.monotonic() < t_end:
                 time.sleep(0.1)
                 cpu.sample()
-                prog.update(task, completed=feeder.frames_rendered,
+                turn += 1
+                prog.update(task, completed=feeder.frames_rendered, refresh=turn % 5 == 0,
                             description=f"frames {feeder.frames_rendered}/{gt.n_frames}  tracked {len(results)}")
             prog.update(task, completed=feeder.frames_rendered)
         if not feeder.done:
