@@ -110,9 +110,11 @@ def demo_command(
     json_path: Path | None = typer.Option(None, "--json", help="Write every figure of the summary here."),
     trigger: str = typer.Option("auto", "--trigger", help="auto | simavr | software"),
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
-    share_cpus: bool = typer.Option(False, "--share-cpus", help="Run the host and the simulated hardware "
-                                    "(cameras, edges, trigger, lab devices) on the same CPUs. By default they "
-                                    "are split, as on a rig where they are machines of their own."),
+    cpus: str = typer.Option("auto", "--cpus", help="split: the host on the first half of the CPUs, the "
+                             "simulated hardware (cameras, edges, trigger, lab devices) on the rest, as on a rig "
+                             "where they are machines of their own; share: all on all; auto: split unless the "
+                             "simulated cameras need more than the hardware's half (over 1000 camera frames/s "
+                             "per hardware CPU)."),
     rules: Path | None = typer.Option(
         None, "--rules", help="Closed-loop rules file (e.g. examples/closed_loop.toml): its rules drive the "
         "firmware's high-speed camera line, a Modbus TCP server and a CAN bus on loopback, scored against the "
@@ -135,7 +137,7 @@ def demo_command(
     extractors, UDP on loopback, the real host; scores against ground truth."""
     console = Console()
     cfg = DemoConfig(cameras=cameras, animals=animals, fps=fps, seconds=seconds, noise=noise, seed=seed,
-                     out=out, trigger=trigger, progress=not no_progress, split_cpus=not share_cpus, rules=rules,
+                     out=out, trigger=trigger, progress=not no_progress, cpus=cpus, rules=rules,
                      dvs=dvs, dvs_sensor=dvs_sensor)
     try:
         outputs = LiveOutputs.from_options(http=http if serve else None, pose=pose, pose_rate=pose_rate,

@@ -55,7 +55,7 @@ class DemoConfig:
     match_threshold_m: float = 0.02
     close_distance_m: float = 0.02
     progress: bool = True
-    split_cpus: bool = True  # host and simulated hardware on separate CPUs (sim/placement.py)
+    cpus: str = "auto"  # split | share | auto: host and simulated hardware on separate CPUs (sim/placement.py)
     flight: FlightParams = field(default_factory=FlightParams)
     render: RenderParams | None = None
     rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)
@@ -85,5 +85,7 @@ class DemoConfig:
 
         if self.dvs_sensor not in DVS_SIZES:
             raise DemoError(f"--dvs-sensor must be one of {', '.join(DVS_SIZES)}, got {self.dvs_sensor!r}")
+        if self.cpus not in ("auto", "split", "share"):
+            raise DemoError(f"--cpus must be auto, split or share, got {self.cpus!r}")
         if self.trigger not in ("auto", "simavr", "software"):
             raise DemoError(f"--trigger must be auto, simavr or software, got {self.trigger!r}")

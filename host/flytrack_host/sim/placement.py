@@ -11,7 +11,8 @@ estimate) measured 0.68-0.69 ms P50, and a closed-loop rule's acknowledgement 2.
 So the demo splits the CPUs it may use: the host process (every thread, and what it starts later)
 on the first half, every simulated hardware process on the rest (on 2 CPUs: host on one, hardware on
 the other). The hardware needs far less than a core (10 s of the default demo: cameras 2.0, edges
-0.65, trigger 0.1 CPU seconds). With one CPU there is nothing to split. `--share-cpus` runs as before.
+0.65, trigger 0.1 CPU seconds); when the cameras need more than their half (`choose_split`), or with
+one CPU, all share the CPUs as before (`flytrack demo --cpus share` asks for that).
 A process's threads each carry their own affinity on Linux, so every thread of a process is placed,
 and new threads inherit their creator's.
 """
@@ -39,6 +40,26 @@ def split_cpus(cpus: set[int] | frozenset[int]) -> CpuSplit | None:
         return None
     k = max(1, len(s) // 2)
     return CpuSplit(frozenset(s[:k]), frozenset(s[k:]))
+
+
+# Camera frames a second one CPU of simulated hardware keeps up with, with room to spare: a frame costs
+# the cameras' process 0.2-0.4 ms to render and its edge 0.1 ms (5 cameras x 100 fps used 0.28 of a CPU;
+# 11 x 200 needed more than one, and the cameras fell 0.56 s behind on a CPU of their own).
+FRAMES_PER_HARDWARE_CPU = 1000.0
+
+
+def choose_split(mode: str, camera_frames_per_s: float, cpus: set[int] | None = None) -> tuple[bool, str]:
+    """Whether to split ("split", "share", or "auto": when the simulated cameras fit their CPUs), and a
+    note when auto decided to share."""
+    if mode != "auto":
+        return mode == "split", ""
+    s = split_cpus(set(os.sched_getaffinity(0)) if cpus is None else cpus)
+    if s is None:
+        return False, ""
+    if camera_frames_per_s > FRAMES_PER_HARDWARE_CPU * len(s.hardware):
+        return False, (f"CPUs shared by the host and the simulated hardware: {camera_frames_per_s:.0f} camera "
+                       f"frames/s need more than the {len(s.hardware)} CPU(s) a split would give the cameras")
+    return True, ""
 
 
 def threads_of(pid: int) -> list[int]:

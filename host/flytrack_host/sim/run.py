@@ -33,7 +33,7 @@ from flytrack_host.sim.demo_config import (
 from flytrack_host.sim.dvs_run import DVS_SLICE_US, _dvs_comparison, _dvs_counts, dvs_edge_command, dvs_support_options
 from flytrack_host.sim.flight import Arena, simulate_flight
 from flytrack_host.sim.frames import FrameFeeder, run_as_hardware
-from flytrack_host.sim.placement import Placement
+from flytrack_host.sim.placement import Placement, choose_split
 from flytrack_host.sim.processes import (
     CpuSampler,
     EdgeFleet,
@@ -112,7 +112,10 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     cpu = CpuSampler()
     cpu.add("host", os.getpid())
     # The host on its own CPUs, the simulated hardware on the others, as on a rig (sim/placement.py).
-    placement = Placement(split=cfg.split_cpus).__enter__()
+    split, why = choose_split(cfg.cpus, cfg.cameras * cfg.fps + cfg.dvs * cfg.fps)
+    placement = Placement(split=split).__enter__()
+    if why:
+        notes.append(why)
     edges = dvs_edges = feeder = host = live = session = lab = engine = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []

@@ -83,3 +83,16 @@ def test_a_process_that_is_gone_is_not_an_error():
     p.wait()
     with Placement(split=True):
         assert run_as_hardware(p.pid) is False  # gone: nothing placed, no priority raised
+
+
+def test_auto_splits_unless_the_cameras_need_more_than_their_half():
+    from flytrack_host.sim.placement import FRAMES_PER_HARDWARE_CPU, choose_split
+
+    assert choose_split("auto", 5 * 100, {0, 1}) == (True, "")  # the default demo
+    split, why = choose_split("auto", 11 * 200, {0, 1})  # make demo-stress: the cameras need the machine
+    assert not split and "2200 camera frames/s" in why
+    assert choose_split("auto", 11 * 200, set(range(8)))[0]  # 4 hardware CPUs: room
+    assert choose_split("auto", FRAMES_PER_HARDWARE_CPU, {0, 1})[0]
+    assert choose_split("auto", 100, {0}) == (False, "")  # one CPU: nothing to split, nothing to say
+    assert choose_split("split", 1e6, {0, 1}) == (True, "")
+    assert choose_split("share", 10, {0, 1}) == (False, "")
