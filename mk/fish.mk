@@ -10,5 +10,7 @@ test-fish: build
 demo-fish: build
 	@$(PY) -m flytrack_host.cli fish demo --fish 4 --frames 200 --out docs/fish --json $(BUILD)/fish-demo.json
 
+# Every compared path on one BLAS thread (threadpoolctl in fish/bench.py, as `fish track` tracks; the header
+# prints the BLAS libraries' threads); FISH_BENCH_ARGS='--blas-threads 0' leaves the library's default.
 bench-fish: build
-	@$(PY) -m flytrack_host.fish.bench $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@$(PY) -m flytrack_host.fish.bench $(FISH_BENCH_ARGS) $(if $(BENCH_JSON),--json $(BENCH_JSON))

@@ -13,6 +13,7 @@ source port (this needs root; `needs_root` says so). Wall-clock steps go through
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import signal
 import socket
@@ -27,6 +28,8 @@ import numpy as np
 
 from flytrack_host import hostclock
 from flytrack_host.protocol import FeatureFrame, encode_features, make_points
+
+log = logging.getLogger("flytrack.faults")
 
 ROGUE_MARK = 0xFA17_FA17_FA17_FA17  # device_timestamp_ns of injected frames: the measurement leaves them out
 
@@ -98,11 +101,30 @@ class SignalEdge(Fault):
 
     def inject(self, ctx: Any) -> None:
         p = ctx.edges.procs[self.camera]
-        os.kill(p.pid, signal.SIGSTOP)
+        if not self._signal(p, signal.SIGSTOP):
+            return
         try:
             self._stop.wait(self.hold_s)
         finally:
-            os.kill(p.pid, signal.SIGCONT)
+            self._signal(p, signal.SIGCONT)
+
+    def _signal(self, p: subprocess.Popen, sig: signal.Signals) -> bool:
+        """Send `sig` to the edge; False when the edge had already ended (a gone edge is what this
+        fault simulates: logged and noted in `info`, not an error). Asked through `Popen.poll` first:
+        once the demo's watchdog reaped the edge its pid is free, and may be another process's."""
+        code = p.poll()
+        if code is None:
+            try:
+                os.kill(p.pid, sig)
+                return True
+            except ProcessLookupError:  # it ended, and another thread reaped it, since the poll
+                code = p.poll()
+        name = signal.Signals(sig).name
+        log.warning("fault %s: the edge of camera %d (pid %d) had already ended (exit status %s): no %s "
+                    "sent; the camera is gone, as this fault simulates", type(self).__name__, self.camera,
+                    p.pid, code, name)
+        self.info["edge_ended"] = f"before {name} (exit status {code})"
+        return False
 
 
 class HostStop(Fault):

@@ -4,16 +4,23 @@ term), same start (the previous frame's true state, as a prediction would give):
 - scipy.optimize.dual_annealing (generalised SA with its own L-BFGS-B local search), bounded around the start;
 - scipy L-BFGS-B quasi-Newton alone from the start;
 and the cost's line-distance kernel in C against the NumPy path. Prints means and ratios; never fails on speed.
+
+Every path runs with one BLAS thread (threadpoolctl, as `fish track` and the demo track: the fit's matrices are
+tiny, more threads only spin and bill CPU time), so the CPU times compare as the fish figures are quoted;
+`--blas-threads 0` leaves the BLAS library's default. The header prints the BLAS libraries and their threads.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import dual_annealing
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from flytrack_host.fish import fit as F
 from flytrack_host.fish.render import render_sequence
@@ -60,7 +67,25 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--blas-threads", type=int, default=1,
+                    help="BLAS threads for every compared path (0: the BLAS library's default)")
     args = ap.parse_args(argv)
+    if args.blas_threads < 0:
+        ap.error("--blas-threads must be 0 (the library's default) or more")
+    limit = threadpool_limits(limits=args.blas_threads, user_api="blas") if args.blas_threads else None
+    with limit or contextlib.nullcontext():
+        return _run(args)
+
+
+def _blas() -> str:
+    """The BLAS libraries loaded now and their thread counts, as threadpoolctl reads them."""
+    libs = [f"{i.get('internal_api', '?')} of {Path(i.get('filepath', '')).parent.name.removesuffix('.libs')} "
+            f"{i['num_threads']} thread{'s' if i['num_threads'] != 1 else ''}"
+            for i in threadpool_info() if i.get("user_api") == "blas"]
+    return ", ".join(libs) or "none loaded"
+
+
+def _run(args: argparse.Namespace) -> dict:
     cases = _costs(args.frames, 1)
     cfg = F.FitConfig()
     rng = np.random.default_rng(0)
@@ -89,7 +114,9 @@ def main(argv: list[str] | None = None) -> dict:
                       "cost": float(np.mean(cost)), "evaluations": float(np.mean(evals)),
                       "ms_per_fit": 1000 * float(np.mean(secs))}
     ours = rows["flytrack SA+lsq"]
-    print(f"per-frame fit, 1 fish, {args.frames} frames, same cost and start (CPU time)")
+    threads = (f"{args.blas_threads} BLAS thread{'s' if args.blas_threads != 1 else ''} for every path"
+               if args.blas_threads else "the BLAS library's default threads")
+    print(f"per-frame fit, 1 fish, {args.frames} frames, same cost and start (CPU time; {threads}: {_blas()})")
     cols = ("head mm", "heading", "cost", "evals", "ms/fit", "time ratio")
     print(f"{'method':24s} " + " ".join(f"{c:>8s}" for c in cols))
     for name, r in rows.items():
@@ -112,7 +139,8 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"line distances per state ({sum(len(ls.p) for ls in c.line_sets)} lines x {S.shape[1] * S.shape[2]} "
           f"surface points): C {timing['C']:.3f} ms, NumPy {timing['NumPy']:.3f} ms, "
           f"ratio {timing['NumPy'] / timing['C']:.1f}x")
-    result = {"fit": rows, "kernel_ms_per_state": timing}
+    result = {"fit": rows, "kernel_ms_per_state": timing, "blas_threads": args.blas_threads or None,
+              "blas": _blas()}
     if args.json:
         with open(args.json, "w") as fh:
             json.dump({"bench-fish": result}, fh, indent=2)

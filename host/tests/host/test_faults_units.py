@@ -4,13 +4,17 @@ one sender per camera. The same faults against the real processes: tests/faults.
 
 from __future__ import annotations
 
+import logging
 import os
 import subprocess
 import sys
+import time
+from types import SimpleNamespace
 
 import numpy as np
 
 from flytrack_host import hostclock
+from flytrack_host.faults import inject as fi
 from flytrack_host.latency import LatencyStats
 from flytrack_host.pipeline import data2d_rows
 from flytrack_host.ratelog import RateLimitedLog
@@ -282,3 +286,71 @@ def test_a_restarted_edge_is_taken_over_by_arrival_times_however_late_the_host_h
         assert rx.stats.cameras[0].second_sender == 1 and len(out) == 8
     finally:
         rx.close()
+
+
+# --- SignalEdge (the edge-stop / edge-gone faults) against real processes -------------------------------
+def _proc_state(pid: int) -> str:
+    """The state letter of /proc/PID/stat ('T': stopped by a signal)."""
+    with open(f"/proc/{pid}/stat") as f:
+        stat = f.read()
+    return stat[stat.rindex(")") + 2]
+
+
+def _wait_state(pid: int, states: str, timeout_s: float = 10.0) -> str:
+    deadline = time.monotonic() + timeout_s
+    while (st := _proc_state(pid)) not in states and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return st
+
+
+def _edges_ctx(proc: subprocess.Popen) -> SimpleNamespace:
+    # The fault reads only ctx.edges.procs (the demo's edge Popen objects); the process is real.
+    return SimpleNamespace(edges=SimpleNamespace(procs=[proc]))
+
+
+def test_signal_edge_holds_a_live_edge_stopped_then_continues_it():
+    p = subprocess.Popen(["sleep", "60"])
+    try:
+        fault = fi.SignalEdge(camera=0, at_s=0.0, hold_s=60.0)
+        fault.start(_edges_ctx(p))
+        assert _wait_state(p.pid, "T") == "T"
+        time.sleep(0.2)
+        assert _proc_state(p.pid) == "T"  # held for hold_s, until the fault is stopped
+        fault.stop()  # ends the hold: SIGCONT
+        assert _wait_state(p.pid, "SR") in "SR"
+        assert p.poll() is None and fault.error is None and "edge_ended" not in fault.info
+        assert fault.t_end >= fault.t_start
+    finally:
+        p.kill()
+        p.wait()
+
+
+def test_signal_edge_against_an_edge_that_already_ended_logs_it_and_does_not_fail(caplog):
+    p = subprocess.Popen(["true"])
+    p.wait()  # ended and reaped (the demo's watchdog polls its edges): its pid is free
+    fault = fi.SignalEdge(camera=0, at_s=0.0, hold_s=0.1)
+    with caplog.at_level(logging.WARNING, logger="flytrack.faults"):
+        fault.start(_edges_ctx(p))
+        fault.stop()
+    assert fault.error is None
+    assert fault.info["edge_ended"] == "before SIGSTOP (exit status 0)"
+    assert f"camera 0 (pid {p.pid}) had already ended" in caplog.text and "no SIGSTOP sent" in caplog.text
+
+
+def test_signal_edge_whose_edge_ends_while_held_logs_it_and_does_not_fail(caplog):
+    p = subprocess.Popen(["sleep", "60"])
+    try:
+        fault = fi.SignalEdge(camera=0, at_s=0.0, hold_s=60.0)
+        with caplog.at_level(logging.WARNING, logger="flytrack.faults"):
+            fault.start(_edges_ctx(p))
+            assert _wait_state(p.pid, "T") == "T"
+            p.kill()  # SIGKILL ends a stopped process too
+            p.wait()
+            fault.stop()
+        assert fault.error is None
+        assert fault.info["edge_ended"] == "before SIGCONT (exit status -9)"
+        assert "no SIGCONT sent" in caplog.text
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
