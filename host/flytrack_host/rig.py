@@ -79,8 +79,15 @@ class TriggerConfig(_Strict):
     )
     port: str = Field("/dev/ttyUSB0", description="Serial port of the trigger box.")
     fps: float = Field(100.0, gt=0, le=10000, description="Frame rate to trigger, frames per second.")
-    baud: int = Field(115200, gt=0)
+    baud: int = Field(0, ge=0, description="Serial baud rate; 0 (default): the box's own, 1000000 for the FlyTrack "
+                      "firmware, 115200 for a strawlab triggerbox.")
     clock_query_interval_s: float = Field(0.5, gt=0, description="How often the host samples the device clock.")
+
+    @model_validator(mode="after")
+    def _default_baud(self) -> TriggerConfig:
+        if self.baud == 0:
+            self.baud = 1_000_000 if self.kind == "flytrack" else 115_200
+        return self
 
 
 class HostConfig(_Strict):

@@ -16,7 +16,7 @@ from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.sim.frames import run_as_hardware
 from flytrack_host.trigger.clock_model import ClockModel
 from flytrack_host.trigger.crystal import record_crystal_run, score_fit
-from flytrack_host.trigger.device import TriggerDevice, TriggerError, clock_link_timing
+from flytrack_host.trigger.device import FIRMWARE_BAUD, TriggerDevice, TriggerError, clock_link_timing
 from flytrack_host.trigger.simulator import (
     SimulatedTrigger,
     read_pacing_anchor,
@@ -129,7 +129,7 @@ def test_clock_model_recovers_a_crystal_off_by_37_ppm_and_drifting(built, figure
     ppm, drift = 37.0, 0.5
     harness, elf = built
     run = record_crystal_run(12.0, ppm, drift, elf=elf, harness=harness)
-    m = ClockModel(window=100_000, max_rtt_s=0.05, keep_fraction=0.1, link=clock_link_timing(115200))
+    m = ClockModel(window=100_000, max_rtt_s=0.05, keep_fraction=0.1, link=clock_link_timing(FIRMWARE_BAUD))
     f = score_fit(run, m)
     true_gain = run.true_gain(0.5 * (run.host_t0[0] + run.host_t1[-1]))
     print(f"\ncrystal +{ppm:.0f} ppm drifting {drift} ppm/s: fitted gain {m.gain:.9f}, true {true_gain:.9f} "

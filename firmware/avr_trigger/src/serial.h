@@ -1,4 +1,4 @@
-/* UART at 115200 baud 8N1: interrupt-driven receive ring, blocking transmit. */
+/* UART at 1 Mbaud 8N1: interrupt-driven receive ring, blocking transmit. */
 #ifndef FT_SERIAL_H
 #define FT_SERIAL_H
 

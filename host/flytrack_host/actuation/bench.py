@@ -181,7 +181,7 @@ def bench_pulse(n: int) -> dict[str, Any] | None:
             dev.stop_clock_thread()
             dev.stop()
             dev.close()
-    return {"device": "firmware PULSE (simavr, 115200 baud)", "engine": eng, "direct": d}
+    return {"device": "firmware PULSE (simavr, 1 Mbaud)", "engine": eng, "direct": d}
 
 
 def bench_eval(objs: list[int], frames: int = 2000) -> list[dict[str, float]]:

@@ -27,12 +27,13 @@ import numpy as np
 
 from .clock_model import ClockModel
 from .crystal import record_crystal_run, score_fit, score_windows
-from .device import clock_link_timing
+from .device import FIRMWARE_BAUD, clock_link_timing
 from .simulator import build
 
 
 def robust_model(keep_fraction: float = 0.1) -> ClockModel:
-    return ClockModel(window=100_000, max_rtt_s=0.05, keep_fraction=keep_fraction, link=clock_link_timing(115200))
+    return ClockModel(window=100_000, max_rtt_s=0.05, keep_fraction=keep_fraction,
+                      link=clock_link_timing(FIRMWARE_BAUD))
 
 
 def _row(name: str, f: dict[str, float]) -> str:
@@ -61,7 +62,7 @@ def main() -> None:
     print(f"crystal {args.ppm:+g} ppm drifting {args.drift:g} ppm/s; {len(rtt)} clock queries over "
           f"{run.host_t1[-1] - run.host_t0[0]:.1f} s; round trip median {np.median(rtt):.2f} ms, P90 "
           f"{np.percentile(rtt, 90):.2f} ms, max {rtt.max():.2f} ms (wire alone "
-          f"{clock_link_timing(115200).min_rtt_s * 1e3:.2f} ms); load average {load0:.1f} -> {load1:.1f}; "
+          f"{clock_link_timing(FIRMWARE_BAUD).min_rtt_s * 1e3:.2f} ms); load average {load0:.1f} -> {load1:.1f}; "
           f"harness at nice -5: {run.priority_raised}; simulator behind the wall clock (its truth void) in "
           f"{np.mean(run.sim_behind_s > 0) * 100:.1f} % of queries, by up to {run.sim_behind_s.max() * 1e3:.2f} ms; "
           f"{run.timeouts} replies later than 2 s (lost)")

@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 # decode (COBS, CRC) and dispatch, measured in simavr on both MCUs (899 and 881 cycles at 16 MHz).
 FIRMWARE_SAMPLE_DELAY_S = 56e-6
 CONTROL_TIMEOUT_S = 2.0  # see TriggerDevice.control_timeout_s
+FIRMWARE_BAUD = 1_000_000  # the FlyTrack firmware's UART (firmware/avr_trigger/src/serial.c): exact at 16 MHz
 
 
 def clock_link_timing(baudrate: float) -> LinkTiming:
@@ -80,7 +81,7 @@ class TriggerDevice(SerialTrigger):
     def __init__(
         self,
         port: str,
-        baudrate: int = 115200,
+        baudrate: int = FIRMWARE_BAUD,
         reset_wait_s: float = 2.0,
         timeout_s: float = 0.5,
         model: ClockModel | None = None,
@@ -131,11 +132,15 @@ class TriggerDevice(SerialTrigger):
                 continue
         else:
             seen = bytes(self._raw_seen[:32])
+            baud = self._ser.baudrate
             self.close()
             what = f"it sent {seen!r}" if seen else "it sent nothing"
+            hint = "" if baud == FIRMWARE_BAUD else (
+                f"; the port is at {baud} baud, the FlyTrack firmware talks at {FIRMWARE_BAUD} "
+                "(rig file: drop trigger.baud, or set it to 1000000)")
             raise TriggerError(
                 f"the device on {self.port} does not answer the FlyTrack trigger protocol ({what}); "
-                "is the right firmware flashed, and is nothing else using the port?"
+                f"is the right firmware flashed, and is nothing else using the port?{hint}"
             )
         if info.protocol_version != tl.SERIAL_VERSION:
             self.close()

@@ -26,9 +26,9 @@ def _request_wire_s(dev: Any) -> float:
     """Time a PULSE request takes on the wire (delimiter + frame, 10 bits a byte) and the firmware's
     dispatch, from the protocol's own encoder."""
     from flytrack_host.protocol import trigger_link as tl
-    from flytrack_host.trigger.device import FIRMWARE_SAMPLE_DELAY_S
+    from flytrack_host.trigger.device import FIRMWARE_BAUD, FIRMWARE_SAMPLE_DELAY_S
 
-    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", 115200) or 115200)
+    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", FIRMWARE_BAUD) or FIRMWARE_BAUD)
     n = len(b"\0" + tl.encode_message(tl.Pulse(0, 0, 1), 1))
     return n * 10 / baud + FIRMWARE_SAMPLE_DELAY_S
 
@@ -36,8 +36,9 @@ def _request_wire_s(dev: Any) -> float:
 def _ack_wire_s(dev: Any) -> float:
     """Time the firmware's ACK takes on the wire (delimiter + frame, 10 bits a byte)."""
     from flytrack_host.protocol import trigger_link as tl
+    from flytrack_host.trigger.device import FIRMWARE_BAUD
 
-    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", 115200) or 115200)
+    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", FIRMWARE_BAUD) or FIRMWARE_BAUD)
     return len(b"\0" + tl.encode_message(tl.Ack(int(tl.MsgId.PULSE)), 1)) * 10 / baud
 
 
@@ -46,14 +47,14 @@ class TriggerPulseOutput(Output):
     ack_means = ("the firmware's ACK of the PULSE request: armed for its trigger frame, where the pin fires "
                  "(exactly, FRAME_EXACT), after the ACK")
     arm_frames = 1
-    # Until measured: a PULSE on the wire at 115200 baud (~12 bytes with framing, ~1 ms), the firmware's
-    # dispatch, and a clock query it may wait behind (the link carries one request at a time).
+    # Until measured: a PULSE on the wire (~12 bytes with framing: 0.12 ms at 1 Mbaud, 1 ms at 115200), the
+    # firmware's dispatch, and a clock query it may wait behind (the link carries one request at a time).
     initial_lead_s = 0.003
 
     def _lead_sample(self, job: Job, done: Done) -> float:
         """A PULSE reaches its frame when the firmware has read it, not when its ACK is back: the
         firmware answers as soon as it has armed the pulse, so it had the PULSE at the latest when its
-        ACK started back, the ACK's arrival less its time on the wire (~0.6 ms at 115200 baud). That
+        ACK started back, the ACK's arrival less its time on the wire (0.07 ms at 1 Mbaud). That
         keeps whatever delayed the request (a clock query ahead of it, a lagging simulator) in the lead.
         A PULSE that is too late anyway is refused and pulsed at once, recorded as late."""
         try:
