@@ -73,6 +73,28 @@ def test_device_speaking_something_else() -> None:
         os.close(slave)
 
 
+def test_silence_at_another_baud_names_the_firmware_rate() -> None:
+    """An old rig file with `baud = 115200` and a board flashed with today's firmware (1 Mbaud): the
+    error says which rate the firmware talks at; at the firmware's own rate it says nothing of it."""
+    from flytrack_host.rig import TriggerConfig
+    from flytrack_host.trigger.device import FIRMWARE_BAUD
+
+    assert TriggerConfig().baud == FIRMWARE_BAUD == 1_000_000
+    assert TriggerConfig(kind="strawlab").baud == 115_200
+    assert TriggerConfig(baud=57_600).baud == 57_600
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        with pytest.raises(TriggerError, match="the port is at 115200 baud, the FlyTrack firmware talks at 1000000"):
+            TriggerDevice(os.ttyname(slave), baudrate=115_200, reset_wait_s=0, timeout_s=0.1, connect_attempts=1)
+        with pytest.raises(TriggerError) as e:
+            TriggerDevice(os.ttyname(slave), reset_wait_s=0, timeout_s=0.1, connect_attempts=1)
+        assert "baud" not in str(e.value)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
 def test_choose_rate_is_closest_and_reports_exact_rate() -> None:
     c = choose_rate(100.0, 16_000_000)
     assert c.fps == pytest.approx(100.0) and isinstance(c, RateChoice)
