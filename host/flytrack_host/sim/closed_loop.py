@@ -86,6 +86,18 @@ def _max_abs(v: list[int]) -> float:
     return float(max((abs(x) for x in v), default=math.nan))
 
 
+def _start_modbus(out: Path, attempts: int = 3) -> ModbusPeerProcess:
+    """The PLC's server on a free port. The port is free when chosen, not reserved: another process
+    may bind it before the server does (the server then exits), so a few ports are tried."""
+    err: Exception | None = None
+    for _ in range(attempts):
+        try:
+            return ModbusPeerProcess(log_dir=str(out)).start()
+        except RuntimeError as exc:
+            err = exc
+    raise RuntimeError(f"the simulated PLC (Modbus server) did not start on {attempts} ports: {err}")
+
+
 class ClosedLoopLab:
     """The lab devices of the simulated rig, real protocol stacks on loopback."""
 
@@ -94,7 +106,7 @@ class ClosedLoopLab:
         self.rules = load_rules(self.rules_src)  # a bad file stops the demo before anything starts
         self.rules_copy = Path(out) / "rules.toml"
         shutil.copyfile(self.rules_src, self.rules_copy)
-        self.modbus = ModbusPeerProcess(log_dir=str(out)).start()  # a process of its own, as a PLC
+        self.modbus = _start_modbus(out)  # a process of its own, as a PLC
         if self.modbus.proc is not None:
             # A PLC is a machine of its own: it runs at the simulated hardware's priority (as the cameras
             # and the trigger), so a loaded machine delays the host under test rather than the device.
