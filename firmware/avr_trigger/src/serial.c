@@ -14,9 +14,10 @@ static volatile uint8_t s_rx_head, s_rx_tail;
 static volatile uint16_t s_overruns;
 
 void serial_init(void) {
-    /* Double speed: UBRR 1 gives exactly 1 Mbaud at 16 MHz. A 20-byte reply leaves in 0.2 ms, not the
-     * 1.7 ms of 115200 baud, which held a closed loop's PULSE acknowledgement at ~5 ms. A byte every
-     * 10 us (160 cycles) leaves the receive interrupt plenty of room beside the timer interrupts. */
+    /* Double speed: UBRR 1 gives exactly 1 Mbaud at 16 MHz. A 20-byte reply leaves in 0.2 ms, not
+     * the 1.7 ms of 115200 baud, which held a closed loop's PULSE acknowledgement at ~5 ms. A byte
+     * every 10 us (160 cycles) leaves the receive interrupt plenty of room beside the timer
+     * interrupts. */
     UART_UBRR = (uint16_t)((F_CPU / (8UL * BAUD)) - 1UL);
     UART_UCSRA = _BV(UART_U2X);
     UART_UCSRC = _BV(UART_UCSZ1) | _BV(UART_UCSZ0);
