@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from flytrack_host.protocol.trigger_link import BAUD as FLYTRACK_BAUD
 from flytrack_host.tracking.params import TrackingParams
 
 
@@ -86,7 +87,7 @@ class TriggerConfig(_Strict):
     @model_validator(mode="after")
     def _default_baud(self) -> TriggerConfig:
         if self.baud == 0:
-            self.baud = 1_000_000 if self.kind == "flytrack" else 115_200
+            self.baud = FLYTRACK_BAUD if self.kind == "flytrack" else 115_200
         return self
 
 

@@ -15,6 +15,7 @@ from .text import decode_text, encode_text
 
 SERIAL_MAGIC = 0x46
 SERIAL_VERSION = 2  # the SPEC's one PROTOCOL_VERSION
+BAUD = 1_000_000  # SPEC section 3: the firmware's UART, exact at 16 MHz (firmware/avr_trigger/src/serial.c)
 MAX_BODY = 64  # SPEC: the longest body
 MIN_BODY = 6  # magic, version, msg_id, seq, CRC
 # A COBS encoding of n bytes is at most n + ceil(n / 254) bytes: the longest legal frame before its delimiter.

@@ -31,7 +31,7 @@ log = logging.getLogger(__name__)
 # decode (COBS, CRC) and dispatch, measured in simavr on both MCUs (899 and 881 cycles at 16 MHz).
 FIRMWARE_SAMPLE_DELAY_S = 56e-6
 CONTROL_TIMEOUT_S = 2.0  # see TriggerDevice.control_timeout_s
-FIRMWARE_BAUD = 1_000_000  # the FlyTrack firmware's UART (firmware/avr_trigger/src/serial.c): exact at 16 MHz
+FIRMWARE_BAUD = tl.BAUD  # the FlyTrack firmware's UART (protocol SPEC section 3)
 
 
 def clock_link_timing(baudrate: float) -> LinkTiming:

@@ -22,24 +22,28 @@ from flytrack_host.trigger.common import TriggerError
 DEFAULT_WIDTH_MS = 1.0
 
 
+def _baud(dev: Any) -> float:
+    """The device's serial rate (the firmware's own when it cannot tell)."""
+    from flytrack_host.trigger.device import FIRMWARE_BAUD
+
+    return float(getattr(getattr(dev, "_ser", None), "baudrate", FIRMWARE_BAUD) or FIRMWARE_BAUD)
+
+
 def _request_wire_s(dev: Any) -> float:
     """Time a PULSE request takes on the wire (delimiter + frame, 10 bits a byte) and the firmware's
     dispatch, from the protocol's own encoder."""
     from flytrack_host.protocol import trigger_link as tl
-    from flytrack_host.trigger.device import FIRMWARE_BAUD, FIRMWARE_SAMPLE_DELAY_S
+    from flytrack_host.trigger.device import FIRMWARE_SAMPLE_DELAY_S
 
-    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", FIRMWARE_BAUD) or FIRMWARE_BAUD)
     n = len(b"\0" + tl.encode_message(tl.Pulse(0, 0, 1), 1))
-    return n * 10 / baud + FIRMWARE_SAMPLE_DELAY_S
+    return n * 10 / _baud(dev) + FIRMWARE_SAMPLE_DELAY_S
 
 
 def _ack_wire_s(dev: Any) -> float:
     """Time the firmware's ACK takes on the wire (delimiter + frame, 10 bits a byte)."""
     from flytrack_host.protocol import trigger_link as tl
-    from flytrack_host.trigger.device import FIRMWARE_BAUD
 
-    baud = float(getattr(getattr(dev, "_ser", None), "baudrate", FIRMWARE_BAUD) or FIRMWARE_BAUD)
-    return len(b"\0" + tl.encode_message(tl.Ack(int(tl.MsgId.PULSE)), 1)) * 10 / baud
+    return len(b"\0" + tl.encode_message(tl.Ack(int(tl.MsgId.PULSE)), 1)) * 10 / _baud(dev)
 
 
 class TriggerPulseOutput(Output):
