@@ -11,6 +11,7 @@ from rich.table import Table
 
 from flytrack_host.outputs.launch import POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
+from flytrack_host.sim.placement import FRAMES_PER_HARDWARE_CPU
 from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
 
 
@@ -113,8 +114,8 @@ def demo_command(
     cpus: str = typer.Option("auto", "--cpus", help="split: the host on the first half of the CPUs, the "
                              "simulated hardware (cameras, edges, trigger, lab devices) on the rest, as on a rig "
                              "where they are machines of their own; share: all on all; auto: split unless the "
-                             "simulated cameras need more than the hardware's half (over 1000 camera frames/s "
-                             "per hardware CPU)."),
+                             "simulated cameras need more than the hardware's half (over "
+                             f"{FRAMES_PER_HARDWARE_CPU:.0f} camera frames/s per hardware CPU)."),
     rules: Path | None = typer.Option(
         None, "--rules", help="Closed-loop rules file (e.g. examples/closed_loop.toml): its rules drive the "
         "firmware's high-speed camera line, a Modbus TCP server and a CAN bus on loopback, scored against the "

@@ -34,7 +34,7 @@ import numpy as np
 from flytrack_host.camera import Camera
 from flytrack_host.sim.dvs import evt2_header
 from flytrack_host.sim.flight import GroundTruth
-from flytrack_host.sim.placement import threads_of, to_hardware
+from flytrack_host.sim.placement import run_as_hardware
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 
 STAGE_TAIL = 64  # bytes of a staged frame written at its pulse (under PIPE_BUF: one atomic write)
@@ -261,29 +261,6 @@ class FrameFeeder:
             frames_staged=int(self._counters[8]),
             frames_stale=int(self._counters[9]),
         )
-
-
-SIM_NICE = -5
-
-
-def run_as_hardware(pid: int = 0) -> bool:
-    """Run a simulated hardware process (cameras, trigger, an edge, a lab device; 0: this one) ahead
-    of, and when the demo splits the CPUs apart from, the software under test.
-
-    Real cameras and trigger boxes are silicon: a busy host PC never delays an exposure. Here they are
-    processes sharing the machine with the host, so each of their threads gets a somewhat higher
-    priority (nice -5, when allowed) and a loaded machine delays the software under test, not the
-    simulated clock; and the hardware's CPUs (`placement`), so they do not take the host's. Returns
-    whether the priority was raised."""
-    to_hardware(pid)
-    raised = False
-    for tid in threads_of(pid):
-        try:
-            os.setpriority(os.PRIO_PROCESS, tid, SIM_NICE)
-            raised = True
-        except (PermissionError, OSError):
-            continue
-    return raised
 
 
 class _CameraLink:

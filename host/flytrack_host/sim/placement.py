@@ -1,4 +1,4 @@
-"""Which CPUs the simulated rig's parts run on.
+"""Which CPUs, and at which priority, the simulated rig's parts run.
 
 On a rig the cameras, the edge computers, the trigger box and the lab devices (a PLC, a CAN node) are
 machines of their own: the host PC's cores are its own. Simulated on one machine, at each trigger
@@ -96,7 +96,8 @@ class Placement:
         self.original = frozenset(os.sched_getaffinity(0))
         self.split = split_cpus(self.original) if split else None
 
-    def __enter__(self) -> Placement:
+    def apply(self) -> Placement:
+        """This process onto the host's CPUs; from now on `to_hardware` places the simulated parts."""
         global _HARDWARE
         if self.split is not None and pin(0, self.split.host):
             _HARDWARE = self.split.hardware
@@ -104,14 +105,44 @@ class Placement:
             self.split = None
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def restore(self) -> None:
+        """This process back on the CPUs it had; nothing is placed any more."""
         global _HARDWARE
         _HARDWARE = None
         if self.split is not None:
             pin(0, self.original)
+
+    def __enter__(self) -> Placement:
+        return self.apply()
+
+    def __exit__(self, *exc: object) -> None:
+        self.restore()
 
     def describe(self) -> dict[str, list[int]] | None:
         """For the report: which CPUs each side had (None: shared, as when not split)."""
         if self.split is None:
             return None
         return {"host": sorted(self.split.host), "simulated_hardware": sorted(self.split.hardware)}
+
+
+SIM_NICE = -5
+
+
+def run_as_hardware(pid: int = 0) -> bool:
+    """Run a simulated hardware process (cameras, trigger, an edge, a lab device; 0: this one) ahead
+    of, and when the demo splits the CPUs apart from, the software under test.
+
+    Real cameras and trigger boxes are silicon: a busy host PC never delays an exposure. Here they are
+    processes sharing the machine with the host, so each of their threads gets a somewhat higher
+    priority (nice -5, when allowed) and a loaded machine delays the software under test, not the
+    simulated clock; and the hardware's CPUs (`to_hardware`), so they do not take the host's. Returns
+    whether the priority was raised."""
+    to_hardware(pid)
+    raised = False
+    for tid in threads_of(pid):
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, SIM_NICE)
+            raised = True
+        except (PermissionError, OSError):
+            continue
+    return raised

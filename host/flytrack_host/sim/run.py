@@ -32,8 +32,8 @@ from flytrack_host.sim.demo_config import (
 )
 from flytrack_host.sim.dvs_run import DVS_SLICE_US, _dvs_comparison, _dvs_counts, dvs_edge_command, dvs_support_options
 from flytrack_host.sim.flight import Arena, simulate_flight
-from flytrack_host.sim.frames import FrameFeeder, run_as_hardware
-from flytrack_host.sim.placement import Placement, choose_split
+from flytrack_host.sim.frames import FrameFeeder
+from flytrack_host.sim.placement import Placement, choose_split, run_as_hardware
 from flytrack_host.sim.processes import (
     CpuSampler,
     EdgeFleet,
@@ -113,7 +113,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     cpu.add("host", os.getpid())
     # The host on its own CPUs, the simulated hardware on the others, as on a rig (sim/placement.py).
     split, why = choose_split(cfg.cpus, cfg.cameras * cfg.fps + cfg.dvs * cfg.fps)
-    placement = Placement(split=split).__enter__()
+    placement = Placement(split=split).apply()
     if why:
         notes.append(why)
     edges = dvs_edges = feeder = host = live = session = lab = engine = None
@@ -256,7 +256,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
         cpu.sample()
     finally:
-        placement.__exit__()
+        placement.restore()
         if cfg.fault is not None:
             cfg.fault.stop()
         if session is not None:

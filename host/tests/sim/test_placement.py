@@ -10,8 +10,7 @@ import threading
 
 import pytest
 
-from flytrack_host.sim.frames import run_as_hardware
-from flytrack_host.sim.placement import Placement, split_cpus, threads_of, to_hardware
+from flytrack_host.sim.placement import Placement, run_as_hardware, split_cpus, threads_of, to_hardware
 
 
 def test_split_gives_the_host_the_first_half_and_the_hardware_the_rest():
