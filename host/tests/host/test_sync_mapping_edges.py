@@ -155,20 +155,43 @@ def test_suspect_frames_exactly_max_gap_apart_confirm_a_jump() -> None:
 
 def test_with_jump_confirm_frames_1_a_trigger_count_restart_at_0_is_one_global_jump() -> None:
     """jump_confirm_frames 1: the trigger's count restarting at 0 is confirmed by the first frame that
-    carries 0: a global jump (every camera sees it), the new numbering from 0, no camera re-mapped by
-    arrival."""
+    carries 0: one global jump (every camera sees it: the others, a little later, take the new
+    numbering on their first frame in it), numbered from 0, no camera re-mapped by arrival."""
     r = make(jump_confirm_frames=1)
     frames = stream({0: 0, 1: 0, 2: 0}, range(160), edge=True)
     for f in frames:
         if f.trigger_frame >= 100:
             f.trigger_frame -= 100
     r.feed(frames, poll_every=P)
-    jumps = r.kinds("clock_jump")
-    assert jumps and all(e.global_jump for e in jumps)
-    assert jumps[0].message == "camera 0: frame numbers jumped from trigger frame 99 to 0; mapping re-established"
+    assert [(e.camera_index, e.global_jump, e.message) for e in r.events] == [
+        (0, True, "camera 0: frame numbers jumped from trigger frame 99 to 0; mapping re-established")]
     new = [b for b in r.bundles if b.bundle.trigger_frame < 60 and b.frames[0].camera_frame >= 100]
     assert [b.bundle.trigger_frame for b in new] == list(range(1, 60))
     assert all(b.frames[c].camera_frame == b.bundle.trigger_frame + 100 for b in new for c in b.frames)
+
+
+def test_a_camera_3_5_periods_behind_takes_a_trigger_count_restart_on_its_first_new_frame() -> None:
+    """The trigger's count restarts at 0 (or jumps to 5000) at pulse 100; camera 2 answers 3.5 periods
+    after the others, so when camera 0 confirms the jump (its third frame) camera 2 has sent nothing
+    in the new numbering. It takes it on its first frame in it, as a camera a little behind does at
+    once: one global jump, not a second one of its own (which would close the bundles the others
+    filled since, and bundle the same trigger frames again with camera 2 alone). Every trigger frame
+    is bundled once; from new + 3 on every bundle has all three cameras."""
+    for new_first in (0, 5000):
+        r = make(deadline_fraction=6.0)
+        frames = stream({0: 0, 1: 0, 2: 0}, range(160), edge=True, lag={0: L, 1: L, 2: L + 3.5 * P})
+        for f in frames:
+            if f.trigger_frame >= 100:
+                f.trigger_frame += new_first - 100
+        r.feed(frames, poll_every=P)
+        assert [(e.kind, e.camera_index, e.global_jump) for e in r.events if e.kind == "clock_jump"] == [
+            ("clock_jump", 0, True)], new_first
+        after = [b.bundle.trigger_frame for b in r.bundles if min(f.camera_frame for f in b.frames.values()) >= 100]
+        assert len(after) == len(set(after)), new_first
+        new = [b for b in r.bundles if b.bundle.trigger_frame >= new_first + 3 and b.frames[0].camera_frame >= 100]
+        assert [b.bundle.trigger_frame for b in new] == list(range(new_first + 3, new_first + 60)), new_first
+        assert all(sorted(b.frames) == [0, 1, 2] for b in new), new_first
+        assert r.sync.stats()[2].clock_jumps == 0
 
 
 # --- early frames ---------------------------------------------------------------------------------
