@@ -475,12 +475,15 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
             for other in self.cams.values():
                 if other is cam or not self._edge_numbered.get(other.index):
                     continue
-                last = other.suspects[-1] if other.suspects else None
-                if last is not None and abs(last[1] - new_tf) <= self.jump_confirm + 2:
-                    # Cameras already seeing the new numbering follow at once instead of waiting.
-                    other.last_cf, other.last_tf = last[0].camera_frame, last[1]
+                if not other.suspects:  # nothing in the new numbering yet: follows on its first (_follows_jump)
+                    self._to_follow.add(other.index)
+                    continue
+                # Cameras already seeing the new numbering follow at once instead of waiting.
+                o_frame, o_tf = other.suspects[-1]
+                if o_frame.trigger_frame >= 0 and abs(o_tf - new_tf) <= self.jump_confirm + 2:
+                    other.last_cf, other.last_tf = o_frame.camera_frame, o_tf
                     other.suspects.clear()
-                else:  # nothing in the new numbering yet: follows on its first such frame (_follows_jump)
+                else:
                     self._to_follow.add(other.index)
         else:
             self.max_accepted = max(self.max_accepted, new_tf)

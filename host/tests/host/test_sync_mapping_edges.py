@@ -227,6 +227,84 @@ def test_a_misnumbered_frame_is_caught_against_the_camera_s_last_second_not_olde
     assert r.by_tf()[202].frames[1].camera_frame == 202
 
 
+def test_a_frame_sent_again_exactly_late_tolerance_after_its_pulse_is_a_discontinuity() -> None:
+    """Camera 1 sends its frame 15 again: just under late_tolerance_s (0.25 s) after its pulse it is
+    merely late; exactly 0.25 s after, it is no longer taken as held up in the network (the number
+    was seen already): a discontinuity."""
+    for extra, want in ((-2.0**-12, "late"), (0.0, "discontinuity")):
+        r = make(clock=OffsetClock())
+        frames = stream({0: 0, 1: 0, 2: 0}, range(40), lag={0: 0.0, 1: 0.0, 2: 0.0})
+        r.feed(frames + [frame(1, 15, T0 + 15 * P + 0.25 + extra)], poll_every=P)
+        assert _reasons(r) == [(15, 15, want)], extra
+
+
+# --- the mapped-ahead check: how far ahead is ahead ---------------------------------------------------
+
+
+def _joiner_placed_one_ahead(clock_offset: float, lag2: float) -> Run:
+    """early_fraction 1, early_slack_s 0: the early threshold is exactly a period. Cameras 0 and 1 come
+    L after each pulse; camera 2 joins at pulse 40 with its first frame a period late (so it is placed
+    one ahead), then comes lag2 after each pulse. The clock model puts every pulse clock_offset late."""
+    r = make(clock=OffsetClock(clock_offset), early_fraction=1.0, early_slack_s=0.0, deadline_fraction=1.5)
+    frames = stream({0: 0, 1: 0}, range(120)) + [frame(2, 500 + k, T0 + k * P + lag2) for k in range(41, 120)]
+    frames.append(frame(2, 540, T0 + 41 * P + lag2 - 0.0001))
+    r.feed(frames, poll_every=P)
+    return r
+
+
+def test_a_camera_exactly_the_early_threshold_ahead_of_the_others_is_not_moved_back() -> None:
+    """With the clock model 2 periods late every frame seems to come before its pulse; camera 2, one
+    ahead, comes exactly a period (the threshold) before the others: not more than the threshold, so
+    it keeps its mapping; a quarter of a millisecond more and it is moved back by one."""
+    for lag2, moved in ((L, False), (L - 2.0**-12, True)):
+        r = _joiner_placed_one_ahead(2 * P, lag2)
+        assert [e.kind for e in r.events if e.kind == "ahead"] == (["ahead"] if moved else []), lag2
+        assert cam_frames(r, 2)[100] == (600 if moved else 599), lag2
+
+
+def test_a_camera_whose_frames_come_exactly_the_threshold_before_their_mapped_pulses_is_not_moved_back() -> None:
+    """Camera 2 arrives right at its pulses, mapped one ahead: its frames come exactly a period (the
+    threshold) before their mapped pulses, more than that ahead of the others (which come L later):
+    not before its own pulses by more than the threshold, so it keeps its mapping; with the clock
+    model a quarter of a millisecond later it is moved back."""
+    for offset, moved in ((0.0, False), (2.0**-12, True)):
+        r = _joiner_placed_one_ahead(offset, 0.0)
+        assert [e.kind for e in r.events if e.kind == "ahead"] == (["ahead"] if moved else []), offset
+        assert cam_frames(r, 2)[100] == (600 if moved else 599), offset
+
+
+# --- the fixed-rate clock's anchor at exactly two periods -------------------------------------------
+
+
+def test_frames_exactly_two_periods_sooner_than_the_anchor_leave_the_frame_times() -> None:
+    """The fixed-rate clock is anchored on the first frames (40 ms after their pulse). Frames coming
+    sooner by less than two periods pull the frame times back by that much; exactly two periods
+    sooner is no late anchor (as more is not): the frame times stay."""
+    for drop, moved in ((2 * P - 2.0**-10, True), (2 * P, False)):
+        r = make()
+        frames = stream({0: 0, 1: 0, 2: 0}, range(100), lag={0: 0.04, 1: 0.04, 2: 0.04})
+        for f in frames:
+            if f.camera_frame >= 50:
+                f.recv_time -= drop
+        r.feed(frames, poll_every=P)
+        lag = {b.bundle.trigger_frame: b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P) for b in r.bundles}
+        assert abs(lag[90] - (0.04 - drop if moved else 0.04)) < 1e-9, (drop, lag[90])
+        assert not r.events
+
+
+def test_a_pause_after_which_frames_come_exactly_two_periods_late_does_not_re_anchor() -> None:
+    """Every camera pauses and comes back paced exactly two periods later than before: not more than
+    two periods, so the fixed-rate clock is not re-anchored; 1/64 of a period more and it is."""
+    for late, want in ((2.0, 0), (2.0 + 2.0**-6, 1)):
+        r = make()
+        frames = stream({0: 0, 1: 0, 2: 0}, range(80))
+        for f in frames:
+            if f.camera_frame >= 20:
+                f.recv_time += late * P
+        r.feed(frames, poll_every=P)
+        assert len(r.kinds("reanchor")) == want == r.sync.reanchors, late
+
+
 # --- the mapped-ahead check after a restart ----------------------------------------------------------
 
 
