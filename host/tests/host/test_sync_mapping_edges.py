@@ -273,6 +273,28 @@ def test_a_camera_whose_frames_come_exactly_the_threshold_before_their_mapped_pu
         assert cam_frames(r, 2)[100] == (600 if moved else 599), offset
 
 
+def test_at_16_fps_a_joiner_placed_two_ahead_is_moved_back_on_its_8th_frame() -> None:
+    """The ahead check wants 8 of a camera's frames (over at least 0.1 s) before it moves it: at 16
+    fps (checked on every frame) camera 2, whose first frame came two periods late (placed two
+    ahead), is moved back on the 8th frame it sent, not sooner, not later; its later frames sit in
+    the bundles of the pulses they answered."""
+    fps = 16.0
+    r = make(fps=fps, clock=FixedRateClock(fps, start_time=T0))
+    frames = stream({0: 0, 1: 0}, range(80), fps=fps)
+    frames += [frame(2, 500 + k, T0 + k / fps + L) for k in range(43, 80)]  # its 541, 542 lost
+    frames.append(frame(2, 540, T0 + 42 / fps + L - 0.001))
+    sent, moved_on = 0, []
+    for f in sorted(frames, key=lambda f: f.recv_time):
+        sent += f.camera_index == 2
+        before = len(r.kinds("ahead"))
+        r.feed([f], poll_every=1 / fps)
+        moved_on += [(f.camera_frame, sent)] * (len(r.kinds("ahead")) - before)
+    assert moved_on == [(549, 8)]
+    assert [e.message for e in r.kinds("ahead")] == [
+        "camera 2: frames numbered 2 ahead of their arrival against the other cameras: re-mapped"]
+    assert all(cam_frames(r, 2)[k] == 500 + k for k in range(52, 80))  # 550, 551: late (bundles closed)
+
+
 # --- the fixed-rate clock's anchor at exactly two periods -------------------------------------------
 
 
@@ -303,6 +325,38 @@ def test_a_pause_after_which_frames_come_exactly_two_periods_late_does_not_re_an
                 f.recv_time += late * P
         r.feed(frames, poll_every=P)
         assert len(r.kinds("reanchor")) == want == r.sync.reanchors, late
+
+
+def test_the_clock_is_re_anchored_after_reanchor_s_of_late_frames_and_at_least_5() -> None:
+    """Every camera pauses 0.3 s from trigger frame 20: re-anchored on the bundle that makes
+    reanchor_s (0.2 s = 12 frames) of late paced frames, trigger frame 31; with reanchor_s 0, on the
+    5th (the least), trigger frame 24."""
+    for kw, at in (({}, 31), ({"reanchor_s": 0.0}, 24)):
+        r = make(**kw)
+        frames = stream({0: 0, 1: 0, 2: 0}, range(80))
+        for f in frames:
+            if f.camera_frame >= 20:
+                f.recv_time += 0.3
+        r.feed(frames, poll_every=P)
+        assert [e.message for e in r.events] == [
+            f"fixed-rate clock re-anchored at trigger frame {at}: frames came 300 ms after their expected time "
+            "(a pause of the cameras?)"], kw
+
+
+def test_a_stall_of_every_camera_worked_off_in_a_burst_does_not_re_anchor_the_clock() -> None:
+    """Every camera stalls 0.5 s at trigger frame 20, then delivers its queued frames faster than half
+    a period apart (1 ms, or 0.48 period) until it caught up: a burst, not a paused rig coming back
+    late, so the fixed-rate clock keeps its anchor and the frame times stay on the arrivals."""
+    for gap in (0.001, 0.48 * P):
+        r = make()
+        frames, t = [], 0.0
+        for k in range(200):
+            on_time = T0 + k * P + L
+            t = on_time if k < 20 else on_time + 0.5 if k == 20 else max(on_time, t + gap)
+            frames += [frame(c, k, t + c * 2.0**-17) for c in (0, 1, 2)]
+        r.feed(frames, poll_every=P)
+        assert not r.events, gap
+        assert all(abs(b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P + L)) < 1e-9 for b in r.bundles), gap
 
 
 # --- the mapped-ahead check after a restart ----------------------------------------------------------
