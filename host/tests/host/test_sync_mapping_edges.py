@@ -176,13 +176,17 @@ def test_a_camera_3_5_periods_behind_takes_a_trigger_count_restart_on_its_first_
     in the new numbering. It takes it on its first frame in it, as a camera a little behind does at
     once: one global jump, not a second one of its own (which would close the bundles the others
     filled since, and bundle the same trigger frames again with camera 2 alone). Every trigger frame
-    is bundled once; from new + 3 on every bundle has all three cameras."""
-    for new_first in (0, 5000):
+    is bundled once; from new + 3 on every bundle has all three cameras. The same when camera 2's
+    last frame before the jump was misnumbered (a suspect far from the new numbering): that one is
+    no frame in the new numbering, so it does not make camera 2 follow early."""
+    for new_first, wrong_98 in ((0, False), (5000, False), (0, True)):
         r = make(deadline_fraction=6.0)
         frames = stream({0: 0, 1: 0, 2: 0}, range(160), edge=True, lag={0: L, 1: L, 2: L + 3.5 * P})
         for f in frames:
             if f.trigger_frame >= 100:
                 f.trigger_frame += new_first - 100
+            if wrong_98 and f.camera_index == 2 and f.camera_frame == 98:
+                f.trigger_frame = 60  # its last frame before the jump is confirmed, suspect, far from it
         r.feed(frames, poll_every=P)
         assert [(e.kind, e.camera_index, e.global_jump) for e in r.events if e.kind == "clock_jump"] == [
             ("clock_jump", 0, True)], new_first
@@ -422,17 +426,18 @@ def test_a_camera_moved_back_twice_counts_two_aheads() -> None:
 
 
 def test_a_restarted_edge_is_placed_by_the_least_lag_of_the_other_cameras_recent_frames() -> None:
-    """Every camera's frames come 14 ms after their pulse, every fifth 1 ms after (the link's floor).
-    Camera 1's edge restarts at trigger frame 100: its frame 0 came at the floor, so it is placed by
-    the least lag of the others' last frames, not their usual or newest one (that would put it a
-    pulse early): every frame then sits in the bundle of the pulse it answered."""
+    """Every camera's frames come 14 ms after their pulse, every fifth 1 ms after (the link's floor;
+    camera 1's fast ones two pulses after the others'). Camera 1's edge restarts at trigger frame
+    100: its fast frames bound its placement, by the least lag of the others' last frames, not their
+    usual or newest one (either would put it a pulse early): every frame then sits in the bundle of
+    the pulse it answered."""
     r = make(clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=1.5)
     frames = []
     for k in range(200):
         lag = 0.001 if k % 5 == 0 else 0.014
         frames += [frame(0, k, T0 + k * P + lag), frame(2, k, T0 + k * P + lag)]
         if k < 80 or k >= 100:
-            f = frame(1, k if k < 80 else k - 100, T0 + k * P + lag)
+            f = frame(1, k if k < 80 else k - 100, T0 + k * P + (0.001 if k % 5 == 2 else 0.014))
             f.restarted = k == 100
             frames.append(f)
     r.feed(frames, poll_every=P)
