@@ -363,6 +363,24 @@ def test_a_stall_of_every_camera_worked_off_in_a_burst_does_not_re_anchor_the_cl
         assert all(abs(b.bundle.timestamp - (T0 + b.bundle.trigger_frame * P + L)) < 1e-9 for b in r.bundles), gap
 
 
+def test_the_early_check_remembers_a_camera_s_arrivals_of_the_last_second_ends_included() -> None:
+    """Camera 1 (numbered by its edge) comes 42 ms after each pulse, but its frame 100 came after 2
+    ms. After a gap (frames 160-163 lost), its frame 164 comes 2 ms after its pulse too, exactly 1 s
+    after frame 100: as early as the camera came within the last second, so not early. A quarter of
+    a millisecond later frame 100 is out of that second: frame 164 is then early by more than the
+    threshold against 42 ms (rejected, as a camera back on time after a long late spell is)."""
+    for extra, want in ((0.0, []), (2.0**-12, [(164, 164, "early")])):
+        r = make(clock=OffsetClock(), deadline_fraction=4.0)
+        frames = stream({0: 0, 2: 0}, range(200))
+        for k in range(200):
+            if not 160 <= k < 164:
+                t = T0 + 100 * P + L + 1.0 + extra if k == 164 else T0 + k * P + (L if k == 100 else L + 0.040)
+                frames.append(frame(1, k, t, k))
+        r.feed(frames, poll_every=P)
+        assert [x for x in _reasons(r, 1) if x[2] != "late"] == want, extra
+        assert not r.events
+
+
 # --- the mapped-ahead check after a restart ----------------------------------------------------------
 
 
