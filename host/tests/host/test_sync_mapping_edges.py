@@ -242,6 +242,23 @@ def test_a_frame_sent_again_exactly_late_tolerance_after_its_pulse_is_a_disconti
         assert _reasons(r) == [(15, 15, want)], extra
 
 
+def test_a_frame_held_up_512_frames_or_more_is_a_discontinuity_fewer_is_late() -> None:
+    """Camera 1 lost its frames 400-499 (a gap it continues over). At its frame 999 three of the lost
+    frames come in, held up in the network for seconds: numbers never seen, within what it accepted
+    lately. One fewer than 512 frames behind (the camera's memory of accepted numbers) is late; 512
+    and 549 behind are discontinuities (suspect: a restarted counter repeats old numbers too)."""
+    r = make()
+    frames = stream({0: 0, 2: 0}, range(1000)) + [f for f in stream({1: 0}, range(1000))
+                                                   if not 400 <= f.camera_frame < 500]
+    t = T0 + 999 * P + L
+    frames += [frame(1, cf, t + 0.0001 * (i + 1)) for i, cf in enumerate((450, 487, 488))]
+    r.feed(frames, poll_every=P)
+    # (Its frame 500 is late too: it was dead after 1.5 s of silence, so bundle 500 did not wait.)
+    assert _reasons(r, 1) == [(500, 500, "late"), (450, 450, "discontinuity"), (487, 487, "discontinuity"),
+                              (488, 488, "late")]
+    assert [e.kind for e in r.events] == ["dead", "alive"]
+
+
 # --- the mapped-ahead check: how far ahead is ahead ---------------------------------------------------
 
 
