@@ -344,6 +344,16 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
         k = round(-d / self.period)
         if k < 1:
             return []
+        # Still catching up (a joiner's or a restarted edge's first frames came late and bunched, and
+        # it works off its queue): its lags keep falling, and moving it now would stop short, leaving
+        # it ahead by less than the threshold, for good. It is moved once the last 0.1 s brought no
+        # lag lower than before by more than a quarter period.
+        lag = self._lag_now()
+        assert lag is not None  # the model is ready (checked above)
+        older = [lag(x) for x in w if x[0] <= now - 0.1]
+        recent = [lag(x) for x in w if x[0] > now - 0.1]
+        if recent and min(recent) < min(older) - 0.25 * self.period:
+            return []
         cam.offset += k
         if cam.last_tf is not None:
             cam.last_tf -= k

@@ -316,6 +316,24 @@ def test_at_16_fps_a_joiner_placed_two_ahead_is_moved_back_on_its_8th_frame() ->
     assert all(cam_frames(r, 2)[k] == 500 + k for k in range(52, 80))  # 550, 551: late (bundles closed)
 
 
+def test_a_joiner_catching_up_slowly_is_moved_back_the_whole_way_once_caught_up() -> None:
+    """Camera 2 joins at pulse 40 with its first frame 100 ms late (placed 6 ahead), then works off
+    its queue slowly (a frame every 10 ms against a period of 15.6) until it is on time. While it
+    catches up its lags keep falling; it is moved back once they stopped (by all 6), not on the way
+    (by 5, which would leave it one ahead for good: less than the early threshold, never seen
+    again). Its frames then sit in the bundles of the pulses they answered."""
+    r = make(clock=FixedRateClock(FPS, start_time=T0))
+    frames, t = stream({0: 0, 1: 0}, range(160)), 0.0
+    for k in range(40, 160):
+        t = T0 + k * P + L + 0.1 if k == 40 else max(T0 + k * P + L, t + 0.01)
+        frames.append(frame(2, 500 + k, t))
+    r.feed(frames, poll_every=P)
+    assert [e.message for e in r.kinds("ahead")] == [
+        "camera 2: frames numbered 6 ahead of their arrival against the other cameras: re-mapped"]
+    got = cam_frames(r, 2)
+    assert all(got[k] == 500 + k for k in range(80, 160)), [k for k in got if got[k] != 500 + k]
+
+
 # --- the fixed-rate clock's anchor at exactly two periods -------------------------------------------
 
 
@@ -401,20 +419,20 @@ def test_the_early_check_remembers_a_camera_s_arrivals_of_the_last_second_ends_i
 # --- the mapped-ahead check after a restart ----------------------------------------------------------
 
 
-def _restart_late_then_caught_up(late_s: float, restarts: tuple[int, ...] = (100,)) -> Run:
+def _restart_late_then_caught_up(late: int, restarts: tuple[int, ...] = (100,)) -> Run:
     """Two cameras (so the drift check, which needs three, stays out). Camera 1's edge restarts at
     trigger frame k (no pulse lost: its counter starts again at 0); its frames come paced but 3
-    periods late for `late_s`, so it is placed 3 ahead; then it catches up (a short burst) and comes
-    on time: its frames now arrive 3 periods before their mapped pulses."""
+    periods late for `late` frames, so it is placed 3 ahead; then it catches up (a short burst) and
+    comes on time: its frames now arrive 3 periods before their mapped pulses."""
     r = make(cams=(0, 1))
-    n = restarts[-1] + int(late_s * FPS) + 60
+    n = restarts[-1] + late + 60
     frames = stream({0: 0}, range(n)) + stream({1: 0}, range(restarts[0]))
     for j, first in enumerate(restarts):
         end = restarts[j + 1] if j + 1 < len(restarts) else n
         t_prev = 0.0
         for k in range(first, end):
             on_time = T0 + k * P + L
-            t_prev = on_time + 3 * P if k - first < int(late_s * FPS) else max(on_time, t_prev + 0.001)
+            t_prev = on_time + 3 * P if k - first < late else max(on_time, t_prev + 0.001)
             f = frame(1, k - first, t_prev)
             f.restarted = k == first
             frames.append(f)
@@ -423,28 +441,28 @@ def _restart_late_then_caught_up(late_s: float, restarts: tuple[int, ...] = (100
 
 
 def test_a_restart_found_3_ahead_2_9_s_later_gets_its_missed_count_corrected() -> None:
-    """Its restart was counted as 3 missed trigger frames from the wrong (ahead) placement; 2.9 s
-    later (within 3 s of the restart) the ahead check moves it back by 3, takes those 3 off (none
+    """Its restart was counted as 3 missed trigger frames from the wrong (ahead) placement; 2.94 s
+    later (late for 180 frames; within 3 s of the restart) the ahead check moves it back by 3, takes those 3 off (none
     missed: the edge restarted between two pulses) and says it was after its restart."""
-    r = _restart_late_then_caught_up(2.9)
+    r = _restart_late_then_caught_up(180)
     assert [e.message for e in r.events] == [
         "camera 1: edge restarted; its camera frame 0 is trigger frame 103 (by arrival); "
         "3 trigger frames missed while it was down",
         "camera 1: frames numbered 3 ahead of their arrival against the other cameras (after its restart): re-mapped"]
     st = r.sync.stats()[1]
     assert (st.restarts, st.ahead, st.missed) == (1, 1, 0)
-    n = 100 + int(2.9 * FPS)
+    n = 100 + 180
     got = cam_frames(r, 1)
-    assert all(got[k] == k - 100 for k in range(n + 10, n + 60))
+    assert all(got[k] == k - 100 for k in range(n + 20, n + 60))
 
 
 def test_a_camera_found_ahead_3_s_or_more_after_its_restart_keeps_its_missed_count() -> None:
-    """The same found 3.5 s, or exactly 3 s, after the restart (late for 224 or 189 frames; the ahead
+    """The same found 3.6 s, or exactly 3 s, after the restart (late for 224 or 183 frames; the ahead
     check then fires on a frame 3 s after the restart's first, to the bit): moved back the same, but
     the ahead mapping is no longer put down to the restart: its missed count stays, and the message
-    says nothing of a restart. Late for 188 frames it fires 2.94 s after: corrected."""
-    for late_frames, corrected in ((224, False), (189, False), (188, True)):
-        r = _restart_late_then_caught_up(late_frames / FPS)
+    says nothing of a restart. Late for 182 frames it fires 2.94 s after: corrected."""
+    for late_frames, corrected in ((224, False), (183, False), (182, True)):
+        r = _restart_late_then_caught_up(late_frames)
         note = " (after its restart)" if corrected else ""
         assert r.events[-1].message == ("camera 1: frames numbered 3 ahead of their arrival against the other "
                                         f"cameras{note}: re-mapped"), late_frames
@@ -455,7 +473,7 @@ def test_a_camera_found_ahead_3_s_or_more_after_its_restart_keeps_its_missed_cou
 def test_a_camera_moved_back_twice_counts_two_aheads() -> None:
     """The edge restarts twice the same way: moved back after each, counted twice, each restart's 3
     wrongly missed frames taken off again."""
-    r = _restart_late_then_caught_up(0.5, restarts=(100, 300))
+    r = _restart_late_then_caught_up(32, restarts=(100, 300))
     assert [e.kind for e in r.events] == ["restart", "ahead", "restart", "ahead"]
     st = r.sync.stats()[1]
     assert (st.restarts, st.ahead, st.missed) == (2, 2, 0)
