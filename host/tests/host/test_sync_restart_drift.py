@@ -1,0 +1,157 @@
+"""The synchroniser's placement of a restarted edge and its drift check, behaviour by behaviour: when a
+restarted edge counts as caught up (paced), the lag it is placed by, its placement without a clock
+estimate, the pulses it missed; when a run of arrivals a period off is a drift and when it is a
+burst; when the drift baseline is learnt; the lag estimate that places late joiners. Also the
+contracts of the output types and the windows the checks read.
+
+Frames are fed with explicit times (nothing timed, nothing slept), built as in test_sync_behaviour.py:
+64 fps from T0 = 1024 s, so most times are exact binary fractions and a boundary is tested exactly.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from flytrack_host.sync import FixedRateClock
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_sync_behaviour import FPS, T0, L, NotReadyClock, P, Run, cam_frames, frame, make, stream  # noqa: E402
+
+# --- a restarted edge: when it counts as caught up --------------------------------------------------
+
+
+def _restarted(arrive, n: int = 40, first_tf: int = 30, lag: dict[int, float] | None = None, clock=None,
+               sync: bool = False, **kw) -> tuple[Run, int | None]:
+    """Cameras 0 and 2 answer every pulse (`lag`, default L, after it); camera 1 answers pulses 0-19,
+    then its edge restarts: its camera frame i answers pulse first_tf + i and arrives at arrive(i).
+    Fed in arrival order (cameras 0 and 2 first at equal times), no polling. Returns the run and the
+    camera frame on whose arrival camera 1 was placed (None: still held after n frames)."""
+    r = make(clock=clock if clock is not None else FixedRateClock(FPS, start_time=T0), **kw)
+    if sync:
+        r.sync.synchronize()
+    end = first_tf + n + 20
+    frames = stream({0: 0, 2: 0}, range(end), lag=lag) + stream({1: 0}, range(20), lag=lag)
+    for i in range(n):
+        f = frame(1, i, arrive(i))
+        f.restarted = i == 0
+        frames.append(f)
+    placed_on = None
+    for f in sorted(frames, key=lambda f: f.recv_time):
+        r.add(f)
+        if placed_on is None and r.kinds("restart"):
+            placed_on = f.camera_frame
+    return r, placed_on
+
+
+def _pulse(k: int) -> float:
+    return T0 + k * P
+
+
+def test_a_restarted_edge_delivering_in_pairs_is_paced_once_most_of_its_gaps_are_half_a_period() -> None:
+    """The new edge has caught up but its link delivers two frames at once (1 ms apart), a pair every
+    two periods: half its gaps are short. Camera frame 1 gives the lowest bound (trigger frame 30 for
+    its frame 0); the edge counts as paced once 10 frames followed it and most (5) of the last 9 gaps
+    were half a period or more: on its 13th frame (frame 12), not its 12th (4 of 9)."""
+    r, on = _restarted(lambda i: _pulse(31 + i - i % 2) + L + 0.001 * (i % 2))
+    assert on == 12
+    assert r.kinds("restart")[0].message == ("camera 1: edge restarted; its camera frame 0 is trigger frame 30 "
+                                             "(by arrival); 10 trigger frames missed while it was down")
+    got = cam_frames(r, 1)
+    assert all(got[30 + i] == i for i in range(13, 40))
+
+
+def test_gaps_of_exactly_half_a_period_count_as_paced() -> None:
+    """The pairs come half a period apart exactly (gaps 0.5 and 1.5 periods): every gap counts as
+    paced ("half a period or more"), so the edge is placed on its 12th frame, 10 after the lowest
+    bound."""
+    r, on = _restarted(lambda i: _pulse(31 + i - i % 2) + L + (0.25 if i % 2 else -0.25) * P)
+    assert on == 11
+    assert "its camera frame 0 is trigger frame 30 (by arrival); 10 trigger frames missed" in \
+        r.kinds("restart")[0].message
+
+
+def test_a_restarted_edge_delivering_in_threes_is_held_until_restart_hold_frames() -> None:
+    """Three frames at once every three periods: only a third of the gaps are half a period or more,
+    not most: never paced; held until restart_hold_frames (20) and then placed by its lowest bound,
+    which is right (frame 2 of the first batch arrived on time)."""
+    r, on = _restarted(lambda i: _pulse(32 + i - i % 3) + L + 0.001 * (i % 3), restart_hold_frames=20)
+    assert on == 19
+    assert "its camera frame 0 is trigger frame 30 (by arrival)" in r.kinds("restart")[0].message
+
+
+def test_with_an_even_settle_count_half_the_gaps_paced_is_enough() -> None:
+    """restart_settle_frames 5: the edge delivering in pairs has exactly 2 of its last 4 gaps half a
+    period or more, always: half counts as paced (it is not held to restart_hold_frames), so it is
+    placed 5 frames after its lowest bound."""
+    r, on = _restarted(lambda i: _pulse(31 + i - i % 2) + L + 0.001 * (i % 2), restart_settle_frames=5)
+    assert on == 6
+    assert "its camera frame 0 is trigger frame 30 (by arrival)" in r.kinds("restart")[0].message
+
+
+# --- a restarted edge: where it is placed ---------------------------------------------------------
+
+
+def test_without_a_clock_estimate_a_restarted_edge_is_placed_at_the_newest_trigger_frame_delivered() -> None:
+    """The trigger clock model has no estimate (a restart of the trigger link), so no held frame gives
+    a bound: the edge is placed once 10 frames came paced, its newest frame (camera frame 10) at the
+    newest trigger frame the other cameras delivered (40): frame 0 is trigger frame 30, 10 missed."""
+    r, on = _restarted(lambda i: _pulse(30 + i) + L, clock=NotReadyClock(), sync=True)
+    assert on == 10
+    assert r.kinds("restart")[0].message == ("camera 1: edge restarted; its camera frame 0 is trigger frame 30 "
+                                             "(by arrival); 10 trigger frames missed while it was down")
+    got = cam_frames(r, 1)
+    assert all(got[30 + i] == i for i in range(11, 40))
+
+
+def test_held_frames_without_a_clock_estimate_are_placed_and_recorded_at_stop() -> None:
+    """No clock estimate, and the run stops after the restarted edge's 6th frame (still held: fewer
+    than 10 came after the first): flush() places it by its newest frame at the newest trigger frame
+    delivered (35, camera frame 5) and records every held frame with that numbering."""
+    r = make(clock=NotReadyClock())
+    r.sync.synchronize()
+    frames = stream({0: 0, 2: 0}, range(36)) + stream({1: 0}, range(20))
+    for i in range(6):
+        f = frame(1, i, _pulse(30 + i) + L)
+        f.restarted = i == 0
+        frames.append(f)
+    r.feed(frames)
+    assert not r.kinds("restart")
+    r.take(r.sync.flush())
+    assert r.kinds("restart")[0].message.startswith("camera 1: edge restarted; its camera frame 0 is trigger "
+                                                     "frame 30 (by arrival); 10 trigger frames missed")
+    mine = sorted((u.trigger_frame, u.frame.camera_frame) for u in r.untracked if u.frame.camera_index == 1)
+    mine += sorted((tf, cf) for tf, cf in cam_frames(r, 1).items() if tf >= 30)
+    assert sorted(mine) == [(30 + i, i) for i in range(6)]
+
+
+def test_a_restarted_edge_is_placed_by_the_fastest_camera_not_the_rigs_median_lag() -> None:
+    """Camera 2 sits on a slow link (25 ms after each pulse, over 1.5 periods), camera 0 answers 2 ms
+    after it; the restarted edge of camera 1 answers 2.5 ms after. A frame cannot come before its
+    pulse plus the least lag: placed by camera 0's lag (frame 0 at trigger frame 30, right), not by
+    the median of the others' (13.5 ms would place it a pulse early)."""
+    r, on = _restarted(lambda i: _pulse(30 + i) + L + 0.0005, lag={0: L, 1: L, 2: 0.025}, sync=True)
+    assert on == 10
+    assert "its camera frame 0 is trigger frame 30 (by arrival); 10 trigger frames missed" in \
+        r.kinds("restart")[0].message
+
+
+def test_a_restarted_edge_is_placed_by_what_the_other_cameras_deliver_now() -> None:
+    """From pulse 25 every camera's frames come 20 ms later than before (a busier host), while camera
+    1's edge is down; it restarts at pulse 30. It is placed by the lag the others have now (their last
+    frames), not by the least over the last second (2 ms, which would place it a pulse late)."""
+    slow = 0.020
+
+    def lagged(cam: int, k: int) -> float:
+        return _pulse(k) + L + (slow if k >= 25 else 0.0) + (0.0005 if cam == 1 else 0.0)
+
+    r = make(clock=FixedRateClock(FPS, start_time=T0))
+    frames = [frame(c, k, lagged(c, k)) for k in range(90) for c in (0, 2)]
+    frames += [frame(1, k, lagged(1, k)) for k in range(20)]
+    for i in range(60):
+        f = frame(1, i, lagged(1, 30 + i))
+        f.restarted = i == 0
+        frames.append(f)
+    r.feed(frames)
+    assert "its camera frame 0 is trigger frame 30 (by arrival); 10 trigger frames missed" in \
+        r.kinds("restart")[0].message
