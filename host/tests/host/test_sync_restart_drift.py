@@ -13,6 +13,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import pytest
+
 from flytrack_host.sync import FixedRateClock
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -155,3 +157,82 @@ def test_a_restarted_edge_is_placed_by_what_the_other_cameras_deliver_now() -> N
     r.feed(frames)
     assert "its camera frame 0 is trigger frame 30 (by arrival); 10 trigger frames missed" in \
         r.kinds("restart")[0].message
+
+
+def test_an_edge_placed_ahead_at_restart_hold_is_moved_back_and_its_missed_count_corrected() -> None:
+    """restart_hold_frames 11: camera 1's new edge starts 15 pulses late and works off its queue 2 ms
+    a frame, so it is still behind when its 11th frame forces the placement, by the lowest bound so
+    far: ahead. Once its frames come on time they arrive periods before their mapped pulses, against
+    the other cameras: moved back (within 3 s of the restart), and the pulses it missed are counted
+    from the right mapping (10), not the ahead one."""
+    start = _pulse(45) + L
+    r, on = _restarted(lambda i: max(_pulse(30 + i) + L, start + 0.002 * i), n=100, restart_hold_frames=11)
+    assert on == 10
+    ahead = r.kinds("ahead")
+    assert len(ahead) == 1 and ahead[0].message.endswith("ahead of their arrival against the other cameras "
+                                                         "(after its restart): re-mapped")
+    st = r.sync.stats()[1]
+    assert (st.restarts, st.ahead, st.missed) == (1, 1, 10)
+    got = cam_frames(r, 1)
+    assert all(got[30 + i] == i for i in range(60, 100))
+
+
+# --- the drift check: paced evidence only, and a baseline learnt when steady ----------------------
+
+
+def _stall_run(release: dict[int, float], spacing: float, n: int = 160, stall: tuple[int, int] = (60, 80),
+               **kw) -> Run:
+    """Three cameras answer each pulse L after it; every camera stalls over the pulses stall[0] to
+    stall[1] - 1, then camera c works off its queue from pulse stall[1] + release[c] periods, one frame
+    `spacing` s after the other, and is on time again after it. drift_min_s 0.1: the evidence for a
+    drift is 10 trigger frames (drift_frames), fewer than the stall holds."""
+    r = make(clock=FixedRateClock(FPS, start_time=T0), drift_min_s=0.1, **kw)
+    frames = []
+    for c in (0, 1, 2):
+        for k in range(n):
+            t = _pulse(k) + L
+            if k >= stall[0]:
+                t = max(t, _pulse(stall[1]) + L + release[c] * P + (k - stall[0]) * spacing)
+            frames.append(frame(c, k, t))
+    r.feed(frames, poll_every=P)
+    return r
+
+
+@pytest.mark.parametrize("spacing", [0.0001, 0.45 * P])
+def test_a_stall_whose_cameras_resume_a_period_apart_is_no_drift(spacing: float) -> None:
+    """Every camera stalls 20 periods (a scheduler stall); cameras 0 and 1 resume together, camera 2 a
+    period later, each working off its queue (at once, or a frame every 0.45 period: faster than half
+    the pulse rate). Over all 20 queued trigger frames camera 2 comes a whole period after the others,
+    but its frames came bunched, not paced: no drift, nothing re-mapped, every frame on its pulse."""
+    r = _stall_run({0: 0.0, 1: 0.0, 2: 1.0}, spacing)
+    assert not r.kinds("drift"), [e.message for e in r.kinds("drift")]
+    assert all(cam_frames(r, 2)[k] == k for k in range(100, 160))
+    assert {u.frame.camera_frame for u in r.untracked} <= set(range(60, 100))
+
+
+def test_the_drift_baseline_is_learnt_only_once_the_camera_arrives_steadily() -> None:
+    """For its first 1.5 s camera 2's link is congested: three frames in four come 0.9 period later than
+    usual. Its arrivals against the others spread over most of a period, so no baseline is learnt
+    from them (one learnt there would sit 0.9 period off); it is learnt once they are steady, and no
+    drift is reported: every frame of camera 2 on its pulse."""
+    r = make(clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=1.5)
+    frames = stream({0: 0, 1: 0}, range(300))
+    frames += [frame(2, k, _pulse(k) + L + (0.9 * P if k < 96 and k % 4 else 0.0)) for k in range(300)]
+    r.feed(frames, poll_every=P)
+    assert not r.events, [e.message for e in r.events]
+    got = cam_frames(r, 2)
+    assert len(got) == 300 and all(got[k] == k for k in range(300))
+    assert r.sync.cams[2].rel_base is not None and abs(r.sync.cams[2].rel_base) < 0.1 * P
+
+
+def test_a_late_joiner_is_placed_by_the_others_usual_lag_not_their_last_frames() -> None:
+    """Every other frame of cameras 0 and 1 comes 0.6 period late (host scheduling); camera 2 joins with
+    a frame that arrives right after one of those late frames. It is placed by the lag the others
+    usually have (their average, about 0.3 period), not by their latest frame's (which would place it
+    a pulse early): its frames sit in the bundles of the pulses they answered."""
+    r = make(clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=1.0)
+    frames = [frame(c, k, _pulse(k) + L + (0.6 * P if k % 2 else 0.0)) for k in range(120) for c in (0, 1)]
+    frames += [frame(2, 500 + k, _pulse(k) + L - 0.0002) for k in range(60, 120)]
+    r.feed(frames, poll_every=P)
+    got = cam_frames(r, 2)
+    assert all(got[k] == 500 + k for k in range(61, 120)), sorted(got.items())[:3]
