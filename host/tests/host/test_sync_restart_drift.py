@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host.sync import FixedRateClock
+from flytrack_host.sync import FixedRateClock, FrameSynchronizer, SyncOutput, _LagWindow
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_sync_behaviour import FPS, T0, L, NotReadyClock, P, Run, cam_frames, frame, make, stream  # noqa: E402
@@ -236,3 +236,50 @@ def test_a_late_joiner_is_placed_by_the_others_usual_lag_not_their_last_frames()
     r.feed(frames, poll_every=P)
     got = cam_frames(r, 2)
     assert all(got[k] == 500 + k for k in range(61, 120)), sorted(got.items())[:3]
+
+
+# --- host times from zero; the output types; the lag window's cut-off -------------------------------
+
+
+def test_with_host_times_from_zero_a_camera_mapped_ahead_is_moved_back_within_its_first_second() -> None:
+    """Host times counted from 0 (a re-tracked recording's clock): camera 2 joins at pulse 10 with its
+    first 8 frames 70 ms late, 6 ms apart, so it is placed 4 pulses ahead. The mapped-ahead check runs
+    from the first frame on (not from 1 s of host time): it is moved back within 0.5 s, and its frames
+    from pulse 32 on sit in the bundles of the pulses they answered."""
+    s = FrameSynchronizer((0, 1, 2), FPS, clock=FixedRateClock(FPS, start_time=0.0))
+    r = Run(s)
+    frames = [frame(c, k, k * P + L) for k in range(64) for c in (0, 1)]
+    frames += [frame(2, 300 + k, max(k * P + L, 10 * P + 0.070 + (k - 10) * 0.006)) for k in range(10, 64)]
+    r.feed(frames, poll_every=P)
+    assert [e.message for e in r.kinds("ahead")] == [
+        "camera 2: frames numbered 4 ahead of their arrival against the other cameras: re-mapped"]
+    got = cam_frames(r, 2)
+    assert all(got[k] == 300 + k for k in range(32, 64)), sorted(got.items())
+
+
+def test_every_output_is_a_sync_output_and_a_misspelt_field_fails_loudly() -> None:
+    """A consumer dispatches on SyncOutput (bundles, untracked frames, events); the output types take
+    no attribute they do not define (slots): `frame.restart = True` for `restarted` raises instead of
+    being silently ignored, and no per-frame dict is kept."""
+    r = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(5)) + [frame(1, 2, T0 + 5 * P + L)]
+    for f in sorted(frames, key=lambda f: f.recv_time):
+        assert all(isinstance(o, SyncOutput) for o in r.add(f))
+    r.poll(T0 + 2.0)
+    assert r.bundles and r.untracked and r.events
+    assert not isinstance(frames[0], SyncOutput)
+    for obj in (frames[0], r.bundles[0], r.untracked[0], r.events[0]):
+        with pytest.raises(AttributeError):
+            obj.restart = True  # type: ignore[union-attr]
+        assert not hasattr(obj, "__dict__")
+
+
+def test_the_lag_windows_cut_off_keeps_a_frame_that_arrived_exactly_at_it() -> None:
+    """min_lag(since=t) counts the entries that arrived at or after t, as the window's pruning keeps a
+    frame exactly lag_window_s old: one arriving exactly at the cut-off is still counted."""
+    w = _LagWindow([(10.0, 0.0, 0), (10.5, 0.0, 1), (11.0, 0.0, 2)])
+    # Frame f's pulse at 9.99 + 0.5 f: lags 10, 20 and 30 ms.
+    assert w.min_lag(9.99, 0, 0.49) == pytest.approx(0.010)
+    assert w.min_lag(9.99, 0, 0.49, since=10.5) == pytest.approx(0.020)
+    assert w.min_lag(9.99, 0, 0.49, since=10.5000001) == pytest.approx(0.030)
+    assert w.min_lag(9.99, 0, 0.49, since=11.5) == float("inf")
