@@ -283,3 +283,29 @@ def test_the_lag_windows_cut_off_keeps_a_frame_that_arrived_exactly_at_it() -> N
     assert w.min_lag(9.99, 0, 0.49, since=10.5) == pytest.approx(0.020)
     assert w.min_lag(9.99, 0, 0.49, since=10.5000001) == pytest.approx(0.030)
     assert w.min_lag(9.99, 0, 0.49, since=11.5) == float("inf")
+
+
+def test_an_edge_restarted_again_while_its_first_frames_are_held_loses_none_of_them() -> None:
+    """Camera 1's edge restarts at pulse 30, sends 5 frames (held: not caught up yet) and restarts again
+    at pulse 60. The 5 held frames are placed by their best bound and recorded (they were dropped
+    before), then the second restart is held and placed as usual: two restarts, every frame counted
+    once, the first restart's frames on their pulses, 10 + 25 pulses missed."""
+    r = make(clock=FixedRateClock(FPS, start_time=T0))
+    frames = stream({0: 0, 2: 0}, range(120)) + stream({1: 0}, range(20))
+    for start, n in ((30, 5), (60, 50)):
+        for i in range(n):
+            f = frame(1, i, _pulse(start + i) + L)
+            f.restarted = i == 0
+            frames.append(f)
+    r.feed(frames, poll_every=P)
+    r.take(r.sync.flush())
+    assert [e.message for e in r.kinds("restart")] == [
+        "camera 1: edge restarted; its camera frame 0 is trigger frame 30 (by arrival); 10 trigger frames "
+        "missed while it was down",
+        "camera 1: edge restarted; its camera frame 0 is trigger frame 60 (by arrival); 25 trigger frames "
+        "missed while it was down"]
+    recorded = {(u.trigger_frame, u.frame.camera_frame) for u in r.untracked if u.frame.camera_index == 1}
+    recorded |= set(cam_frames(r, 1).items())
+    assert {(30 + i, i) for i in range(5)} <= recorded and {(60 + i, i) for i in range(50)} <= recorded
+    st = r.sync.stats()[1]
+    assert (st.frames, st.restarts, st.missed) == (75, 2, 35)
