@@ -18,7 +18,7 @@ import pytest
 from flytrack_host.sync import FixedRateClock, FrameSynchronizer, SyncOutput, _LagWindow
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_sync_behaviour import FPS, T0, L, NotReadyClock, P, Run, cam_frames, frame, make, stream  # noqa: E402
+from test_sync_behaviour import FPS, LAG8, T0, L, NotReadyClock, P, Run, cam_frames, frame, make, stream  # noqa: E402
 
 # --- a restarted edge: when it counts as caught up --------------------------------------------------
 
@@ -309,3 +309,38 @@ def test_an_edge_restarted_again_while_its_first_frames_are_held_loses_none_of_t
     assert {(30 + i, i) for i in range(5)} <= recorded and {(60 + i, i) for i in range(50)} <= recorded
     st = r.sync.stats()[1]
     assert (st.frames, st.restarts, st.missed) == (75, 2, 35)
+
+
+class _RestartingClock:
+    """A trigger clock model that knows the pulses (pulse f at T0 + f / FPS) except while `ready` is
+    False (the model restarted after a jump and waits for new snapshots)."""
+
+    def __init__(self) -> None:
+        self.ready = True
+
+    def frame_to_host_time(self, frame: int) -> float:
+        return T0 + frame * P if self.ready else float("nan")
+
+
+def test_a_restart_held_while_the_clock_model_restarted_is_placed_at_stop_by_its_newest_frame() -> None:
+    """Every camera answers 8 ms after its pulse. Camera 1's edge restarts at pulse 30 just as the
+    trigger clock model restarts (no estimate): its 5 frames give no bound and are held. The model is
+    back by the time the run stops (flush): the held frames are placed by the newest one's arrival
+    minus the others' usual lag (8 ms) under the model as it is then: frame 0 at trigger frame 30."""
+    clock = _RestartingClock()
+    r = make(clock=clock)
+    frames = stream({0: 0, 2: 0}, range(38), lag=LAG8) + stream({1: 0}, range(20), lag=LAG8)
+    for i in range(5):
+        f = frame(1, i, _pulse(30 + i) + 0.008)
+        f.restarted = i == 0
+        frames.append(f)
+    for f in sorted(frames, key=lambda f: f.recv_time):
+        clock.ready = f.recv_time < _pulse(29)
+        r.add(f)
+    assert not r.kinds("restart")
+    clock.ready = True
+    r.take(r.sync.flush())
+    assert r.kinds("restart")[0].message.startswith("camera 1: edge restarted; its camera frame 0 is trigger "
+                                                    "frame 30 (by arrival); 10 trigger frames missed")
+    recorded = {(u.trigger_frame, u.frame.camera_frame) for u in r.untracked if u.frame.camera_index == 1}
+    assert recorded | set(cam_frames(r, 1).items()) >= {(30 + i, i) for i in range(5)}
