@@ -248,6 +248,8 @@ def test_a_camera_that_counts_an_extra_pulse_is_the_only_one_re_mapped() -> None
     got = cam_frames(r, 2)
     assert all(got[k] == k + 1 for k in range(150, 300))
     assert all(cam_frames(r, c)[k] == k for c in (0, 1) for k in range(300))
+    # Its numbering carried over to the new mapping: no frame of it taken for a discontinuity.
+    assert r.sync.stats()[2].suspect == 0 and r.sync.stats()[2].clock_jumps == 0
 
 
 def test_a_camera_earlier_than_the_others_that_misses_a_pulse_is_re_mapped() -> None:
@@ -260,6 +262,18 @@ def test_a_camera_earlier_than_the_others_that_misses_a_pulse_is_re_mapped() -> 
     r.feed(frames, poll_every=P)
     assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)], [e.message for e in r.events]
     assert all(cam_frames(r, 2)[k] == k - 1 for k in range(150, 300))
+    assert r.sync.stats()[2].suspect == 0 and r.sync.stats()[2].clock_jumps == 0
+
+
+def test_a_camera_whose_arrivals_jitter_by_a_quarter_period_that_misses_a_pulse_is_re_mapped() -> None:
+    """Camera 2's arrivals against the others alternate 0.24 period early and late (a jittery link);
+    it misses pulse 100. Its baseline follows the jitter's middle, not its last frame, so every frame
+    after the missed pulse sits within 0.4 period of a whole period off it: re-mapped by 1."""
+    cam2 = [(k - (k >= 100), _pulse(k) + L + 0.004 + (0.24 * P if k % 2 else -0.24 * P))
+            for k in range(300) if k != 100]
+    r = _drift_frames(cam2, deadline_fraction=1.5)
+    assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)], [e.message for e in r.events]
+    assert all(cam_frames(r, 2)[k] == k - 1 for k in range(200, 300))
 
 
 def test_a_camera_late_by_a_period_four_frames_in_five_is_not_re_mapped() -> None:
