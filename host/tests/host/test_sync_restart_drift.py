@@ -276,6 +276,26 @@ def test_a_camera_whose_arrivals_jitter_by_a_quarter_period_that_misses_a_pulse_
     assert all(cam_frames(r, 2)[k] == k - 1 for k in range(200, 300))
 
 
+@pytest.mark.parametrize("edge", [False, True])
+def test_in_a_three_camera_rig_a_camera_that_misses_two_pulses_is_the_only_one_re_mapped(edge: bool) -> None:
+    """Three cameras; camera 2 misses pulses 100 and 101. Each camera is compared with the mean of the
+    two others, which camera 2 moves by a whole period: cameras 0 and 1 looked a period early and were
+    re-mapped by -1 with it (every camera misnumbered from then on). The camera furthest off is the
+    one that drifted: only camera 2 is reported, re-mapped by 2 (or, numbered by its edge, its
+    arrivals compared two periods earlier from then on), and every frame sits on its pulse."""
+    cam2 = [(k - 2 * (k >= 100), _pulse(k) + L) for k in range(300) if k not in (100, 101)]
+    r = make(clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=4.0 if edge else 1.5)
+    frames = stream({0: 0, 1: 0}, range(300), edge=edge) + [frame(2, cf, t, cf if edge else -1) for cf, t in cam2]
+    r.feed(frames, poll_every=P)
+    r.poll(_pulse(310))
+    assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)], [e.message for e in r.events]
+    assert r.events[0].message.startswith("camera 2 drifted by 2 frames")
+    assert r.events[0].message.endswith("; re-mapped") != edge
+    assert all(cam_frames(r, c)[k] == k for c in (0, 1) for k in range(300))
+    assert all(cam_frames(r, 2)[k] == k - (0 if edge else 2) for k in range(150, 300) if k in cam_frames(r, 2))
+    assert len(cam_frames(r, 2)) >= 250
+
+
 def test_a_camera_late_by_a_period_four_frames_in_five_is_not_re_mapped() -> None:
     """Camera 2's link is congested for 2 s: four frames in five come a period late, every fifth on time.
     The median of its arrivals against the others sits a whole period off, but not every frame does:
