@@ -27,8 +27,8 @@ class _DriftDetection:
             return []  # with two cameras, which one drifted cannot be told from arrivals
         if self._eval_next is None:
             self._eval_next = tf
-        if tf >= self._eval_next:
-            self._arrivals.setdefault(tf, {}).setdefault(cam.index, frame.recv_time)
+        if tf >= self._eval_next:  # less the periods an edge-numbered camera was found to arrive late by
+            self._arrivals.setdefault(tf, {}).setdefault(cam.index, frame.recv_time - cam.arrival_shift)
         out: list[SyncOutput] = []
         live = [i for i, c in self.cams.items() if c.alive]
         while self._eval_next <= self.max_accepted:
@@ -85,19 +85,34 @@ class _DriftDetection:
             return []
         if any(abs(x - shift * self.period) > 0.4 * self.period for x in e):
             return []
-        w.clear()
+        # With three cameras the others' arrivals are compared through their mean: one camera two periods
+        # off moves it by one, and the good cameras look a period off too. The camera furthest off its
+        # baseline is the one that drifted: the others wait for it.
+        if any(self._further_off(c, abs(shift)) for c in self.cams.values() if c is not cam):
+            return []
+        for c in self.cams.values():  # the others' samples were taken against this camera's old arrivals
+            c.rel_window.clear()
         cam.stats.drift += 1
         dev = statistics.median(e)
         msg = (f"camera {cam.index} drifted by {shift} frames: its frames arrive {dev * 1e3:.1f} ms off the "
                f"other cameras' over {self.drift_frames} trigger frames")
+        for rec in self._arrivals.values():  # its unsettled arrivals carry the old numbering (or shift)
+            rec.pop(cam.index, None)
         if cam.offset is not None and cam.last_tf is not None and self._edge_numbered.get(cam.index) is False:
             # Arriving `shift` periods later than the others: its frames belong `shift` later.
             cam.offset -= shift
             cam.last_tf += shift
             cam.lag_win.clear()  # its lags to the clock change by the shift
-            for rec in self._arrivals.values():  # its unsettled arrivals carry the old numbering
-                rec.pop(cam.index, None)
             msg += "; re-mapped"
-        else:  # numbered by the edge (its number wins) or not mapped yet: reported once, not renumbered
-            cam.rel_base += shift * self.period
+        else:  # numbered by the edge (its number wins) or not mapped yet: reported once, not renumbered;
+            # its arrivals are compared `shift` periods earlier from now on (its own baseline and the
+            # others' reference both stay as they were).
+            cam.arrival_shift += shift * self.period
         return [SyncEvent("drift", cam.index, msg)]
+
+    def _further_off(self, other: _Cam, shift: int) -> bool:
+        """Whether `other`'s recent arrivals sit more than `shift` whole periods off its baseline."""
+        w = other.rel_window
+        if other.rel_base is None or len(w) < self.drift_frames // 2:
+            return False
+        return abs(round(statistics.median(x[1] - other.rel_base for x in w) / self.period)) > shift

@@ -126,6 +126,8 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
             out.append(SyncEvent("alive", cam.index, f"camera {cam.index} is sending again"))
         self._edge_numbered[cam.index] = frame.trigger_frame >= 0
         if frame.restarted and cam.offset is not None and frame.trigger_frame < 0:
+            if cam.placing:  # restarted again while still held: those frames placed and recorded first
+                out.extend(self._place_held(cam))
             cam.placing, cam.place_best, cam.place_at = [], None, 0  # placed once it caught up (_place)
             cam.lag_win.clear()  # the old edge's lags: stale, and no measure of the new one
         if cam.placing is not None:
