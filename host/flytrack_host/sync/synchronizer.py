@@ -349,12 +349,10 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
         # Still catching up (a joiner's or a restarted edge's first frames came late and bunched, and
         # it works off its queue): its lags keep falling, and moving it now would stop short, leaving
         # it ahead by less than the threshold, for good. It is moved once the last 0.1 s brought no
-        # lag lower than before by more than a quarter period.
+        # lag lower than the ones before by more than a quarter period (`mine` is the window's least).
         lag = self._lag_now()
         assert lag is not None  # the model is ready (checked above)
-        older = [lag(x) for x in w if x[0] <= now - 0.1]
-        recent = [lag(x) for x in w if x[0] > now - 0.1]
-        if recent and min(recent) < min(older) - 0.25 * self.period:
+        if mine < min((lag(x) for x in w if x[0] <= now - 0.1), default=-math.inf) - 0.25 * self.period:
             return []
         cam.offset += k
         if cam.last_tf is not None:
@@ -485,7 +483,7 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
             self._jump_low = min([tf for _, tf in cam.suspects] + [new_tf])
             self._to_follow = set()
             for other in self.cams.values():
-                if other is cam or not self._edge_numbered.get(other.index):
+                if other is cam:
                     continue
                 if not other.suspects:  # nothing in the new numbering yet: follows on its first (_follows_jump)
                     self._to_follow.add(other.index)
