@@ -88,10 +88,11 @@ class _DriftDetection:
         # With three cameras the others' arrivals are compared through their mean: one camera two periods
         # off moves it by one, and the good cameras look a period off too. The camera furthest off its
         # baseline is the one that drifted: the others wait for it.
+        # (Once it is re-mapped, their next samples are back on their baselines: their windows no longer
+        # agree on a whole period, so they are never re-mapped for it.)
         if any(self._further_off(c, abs(shift)) for c in self.cams.values() if c is not cam):
             return []
-        for c in self.cams.values():  # the others' samples were taken against this camera's old arrivals
-            c.rel_window.clear()
+        w.clear()
         cam.stats.drift += 1
         dev = statistics.median(e)
         msg = (f"camera {cam.index} drifted by {shift} frames: its frames arrive {dev * 1e3:.1f} ms off the "

@@ -296,6 +296,44 @@ def test_in_a_three_camera_rig_a_camera_that_misses_two_pulses_is_the_only_one_r
     assert len(cam_frames(r, 2)) >= 250
 
 
+def test_in_a_six_camera_rig_two_cameras_given_an_extra_pulse_are_the_only_ones_re_mapped() -> None:
+    """Six cameras; a glitch on a trigger line shared by cameras 4 and 5 gives both an extra pulse
+    between pulses 99 and 100: from then on their frames come a period before the others' of the same
+    mapped trigger frame. Each camera is compared with the median of the five others, which two early
+    cameras do not move: only cameras 4 and 5 are re-mapped (by -1), the others keep their mapping."""
+    cams = (0, 1, 2, 3, 4, 5)
+    r = make(cams=cams, clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=1.5)
+    frames = stream({0: 0, 1: 0, 2: 0, 3: 0}, range(300))
+    for c in (4, 5):
+        frames += [frame(c, k, _pulse(k) + L) for k in range(100)] + [frame(c, 100, _pulse(99) + 0.5 * P + L)]
+        frames += [frame(c, k + 1, _pulse(k) + L) for k in range(100, 300)]
+    r.feed(frames, poll_every=P)
+    assert sorted((e.kind, e.camera_index) for e in r.events) == [("drift", 4), ("drift", 5)], \
+        [e.message for e in r.events]
+    assert all(cam_frames(r, c)[k] == k for c in (0, 1, 2, 3) for k in range(300))
+    assert all(cam_frames(r, c)[k] == k + 1 for c in (4, 5) for k in range(150, 299))
+
+
+def test_a_baseline_is_learnt_from_arrivals_spread_over_exactly_half_a_period() -> None:
+    """Camera 2 comes alternately with the others and half a period after them (exactly: 64 fps, binary
+    times): a spread of half a period still gives a baseline (its middle), so when it misses pulse 100
+    the whole-period move is found and it is re-mapped."""
+    cam2 = [(k - (k >= 100), _pulse(k) + L + (0.5 * P if k % 2 else 0.0)) for k in range(300) if k != 100]
+    r = _drift_frames(cam2, deadline_fraction=1.5)
+    assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)], [e.message for e in r.events]
+    assert all(cam_frames(r, 2)[k] == k - 1 for k in range(200, 300))
+
+
+def test_a_move_of_a_period_and_a_quarter_is_still_a_missed_pulse() -> None:
+    """Camera 2 misses pulse 100 and its link gets a quarter period slower at the same moment: its
+    frames come 1.25 periods later than its baseline (exactly: binary times), the median within a
+    quarter period of a whole one and every frame within 0.4: a drift of 1, re-mapped."""
+    cam2 = [(k - (k >= 100), _pulse(k) + L + (0.25 * P if k > 100 else 0.0)) for k in range(300) if k != 100]
+    r = _drift_frames(cam2, deadline_fraction=1.5)
+    assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)], [e.message for e in r.events]
+    assert all(cam_frames(r, 2)[k] == k - 1 for k in range(200, 300))
+
+
 def test_a_camera_late_by_a_period_four_frames_in_five_is_not_re_mapped() -> None:
     """Camera 2's link is congested for 2 s: four frames in five come a period late, every fifth on time.
     The median of its arrivals against the others sits a whole period off, but not every frame does:
