@@ -18,11 +18,13 @@ class _DriftDetection:
         t = self.frame_time(tf)
         if math.isfinite(t):  # the late joiners' placement only; drift never looks at the clock
             lag = frame.recv_time - t
-            if cam.lag_ewma is None:
+            if cam.lag_ewma is None or lag < cam.lag_ewma:
+                # A frame cannot come before its pulse: one sooner than the estimate brings it down at once
+                # (first frames that queued while the rig started must not place a camera joining in the
+                # next seconds frames behind, where nothing moves it back).
                 cam.lag_ewma = lag
             else:  # a stall's late frames move it by at most 2 periods each (no pollution by outliers)
-                step = max(-2 * self.period, min(2 * self.period, lag - cam.lag_ewma))
-                cam.lag_ewma += 0.1 * step
+                cam.lag_ewma += 0.1 * min(2 * self.period, lag - cam.lag_ewma)
         if len(self.cams) < 3:
             return []  # with two cameras, which one drifted cannot be told from arrivals
         if self._eval_next is None:

@@ -362,14 +362,31 @@ def test_a_camera_that_misses_two_pulses_at_once_is_re_mapped_by_two() -> None:
 def test_a_late_joiner_is_placed_by_the_others_usual_lag_not_their_last_frames() -> None:
     """Every other frame of cameras 0 and 1 comes 0.6 period late (host scheduling); camera 2 joins with
     a frame that arrives right after one of those late frames. It is placed by the lag the others
-    usually have (their average, about 0.3 period), not by their latest frame's (which would place it
-    a pulse early): its frames sit in the bundles of the pulses they answered."""
+    usually have (a late frame moves the estimate by a tenth of its delay), not by their latest
+    frame's (which would place it a pulse early): its frames sit in the bundles of the pulses they
+    answered."""
     r = make(clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=1.0)
     frames = [frame(c, k, _pulse(k) + L + (0.6 * P if k % 2 else 0.0)) for k in range(120) for c in (0, 1)]
     frames += [frame(2, 500 + k, _pulse(k) + L - 0.0002) for k in range(60, 120)]
     r.feed(frames, poll_every=P)
     got = cam_frames(r, 2)
     assert all(got[k] == 500 + k for k in range(61, 120)), sorted(got.items())[:3]
+
+
+@pytest.mark.parametrize("join", [20, 40])
+def test_a_camera_joining_after_a_start_whose_first_frames_queued_is_placed_right(join: int) -> None:
+    """Cameras 0 and 1 start with their first 0.3 s of frames queued (delivered at once, 0.3 s after the
+    first pulse; tied to frame 0), then on time. Camera 2 joins at pulse `join`, 0.3-0.6 s in. The
+    lag estimate starts from those queued frames, but a frame cannot come before its pulse: the first
+    on-time frame brings it down at once. Before, it came down 0.2 period a frame, so camera 2 was
+    placed 15 (11) pulses behind, where nothing moves a camera back: every frame of it late, none
+    tracked. Now every frame of it sits on its pulse."""
+    r = make(clock=FixedRateClock(FPS, start_time=T0))
+    frames = [frame(c, k, max(_pulse(k) + L, _pulse(0) + 0.3 + 0.0001 * k)) for c in (0, 1) for k in range(200)]
+    frames += [frame(2, 500 + k, _pulse(k) + L + 0.0002) for k in range(join, 200)]
+    r.feed(frames, poll_every=P)
+    got = cam_frames(r, 2)
+    assert len(got) >= 200 - join - 1 and all(got[k] == 500 + k for k in got)
 
 
 # --- host times from zero; the output types; the lag window's cut-off -------------------------------
