@@ -36,6 +36,7 @@ MODULES: dict[str, tuple[str, list[str]]] = {
                       ("synchronizer", "restart", "drift", "windows", "state", "clock", "types")),
              ["host/tests/host/test_sync.py", "host/tests/host/test_sync_bursty.py",
               "host/tests/host/test_sync_behaviour.py", "host/tests/host/test_sync_window.py",
+              "host/tests/host/test_sync_mapping_edges.py",
               "host/tests/host/test_sync_restart.py", "host/tests/host/test_sync_restart_drift.py",
               "host/tests/host/test_faults_units.py", "-k",
               "'(not faults_units or wrong_numbers or gap_in_the_good or edge_restart or reanchored "

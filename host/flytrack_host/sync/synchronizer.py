@@ -75,6 +75,10 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
         self._eval_next: int | None = None
         self._quiet_tie = False
         self._edge_numbered: dict[int, bool] = {}
+        # After a global jump: the edge-numbered cameras that had sent nothing in the new numbering
+        # yet, and its lowest trigger frame seen (see _follows_jump).
+        self._to_follow: set[int] = set()
+        self._jump_low = 0
         self.cams: dict[int, _Cam] = {i: _Cam(i, True, start_time) for i in camera_indices}
         self.pending: dict[int, _Pending] = {}
         self.last_closed = -1
@@ -96,6 +100,7 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
         self._late_run.clear()
         self._arrivals.clear()
         self._eval_next = None
+        self._to_follow.clear()
         self._quiet_tie = True
         self._sync_started = None
         self.pending.clear()
@@ -136,6 +141,8 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
             return out
         tf = self._map(cam, frame, now)
         reason = self._suspect_reason(cam, frame, tf, now)
+        if reason is not None and self._follows_jump(cam, frame, tf):
+            reason = None
         if reason is not None:
             cam.suspects.append((frame, tf))
             # A good stream with wrong frames mixed in breaks every streak of suspects; a short gap
@@ -339,6 +346,16 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
         k = round(-d / self.period)
         if k < 1:
             return []
+        # Still catching up (a joiner's or a restarted edge's first frames came late and bunched, and
+        # it works off its queue): its lags keep falling, and moving it now would stop short, leaving
+        # it ahead by less than the threshold, for good. It is moved once the last 0.1 s brought no
+        # lag lower than before by more than a quarter period.
+        lag = self._lag_now()
+        assert lag is not None  # the model is ready (checked above)
+        older = [lag(x) for x in w if x[0] <= now - 0.1]
+        recent = [lag(x) for x in w if x[0] > now - 0.1]
+        if recent and min(recent) < min(older) - 0.25 * self.period:
+            return []
         cam.offset += k
         if cam.last_tf is not None:
             cam.last_tf -= k
@@ -428,6 +445,19 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
                 return False
         return True
 
+    def _follows_jump(self, cam: _Cam, frame: CameraFrame, tf: int) -> bool:
+        """A camera that had sent nothing in the trigger's new numbering when the jump was confirmed
+        (it is slower than the confirming one) takes it on its first such frame, as the cameras already
+        seeing it did at once: a jump of its own would close the bundles the others filled since and
+        open them again without them. Only a number of the new numbering, not ahead of it, counts (the
+        camera is behind)."""
+        if cam.index not in self._to_follow or frame.trigger_frame < 0:
+            return False
+        if not self._jump_low <= tf <= self.max_accepted:
+            return False
+        self._to_follow.discard(cam.index)
+        return True
+
     def _accept_jump(self, cam: _Cam, frame: CameraFrame, now: float) -> list[SyncOutput]:
         out: list[SyncOutput] = []
         old_tf = cam.last_tf
@@ -452,14 +482,21 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
             self.max_accepted = new_tf
             if isinstance(self.clock, FixedRateClock):
                 self.clock.anchor(new_tf, frame.recv_time - self._lag(cam.index))
+            self._jump_low = min([tf for _, tf in cam.suspects] + [new_tf])
+            self._to_follow = set()
             for other in self.cams.values():
-                if other is cam or not other.suspects:
+                if other is cam or not self._edge_numbered.get(other.index):
+                    continue
+                if not other.suspects:  # nothing in the new numbering yet: follows on its first (_follows_jump)
+                    self._to_follow.add(other.index)
                     continue
                 # Cameras already seeing the new numbering follow at once instead of waiting.
                 o_frame, o_tf = other.suspects[-1]
                 if o_frame.trigger_frame >= 0 and abs(o_tf - new_tf) <= self.jump_confirm + 2:
                     other.last_cf, other.last_tf = o_frame.camera_frame, o_tf
                     other.suspects.clear()
+                else:
+                    self._to_follow.add(other.index)
         else:
             self.max_accepted = max(self.max_accepted, new_tf)
         cam.last_cf, cam.last_tf = frame.camera_frame, new_tf
