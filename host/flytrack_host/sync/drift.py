@@ -18,11 +18,13 @@ class _DriftDetection:
         t = self.frame_time(tf)
         if math.isfinite(t):  # the late joiners' placement only; drift never looks at the clock
             lag = frame.recv_time - t
-            if cam.lag_ewma is None:
+            if cam.lag_ewma is None or lag < cam.lag_ewma:
+                # A frame cannot come before its pulse: one sooner than the estimate brings it down at once
+                # (first frames that queued while the rig started must not place a camera joining in the
+                # next seconds frames behind, where nothing moves it back).
                 cam.lag_ewma = lag
             else:  # a stall's late frames move it by at most 2 periods each (no pollution by outliers)
-                step = max(-2 * self.period, min(2 * self.period, lag - cam.lag_ewma))
-                cam.lag_ewma += 0.1 * step
+                cam.lag_ewma += 0.1 * min(2 * self.period, lag - cam.lag_ewma)
         if len(self.cams) < 3:
             return []  # with two cameras, which one drifted cannot be told from arrivals
         if self._eval_next is None:
@@ -88,10 +90,11 @@ class _DriftDetection:
         # With three cameras the others' arrivals are compared through their mean: one camera two periods
         # off moves it by one, and the good cameras look a period off too. The camera furthest off its
         # baseline is the one that drifted: the others wait for it.
+        # (Once it is re-mapped, their next samples are back on their baselines: their windows no longer
+        # agree on a whole period, so they are never re-mapped for it.)
         if any(self._further_off(c, abs(shift)) for c in self.cams.values() if c is not cam):
             return []
-        for c in self.cams.values():  # the others' samples were taken against this camera's old arrivals
-            c.rel_window.clear()
+        w.clear()
         cam.stats.drift += 1
         dev = statistics.median(e)
         msg = (f"camera {cam.index} drifted by {shift} frames: its frames arrive {dev * 1e3:.1f} ms off the "

@@ -296,6 +296,44 @@ def test_in_a_three_camera_rig_a_camera_that_misses_two_pulses_is_the_only_one_r
     assert len(cam_frames(r, 2)) >= 250
 
 
+def test_in_a_six_camera_rig_two_cameras_given_an_extra_pulse_are_the_only_ones_re_mapped() -> None:
+    """Six cameras; a glitch on a trigger line shared by cameras 4 and 5 gives both an extra pulse
+    between pulses 99 and 100: from then on their frames come a period before the others' of the same
+    mapped trigger frame. Each camera is compared with the median of the five others, which two early
+    cameras do not move: only cameras 4 and 5 are re-mapped (by -1), the others keep their mapping."""
+    cams = (0, 1, 2, 3, 4, 5)
+    r = make(cams=cams, clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=1.5)
+    frames = stream({0: 0, 1: 0, 2: 0, 3: 0}, range(300))
+    for c in (4, 5):
+        frames += [frame(c, k, _pulse(k) + L) for k in range(100)] + [frame(c, 100, _pulse(99) + 0.5 * P + L)]
+        frames += [frame(c, k + 1, _pulse(k) + L) for k in range(100, 300)]
+    r.feed(frames, poll_every=P)
+    assert sorted((e.kind, e.camera_index) for e in r.events) == [("drift", 4), ("drift", 5)], \
+        [e.message for e in r.events]
+    assert all(cam_frames(r, c)[k] == k for c in (0, 1, 2, 3) for k in range(300))
+    assert all(cam_frames(r, c)[k] == k + 1 for c in (4, 5) for k in range(150, 299))
+
+
+def test_a_baseline_is_learnt_from_arrivals_spread_over_exactly_half_a_period() -> None:
+    """Camera 2 comes alternately with the others and half a period after them (exactly: 64 fps, binary
+    times): a spread of half a period still gives a baseline (its middle), so when it misses pulse 100
+    the whole-period move is found and it is re-mapped."""
+    cam2 = [(k - (k >= 100), _pulse(k) + L + (0.5 * P if k % 2 else 0.0)) for k in range(300) if k != 100]
+    r = _drift_frames(cam2, deadline_fraction=1.5)
+    assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)], [e.message for e in r.events]
+    assert all(cam_frames(r, 2)[k] == k - 1 for k in range(200, 300))
+
+
+def test_a_move_of_a_period_and_a_quarter_is_still_a_missed_pulse() -> None:
+    """Camera 2 misses pulse 100 and its link gets a quarter period slower at the same moment: its
+    frames come 1.25 periods later than its baseline (exactly: binary times), the median within a
+    quarter period of a whole one and every frame within 0.4: a drift of 1, re-mapped."""
+    cam2 = [(k - (k >= 100), _pulse(k) + L + (0.25 * P if k > 100 else 0.0)) for k in range(300) if k != 100]
+    r = _drift_frames(cam2, deadline_fraction=1.5)
+    assert [(e.kind, e.camera_index) for e in r.events] == [("drift", 2)], [e.message for e in r.events]
+    assert all(cam_frames(r, 2)[k] == k - 1 for k in range(200, 300))
+
+
 def test_a_camera_late_by_a_period_four_frames_in_five_is_not_re_mapped() -> None:
     """Camera 2's link is congested for 2 s: four frames in five come a period late, every fifth on time.
     The median of its arrivals against the others sits a whole period off, but not every frame does:
@@ -324,14 +362,31 @@ def test_a_camera_that_misses_two_pulses_at_once_is_re_mapped_by_two() -> None:
 def test_a_late_joiner_is_placed_by_the_others_usual_lag_not_their_last_frames() -> None:
     """Every other frame of cameras 0 and 1 comes 0.6 period late (host scheduling); camera 2 joins with
     a frame that arrives right after one of those late frames. It is placed by the lag the others
-    usually have (their average, about 0.3 period), not by their latest frame's (which would place it
-    a pulse early): its frames sit in the bundles of the pulses they answered."""
+    usually have (a late frame moves the estimate by a tenth of its delay), not by their latest
+    frame's (which would place it a pulse early): its frames sit in the bundles of the pulses they
+    answered."""
     r = make(clock=FixedRateClock(FPS, start_time=T0), deadline_fraction=1.0)
     frames = [frame(c, k, _pulse(k) + L + (0.6 * P if k % 2 else 0.0)) for k in range(120) for c in (0, 1)]
     frames += [frame(2, 500 + k, _pulse(k) + L - 0.0002) for k in range(60, 120)]
     r.feed(frames, poll_every=P)
     got = cam_frames(r, 2)
     assert all(got[k] == 500 + k for k in range(61, 120)), sorted(got.items())[:3]
+
+
+@pytest.mark.parametrize("join", [20, 40])
+def test_a_camera_joining_after_a_start_whose_first_frames_queued_is_placed_right(join: int) -> None:
+    """Cameras 0 and 1 start with their first 0.3 s of frames queued (delivered at once, 0.3 s after the
+    first pulse; tied to frame 0), then on time. Camera 2 joins at pulse `join`, 0.3-0.6 s in. The
+    lag estimate starts from those queued frames, but a frame cannot come before its pulse: the first
+    on-time frame brings it down at once. Before, it came down 0.2 period a frame, so camera 2 was
+    placed 15 (11) pulses behind, where nothing moves a camera back: every frame of it late, none
+    tracked. Now every frame of it sits on its pulse."""
+    r = make(clock=FixedRateClock(FPS, start_time=T0))
+    frames = [frame(c, k, max(_pulse(k) + L, _pulse(0) + 0.3 + 0.0001 * k)) for c in (0, 1) for k in range(200)]
+    frames += [frame(2, 500 + k, _pulse(k) + L + 0.0002) for k in range(join, 200)]
+    r.feed(frames, poll_every=P)
+    got = cam_frames(r, 2)
+    assert len(got) >= 200 - join - 1 and all(got[k] == 500 + k for k in got)
 
 
 # --- host times from zero; the output types; the lag window's cut-off -------------------------------
