@@ -13,7 +13,7 @@ from flytrack_host.live import LiveClient
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol.udp import decode_datagram
 from flytrack_host.recording import load_recording
-from flytrack_host.recording.schema import FLAG_REJECTED, FLAG_TRACKED
+from flytrack_host.recording.schema import FLAG_LATE, FLAG_REJECTED, FLAG_TRACKED
 
 
 def run_frames(edges, frames, fps, per_frame=None):
@@ -54,7 +54,12 @@ def test_pipeline_tracks_records_and_serves_live(helpers, tmp_path):
     rec = load_recording(summary["recording"])
     d2 = rec.table("data2d_distorted")
     assert len(d2) == 3 * 60 * 2
-    assert np.all(d2["flags"] & FLAG_TRACKED)
+    # Every row was tracked, except a frame that came after its bundle closed at the deadline (a busy
+    # machine): that one is recorded as late, and its bundle was one closed without it.
+    untracked = d2[(d2["flags"] & FLAG_TRACKED) == 0]
+    assert np.all(untracked["flags"] == FLAG_LATE), untracked
+    n_late = len(np.unique(untracked[["camera_index", "trigger_frame"]]))
+    assert n_late <= 60 - summary["bundles_complete"], (untracked, summary)
     for cam in range(3):
         rows = d2[(d2["camera_index"] == cam) & (d2["trigger_frame"] == 7)]
         assert np.allclose(rows["x_dist"], helpers.points_for(cam, 7)["x_dist"])
