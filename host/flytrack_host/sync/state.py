@@ -20,7 +20,7 @@ class _Cam:
     lag_ewma: float | None = None  # arrival lag against the trigger clock (places late joiners)
     rel_base: float | None = None  # usual arrival relative to the other cameras (drift baseline)
     rel_window: _Window = field(default_factory=_Window)  # (trigger frame, d, arrival) of recent frames
-    arrival_shift: float = 0.0  # periods an edge-numbered camera's frames were found to arrive late by (s)
+    arrival_shift: float = 0.0  # how late (s, whole periods) an edge-numbered camera's frames were found
     seen_cf: deque = field(default_factory=lambda: deque(maxlen=512))  # recent camera frames accepted
     # (arrival, lag to the trigger clock, trigger frame) over ~1 s
     lag_win: _LagWindow = field(default_factory=_LagWindow)

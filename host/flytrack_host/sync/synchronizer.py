@@ -485,12 +485,10 @@ class FrameSynchronizer(_RestartPlacement, _DriftDetection):
             for other in self.cams.values():
                 if other is cam:
                     continue
-                if not other.suspects:  # nothing in the new numbering yet: follows on its first (_follows_jump)
-                    self._to_follow.add(other.index)
-                    continue
-                # Cameras already seeing the new numbering follow at once instead of waiting.
-                o_frame, o_tf = other.suspects[-1]
-                if o_frame.trigger_frame >= 0 and abs(o_tf - new_tf) <= self.jump_confirm + 2:
+                # Cameras already seeing the new numbering follow at once instead of waiting; the others
+                # (nothing in it yet, or a far suspect) on their first frame in it (_follows_jump).
+                o_frame, o_tf = other.suspects[-1] if other.suspects else (None, 0)
+                if o_frame is not None and o_frame.trigger_frame >= 0 and abs(o_tf - new_tf) <= self.jump_confirm + 2:
                     other.last_cf, other.last_tf = o_frame.camera_frame, o_tf
                     other.suspects.clear()
                 else:
