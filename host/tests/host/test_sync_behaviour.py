@@ -563,16 +563,23 @@ def test_host_times_counted_from_zero_keep_the_frame_times_right() -> None:
     assert all(abs(b.bundle.timestamp - (b.bundle.trigger_frame * P + 0.3)) < 1e-9 for b in r.bundles[40:])
 
 
+def paused_run(late: float) -> Run:
+    """Three cameras on a fixed-rate clock, 80 frames; from frame 20 on every frame comes `late`
+    periods later than before (a pause, then paced again)."""
+    r = make()
+    frames = stream({0: 0, 1: 0, 2: 0}, range(80))
+    for f in frames:
+        if f.camera_frame >= 20:
+            f.recv_time += late * P
+    r.feed(frames, poll_every=P)
+    return r
+
+
 def test_a_pause_re_anchors_the_fixed_rate_clock_only_when_frames_come_over_two_periods_late() -> None:
     """Every camera pauses and comes back paced 2.5 periods later than before: re-anchored once (then
     the frame times follow the arrivals again); 1.5 periods later: not re-anchored."""
     for late, want in ((2.5, 1), (1.5, 0)):
-        r = make()
-        frames = stream({0: 0, 1: 0, 2: 0}, range(80))
-        for f in frames:
-            if f.camera_frame >= 20:
-                f.recv_time += late * P
-        r.feed(frames, poll_every=P)
+        r = paused_run(late)
         assert len(r.kinds("reanchor")) == want == r.sync.reanchors, late
         if want:
             assert all(abs(b.bundle.timestamp - (T0 + L + (b.bundle.trigger_frame + late) * P)) < 1e-9

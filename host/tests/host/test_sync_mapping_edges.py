@@ -10,19 +10,26 @@ exact binary fractions, so a boundary ("within", "more than") is tested exactly.
 
 from __future__ import annotations
 
-import importlib.util
+import sys
 from pathlib import Path
 
 from flytrack_host.sync import FixedRateClock, FrameSynchronizer
 
-# The builders live in test_sync_behaviour.py (pytest imports test files by path, not as a package).
-_spec = importlib.util.spec_from_file_location("_sync_behaviour_builders",
-                                               Path(__file__).with_name("test_sync_behaviour.py"))
-_sb = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_sb)
-FPS, P, T0, L = _sb.FPS, _sb.P, _sb.T0, _sb.L
-frame, make, stream, Run = _sb.frame, _sb.make, _sb.stream, _sb.Run
-OffsetClock, NotReadyClock, cam_frames = _sb.OffsetClock, _sb.NotReadyClock, _sb.cam_frames
+sys.path.insert(0, str(Path(__file__).parent))  # the builders of test_sync_behaviour.py
+from test_sync_behaviour import (  # noqa: E402
+    FPS,
+    T0,
+    L,
+    NotReadyClock,
+    OffsetClock,
+    P,
+    Run,
+    cam_frames,
+    frame,
+    make,
+    paused_run,
+    stream,
+)
 
 
 def _reasons(r: Run, cam: int | None = None) -> list[tuple[int, int, str]]:
@@ -360,12 +367,7 @@ def test_a_pause_after_which_frames_come_exactly_two_periods_late_does_not_re_an
     """Every camera pauses and comes back paced exactly two periods later than before: not more than
     two periods, so the fixed-rate clock is not re-anchored; 1/64 of a period more and it is."""
     for late, want in ((2.0, 0), (2.0 + 2.0**-6, 1)):
-        r = make()
-        frames = stream({0: 0, 1: 0, 2: 0}, range(80))
-        for f in frames:
-            if f.camera_frame >= 20:
-                f.recv_time += late * P
-        r.feed(frames, poll_every=P)
+        r = paused_run(late)
         assert len(r.kinds("reanchor")) == want == r.sync.reanchors, late
 
 
