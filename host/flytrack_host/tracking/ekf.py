@@ -81,17 +81,25 @@ def joseph_update(
             except np.linalg.LinAlgError:
                 K[k] = np.nan  # rejected below
     x_post = x + (K @ y[..., None])[..., 0]
-    I_KH = _I6 - K @ H
-    KRKt = (K @ R) @ np.swapaxes(K, -1, -2)
-    P_post = (I_KH @ P) @ np.swapaxes(I_KH, -1, -2)
-    P_post += KRKt
-    P_post += np.swapaxes(P_post, -1, -2).copy()
-    P_post *= 0.5
+    P_post = joseph_covariance(P, K, H, R)
     accepted = _usable(x_post, P_post)
     if not accepted.all():
         x_post[~accepted] = x[~accepted]
         P_post[~accepted] = P[~accepted]
     return x_post, P_post, accepted
+
+
+def joseph_covariance(P: F64, K: F64, H: F64, R: F64) -> F64:
+    """P+ = (I - K H) P (I - K H)^T + K R K^T, symmetrised, for (T, 6, 6) P and (T, 6, m) K.
+
+    Positive semi-definite for any gain K, not only the optimal one: an error in K (round-off in
+    solving an ill-conditioned S) costs accuracy, never definiteness."""
+    I_KH = _I6 - K @ H
+    P_post = (I_KH @ P) @ np.swapaxes(I_KH, -1, -2)
+    P_post += (K @ R) @ np.swapaxes(K, -1, -2)
+    P_post += np.swapaxes(P_post, -1, -2).copy()
+    P_post *= 0.5
+    return P_post
 
 
 def _usable(x: F64, P: F64) -> NDArray[np.bool_]:

@@ -64,11 +64,16 @@ def test_two_fish_crossing_keep_their_identities(tmp_path: Path) -> None:
 
 def test_tracking_through_water_with_the_shared_refraction_model() -> None:
     """Cameras behind the water surface and the tank walls (index 1.333): rendered and tracked through the
-    project's refraction model (Camera.interface); the fit's lines are the refracted rays."""
-    s = run_demo(1, 12, 0, (640, 512), (512, 384), out=None, top_zoom=2.0, water=1.333, cfg=QUICK, plots=False)
-    assert s["midline_mean_px"] < 1.0
-    assert s["head_mm_mean"] < 2.0
-    assert s["heading_deg_mean"] < 3.0
+    project's refraction model (Camera.interface); the fit's lines are the refracted rays.
+
+    With the tracking defaults: on a budget of three temperature levels (QUICK) the fit of this scene ends
+    where round-off sends it (midline 0.41-1.19 px, heading 0.6-4.3 deg across OpenBLAS kernels). With the
+    defaults, over Prescott, Nehalem, Sandybridge, Haswell, Zen and SkylakeX at 1 and 2 threads: midline
+    0.41-0.55 px, head 1.30-1.49 mm, heading 0.88-1.01 deg; the bounds are about 20 % above the worst."""
+    s = run_demo(1, 12, 0, (640, 512), (512, 384), out=None, top_zoom=2.0, water=1.333, plots=False)
+    assert s["midline_mean_px"] < 0.7
+    assert s["head_mm_mean"] < 1.8
+    assert s["heading_deg_mean"] < 1.25
     # the refraction is not negligible here: a fish 10 cm below the surface moves ~10 px in the top view
     wet = tank_rig((640, 512), (512, 384), top_zoom=2.0, water=1.333)["top"]
     dry = tank_rig((640, 512), (512, 384), top_zoom=2.0)["top"]
