@@ -17,13 +17,14 @@ export FLYTRACK_BUILD_DIR := $(BUILD)
 TEST_C_TARGETS :=
 BENCH_TARGETS :=
 
-.PHONY: help setup build cbuild firmware test test-python test-c lint format bench demo clean
+.PHONY: help setup build cbuild firmware test test-python test-c test-other-blas test-portability lint format bench demo clean
 
 help:
 	@echo "FlyTrack make targets:"
 	@echo "  make demo      the whole rig simulated end to end (DEMO_ARGS='--help' for options)"
 	@echo "  make test      set up, build, run every test (C and Python), then lint"
 	@echo "  make bench     run every benchmark (BENCH_JSON=PATH writes figures as JSON)"
+	@echo "  make test-portability  numerical tests under every OpenBLAS kernel x 1, 2 threads; suite in random order"
 	@echo "  make build     build the C parts and the firmware"
 	@echo "  make firmware  build the AVR trigger firmware"
 	@echo "  make lint      ruff and clang-format checks"
@@ -43,6 +44,7 @@ build: cbuild firmware
 test: build
 	@$(MAKE) --no-print-directory test-c
 	@$(MAKE) --no-print-directory test-python
+	@$(MAKE) --no-print-directory test-other-blas
 	@$(MAKE) --no-print-directory lint
 
 test-c: cbuild
@@ -50,6 +52,16 @@ test-c: cbuild
 
 test-python: setup
 	@$(PYTEST) -q
+
+# The numerical tests again under an OpenBLAS kernel other than this machine's own, so a test whose
+# property holds on one kernel only fails here and not on a lab's PC.
+test-other-blas: setup
+	@$(PY) scripts/test_portability.py --other
+
+# Not in `make test`: the numerical tests under every OpenBLAS core type this CPU runs, at 1 and 2 BLAS
+# threads, then the whole suite once in random order; prints the table.
+test-portability: build
+	@$(PY) scripts/test_portability.py $(PORTABILITY_ARGS)
 
 lint: setup
 	@$(VENV)/bin/ruff check -q host tests && echo "lint: ruff clean"
