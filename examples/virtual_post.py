@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A closed-loop stimulus: a virtual post held at a fixed distance ahead of the animal.
 
-It reads FlyTrack's VR pose stream (UDP, `flytrack_host.outputs.pose`), takes the animal's heading
+It reads FlyTrack's VR pose stream (UDP, `flytrack_host.live.pose`), takes the animal's heading
 from its horizontal velocity, and places the post `--distance` metres ahead of it at the animal's
 height, every pose (200 a second by default). A real stimulus program would draw the post there; this
 one prints where it is, a few times a second, and a summary at the end.
@@ -22,7 +22,7 @@ import math
 import sys
 import time
 
-from flytrack_host.outputs.pose import PoseClient
+from flytrack_host.live.pose import PoseClient
 
 MIN_SPEED = 0.05  # m/s: slower than this, the heading is kept (a hovering animal has none)
 

@@ -10,7 +10,7 @@ test-edge: cbuild
 
 # C extractor vs an OpenCV-Python pipeline on the same frames, one core. BENCH_JSON=PATH writes figures.
 bench-edge: cbuild
-	@$(PY) -m flytrack_host.features.bench $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@$(PY) -m flytrack_host.edges.features.bench $(if $(BENCH_JSON),--json $(BENCH_JSON))
 
 # The extractor's portable vector path as the ARM edge computers build it: cross-compiled for aarch64
 # (GCC vector extensions -> NEON) with -Wall -Wextra -Werror, test_scan and test_features run under

@@ -3,4 +3,4 @@
 PART_TARGETS += test-faults
 
 test-faults: build
-	@$(PY) -m flytrack_host.faults --json $(BUILD)/faults.json
+	@$(PY) -m flytrack_host.sim.faults --json $(BUILD)/faults.json

@@ -3,7 +3,7 @@
 Each module is mutated with mutmut in a scratch copy of the repository (mutmut edits files in place;
 the working tree is never touched), and only that module's fast unit tests run against each mutant.
 Prints, per module, the mutants killed / total and the share killed, and the goal (>= 85 % on ekf.py,
-association.py, birth.py and the synchroniser, flytrack_host/sync/). Slow (minutes per module on an
+association.py, birth.py and the synchroniser, flytrack_host/intake/sync/). Slow (minutes per module on an
 idle core): not part of `make test`. MUTATION_MODULES='ekf sync' restricts the run; MUTATION_JSON=PATH
 writes the figures.
 """
@@ -31,8 +31,8 @@ MODULES: dict[str, tuple[str, list[str]]] = {
     # The synchroniser's fault cases in test_faults_units.py too (-k: the ones driving FrameSynchronizer);
     # not the 2-3 s random-stall soak, which every surviving mutant would pay for (a mutant only it
     # catches counts as surviving).
-    # The synchroniser's code: every module of the flytrack_host.sync package but its re-exports.
-    "sync": (",".join(f"host/flytrack_host/sync/{m}.py" for m in
+    # The synchroniser's code: every module of the flytrack_host.intake.sync package but its re-exports.
+    "sync": (",".join(f"host/flytrack_host/intake/sync/{m}.py" for m in
                       ("synchronizer", "restart", "drift", "windows", "state", "clock", "types")),
              ["host/tests/host/test_sync.py", "host/tests/host/test_sync_bursty.py",
               "host/tests/host/test_sync_behaviour.py", "host/tests/host/test_sync_window.py",

@@ -35,7 +35,7 @@ _GROUPS: list[tuple[str, str, str, str]] = [
      "Calibration: selfcal, dlt, align, intrinsics, collect, report, convert, dvs-points, dvs-sim."),
     ("flytrack_host.actuation.cli", "app", "rules", "Closed-loop rules: check, replay on a recording."),
     ("flytrack_host.batch.cli", "app", "batch", "Batches on Dask: re-track many recordings, sweep parameters, export."),
-    ("flytrack_host.events.cli", "app", "events", "Event-camera files: info, convert (AEDAT 2/3/4, EVT 2/3, DAT)."),
+    ("flytrack_host.dvs.events.cli", "app", "events", "Event-camera files: info, convert (AEDAT 2/3/4, EVT 2/3, DAT)."),
     ("flytrack_host.fish.cli", "app", "fish", "Fish: offline 3D shape tracking of schooling fish (track, demo)."),
 ]
 # (module, function, command name): top-level commands that live in their components.
@@ -45,8 +45,8 @@ _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.io.cli", "retrack_command", "retrack"),
     ("flytrack_host.io.cli", "compare_command", "compare"),
     ("flytrack_host.sim.cli", "demo_command", "demo"),
-    ("flytrack_host.wingbeat.cli", "wingbeat_command", "wingbeat"),
-    ("flytrack_host.edge_oak.cli", "edge_oak_command", "edge-oak"),
+    ("flytrack_host.dvs.wingbeat.cli", "wingbeat_command", "wingbeat"),
+    ("flytrack_host.edges.oak.cli", "edge_oak_command", "edge-oak"),
 ]
 
 

@@ -1,9 +1,9 @@
-"""flytrack_host.evaluation: the one tracking scorer (simulated rig, tracking tests, tracker bench)."""
+"""flytrack_host.tracking.evaluation: the one tracking scorer (simulated rig, tracking tests, tracker bench)."""
 
 import numpy as np
 import pytest
 
-from flytrack_host.evaluation import FrameTracks, score_frames, score_tracks
+from flytrack_host.tracking.evaluation import FrameTracks, score_frames, score_tracks
 
 
 def _gt(F=20):

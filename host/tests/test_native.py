@@ -1,4 +1,4 @@
-"""flytrack_host.native: the one finder/loader of the C libraries, used by both ctypes bindings."""
+"""flytrack_host.util.native: the one finder/loader of the C libraries, used by both ctypes bindings."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host import native
-from flytrack_host.features import _lib as features_lib
+from flytrack_host.util import native
+from flytrack_host.edges.features import _lib as features_lib
 from flytrack_host.tracking import kernel as tracker_kernel
 
 

@@ -1,4 +1,4 @@
-"""flytrack_host.testing.missing_part: a missing built part fails under make, skips in bare pytest."""
+"""flytrack_host.util.testing.missing_part: a missing built part fails under make, skips in bare pytest."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from flytrack_host.testing import BUILD_ENV
+from flytrack_host.util.testing import BUILD_ENV
 
 _TEST = '''
-from flytrack_host.testing import missing_part
+from flytrack_host.util.testing import missing_part
 
 def test_needs_a_part():
     missing_part("libexample not built")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from flytrack_host.sim.run import PREROLL_FRAMES, DemoConfig, find_edge_binary, run_demo, write_json
-from flytrack_host.testing import missing_part
+from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
 
 
@@ -107,7 +107,7 @@ def test_recording_opens_with_h5py_and_exports_to_braidz(demo):
 @pytest.mark.slow
 def test_rig_calibration_figure_and_json(demo, tmp_path):
     _, r = demo
-    from flytrack_host.calibration.formats import load_calibration
+    from flytrack_host.geometry.formats import load_calibration
     from flytrack_host.rig import load_rig
 
     rig = load_rig(r.rig_file)

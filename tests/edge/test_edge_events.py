@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flytrack_host.events import EVENT_DTYPE, EventFileError, read_events, write_events
+from flytrack_host.dvs.events import EVENT_DTYPE, EventFileError, read_events, write_events
 from flytrack_host.protocol import DvsClusters, EdgeStatus
 
 from .conftest import free_udp_port

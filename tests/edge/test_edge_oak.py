@@ -1,4 +1,4 @@
-"""The OAK edge (flytrack_host.edge_oak): the real depthai pipeline object, and frames through the
+"""The OAK edge (flytrack_host.edges.oak): the real depthai pipeline object, and frames through the
 `FrameSource` seam (real depthai.ImgFrame objects built on the host: there is no OAK device here) ->
 the C extractor -> FEATURES over real UDP, compared datagram for datagram with flytrack-edge's on the
 same frames; a device lost mid-stream; bad frames; the CLI."""
@@ -15,9 +15,9 @@ import depthai as dai
 import numpy as np
 import pytest
 
-from flytrack_host.edge_oak.edge import ERR_BAD_FRAME, ERR_SOURCE, OakEdge, OakEdgeConfig, OakEdgeError
-from flytrack_host.edge_oak.pipeline import STREAM, CameraSpec, OakConfigError, build_pipeline
-from flytrack_host.edge_oak.source import BadFrame, DeviceLost, frame_from_imgframe
+from flytrack_host.edges.oak.edge import ERR_BAD_FRAME, ERR_SOURCE, OakEdge, OakEdgeConfig, OakEdgeError
+from flytrack_host.edges.oak.pipeline import STREAM, CameraSpec, OakConfigError, build_pipeline
+from flytrack_host.edges.oak.source import BadFrame, DeviceLost, frame_from_imgframe
 from flytrack_host.protocol import CameraState, EdgeStatus, FeatureFrame
 
 # The frames of the C daemon's own tests (test_edge_daemon.py), loaded by path (importlib mode).
@@ -281,7 +281,7 @@ class PacedSource(ScriptedSource):
 def test_host_pipeline_records_the_oak_points(tmp_path: Path) -> None:
     """A real HostPipeline receives the OAK edge's datagrams: its recording holds every point the C
     extractor finds on these frames, under the device's frame numbers and clock."""
-    from flytrack_host.features.extractor import FeatureExtractor
+    from flytrack_host.edges.features.extractor import FeatureExtractor
     from flytrack_host.pipeline import HostPipeline
     from flytrack_host.recording import load_recording
     from flytrack_host.rig import parse_rig

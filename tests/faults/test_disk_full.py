@@ -17,7 +17,7 @@ import pytest
 
 from flytrack_host.protocol.udp import POINT_DTYPE, FeatureFrame, encode_features
 from flytrack_host.recording import load_recording
-from flytrack_host.testing import small_tmpfs
+from flytrack_host.util.testing import small_tmpfs
 
 ROOT = Path(__file__).resolve().parents[2]
 FLYTRACK = [sys.executable, "-m", "flytrack_host.cli"]

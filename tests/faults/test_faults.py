@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from flytrack_host.faults.suite import SCENARIOS, format_table, run_suite
+from flytrack_host.sim.faults.suite import SCENARIOS, format_table, run_suite
 from flytrack_host.sim.run import find_edge_binary
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from flytrack_host.testing import missing_part
+from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
 
 FIGURES: dict[str, str] = {}

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flytrack_host.dvs_bridge import simulator as sim
+from flytrack_host.dvs.bridge import simulator as sim
 from flytrack_host.protocol.dvs import DvsDecoder
-from flytrack_host.testing import missing_part
+from flytrack_host.util.testing import missing_part
 
 F = sim.F_CPU
 

@@ -13,9 +13,9 @@ import threading
 import time
 from pathlib import Path
 
-from flytrack_host.outputs.launch import LiveOutputs
+from flytrack_host.live.launch import LiveOutputs
 from flytrack_host.sim.run import DemoConfig, run_demo
-from flytrack_host.web import browser as browser_mod
+from flytrack_host.live.web import browser as browser_mod
 
 
 def main() -> int:

@@ -17,11 +17,11 @@ import h5py
 import numpy as np
 import pytest
 
-from flytrack_host.outputs.braid import ROW_FIELDS, iter_sse
-from flytrack_host.outputs.launch import LiveOutputs
-from flytrack_host.outputs.pose import PoseClient
+from flytrack_host.live.braid import ROW_FIELDS, iter_sse
+from flytrack_host.live.launch import LiveOutputs
+from flytrack_host.live.pose import PoseClient
 from flytrack_host.sim.run import DemoConfig, find_edge_binary, run_demo
-from flytrack_host.web import browser as browser_mod
+from flytrack_host.live.web import browser as browser_mod
 
 CAMERAS = 3
 

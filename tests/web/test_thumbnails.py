@@ -16,7 +16,7 @@ import pytest
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.rig import parse_rig
 from flytrack_host.sim.run import find_edge_binary
-from flytrack_host.web.server import LiveServer
+from flytrack_host.live.web.server import LiveServer
 
 W, H = 320, 240
 

@@ -1,6 +1,6 @@
 /* Wing-beat tracker of a tethered fly (see flytrack/wingbeat.h): the initialisation phase once per
  * window, then per event an angle, a running mean of events_per_update events, and one EKF update
- * of a fixed small size (at most 10 states). Mirrors flytrack_host.wingbeat step for step, so the
+ * of a fixed small size (at most 10 states). Mirrors flytrack_host.dvs.wingbeat step for step, so the
  * two can be checked against each other on the same events. */
 #include "flytrack/wingbeat.h"
 

@@ -1,4 +1,4 @@
-/* Timing helpers for `make bench-edge` (host/flytrack_host/features/bench.py), built as
+/* Timing helpers for `make bench-edge` (host/flytrack_host/edges/features/bench.py), built as
  * libflytrack_features_bench.so with the extractor's own compiler flags.
  *
  * The C extractor and its floor are timed here, per frame with the monotonic clock, so that

@@ -4,4 +4,6 @@ rules.py (the TOML rules file), conditions.py (regions, speeds, distances on N o
 history.py (per-object entries, cooldown, rate, arming), prediction.py (latency compensation),
 engine.py (the pipeline sink and the per-device workers), devices/ (one module per kind of output),
 firings.py (the recorded table), replay.py (`flytrack rules replay`).
+
+May import: util, protocol, tracking, rig, trigger, recording.
 """

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.firings import percentiles_ms
 from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess

@@ -17,7 +17,7 @@ import time
 import tty
 from dataclasses import dataclass
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 
 log = logging.getLogger("flytrack.actuation.peers")
 

@@ -4,6 +4,8 @@
 on a worker (atomic output, so a task killed half-way leaves nothing that looks finished), `runner`
 submits them to a dask.distributed cluster (a LocalCluster by default, or any scheduler by address)
 with a progress bar, `results` writes the table (CSV and Parquet) and `plot` compares parameter sets.
+
+May import: util, geometry, recording, io.
 """
 
 from flytrack_host.batch.plan import BatchError, ParamSet, Task, param_sets, plan_exports, plan_retracks

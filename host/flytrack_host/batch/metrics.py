@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.io.reprojection import recording_reprojection
 from flytrack_host.recording.reader import Recording
 

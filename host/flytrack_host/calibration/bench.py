@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 from flytrack_host.calibration.evaluate import centre_error, reprojection_error  # noqa: E402
 from flytrack_host.calibration.selfcal import self_calibrate  # noqa: E402
 from flytrack_host.calibration.synthetic import synthetic_rig  # noqa: E402
-from flytrack_host.camera import Camera  # noqa: E402
+from flytrack_host.geometry.camera import Camera  # noqa: E402
 
 MODELS = {"full": {}, "anipose": {"dist_k2": 0.0, "principal_offset_px": 0.0}}
 

@@ -23,7 +23,7 @@ from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
 from flytrack_host.calibration.schur import distort_observations, levenberg_marquardt
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 __all__ = ["DISTORTION_MODELS", "BundleResult", "bundle_adjust", "project_params"]
 

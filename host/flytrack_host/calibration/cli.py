@@ -14,11 +14,11 @@ from rich.console import Console
 
 from flytrack_host.calibration.align import AlignError, align_cameras, umeyama
 from flytrack_host.calibration.dlt import DLTError, dlt_camera
-from flytrack_host.calibration.formats import CalibrationFormatError, load_calibration, save_calibration
+from flytrack_host.geometry.formats import CalibrationFormatError, load_calibration, save_calibration
 from flytrack_host.calibration.intrinsics import IntrinsicsError
 from flytrack_host.calibration.observations import PointsFileError, load_points, save_points
 from flytrack_host.calibration.selfcal import SelfCalError
-from flytrack_host.camera import Camera, triangulate
+from flytrack_host.geometry.camera import Camera, triangulate
 
 app = typer.Typer(help="Camera calibration: DLT, LED self-calibration, alignment, formats.", no_args_is_help=True)
 console = Console()
@@ -370,7 +370,7 @@ def convert_cmd(
 ) -> None:
     """Convert a calibration between formats (a flydra .h5's calibration group too). The output is read
     back and compared with the source over each image: more than 0.1 px apart is an error unless --force."""
-    from flytrack_host.calibration.formats import compare_projections, single_k_approximation
+    from flytrack_host.geometry.formats import compare_projections, single_k_approximation
 
     warns: list[str] = []
     fidelity: dict[str, float] = {}

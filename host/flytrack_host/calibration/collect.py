@@ -118,7 +118,7 @@ class RecordingPoints:
 
 def _recorded_sizes(rec: object) -> dict[str, tuple[int, int]]:
     """Image sizes of the calibration stored in a recording (none when there is none or it is unreadable)."""
-    from flytrack_host.calibration.formats import CalibrationFormatError, load_calibration
+    from flytrack_host.geometry.formats import CalibrationFormatError, load_calibration
 
     cal = rec.calibration  # type: ignore[attr-defined]
     if cal is None:

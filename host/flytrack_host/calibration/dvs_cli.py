@@ -56,7 +56,7 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
                  progress: Progress | None = None) -> DvsPointsResult:
     """The LED's points in one event file (streamed in chunks), stamped with trigger frames from the
     file's sync events (or from sync_csv: frames and pulse times)."""
-    from flytrack_host.events import EventFileError, EventReader
+    from flytrack_host.dvs.events import EventFileError, EventReader
 
     if not path.exists():
         raise InputError(f"{path}: no such file.")
@@ -109,7 +109,7 @@ def extract_file(path: Path, name: str, params: LedParams, size: tuple[int, int]
 
 
 def _empty() -> np.ndarray:
-    from flytrack_host.events import EVENT_DTYPE
+    from flytrack_host.dvs.events import EVENT_DTYPE
 
     return np.zeros(0, EVENT_DTYPE)
 
@@ -237,7 +237,7 @@ def dvs_sim_cmd(
     """Simulate an LED wand blinking at --led-hz waved through a 1 m arena: the frame cameras' points
     (frames.csv), one EVT 2.0 file per DVS camera with a moving non-blinking distractor, noise and sync
     events (dvsN.raw), the true cameras (truth.xml) and LED positions per frame (led.csv)."""
-    from flytrack_host.calibration.formats import save_calibration
+    from flytrack_host.geometry.formats import save_calibration
     from flytrack_host.sim.dvs_wand import WandParams, simulate_wand
 
     try:

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 from flytrack_host.calibration.align import umeyama
 from flytrack_host.calibration.observations import Observations
 from flytrack_host.calibration.selfcal import refine_points
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 __all__ = ["reprojection_error", "centre_error", "errors_against_truth"]
 

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 __all__ = ["IMAGE_SUFFIXES", "MIN_VIEWS", "Checkerboard", "Charuco", "IntrinsicsError", "IntrinsicsResult",
            "aruco_dictionary_names", "calibrate_intrinsics", "find_images"]

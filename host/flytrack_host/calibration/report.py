@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from flytrack_host.calibration.observations import Observations
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 __all__ = ["CameraStats", "Report", "make_report", "plot_report", "set_equal_3d"]
 

@@ -44,7 +44,7 @@ from flytrack_host.calibration.align import Similarity
 from flytrack_host.calibration.bundle import DISTORTION_MODELS, bundle_adjust
 from flytrack_host.calibration.observations import Observations
 from flytrack_host.calibration.schur import project_jacobian
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 __all__ = ["INIT_METHODS", "SelfCalError", "SelfCalResult", "self_calibrate", "initial_cameras",
            "factorization_cameras", "triangulate_frames",

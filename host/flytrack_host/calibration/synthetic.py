@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flytrack_host.calibration.observations import Observations
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 __all__ = ["SyntheticRig", "make_rig", "led_path", "observe"]
 

@@ -110,7 +110,7 @@ def track_command(
 ) -> None:
     """Track fish shapes in 3D from a top and a side video; write position, heading, midline parameters,
     cross-sections, curvature and covariance per fish per frame to HDF5."""
-    from flytrack_host.calibration.formats import CalibrationFormatError, load_calibration
+    from flytrack_host.geometry.formats import CalibrationFormatError, load_calibration
     from flytrack_host.fish.fit import FitConfig
     from flytrack_host.fish.io import write_tracks
     from flytrack_host.fish.pipeline import TrackingError, track

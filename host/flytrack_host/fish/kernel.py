@@ -9,7 +9,7 @@ import ctypes
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.native import NativeLibraryError, load_library
+from flytrack_host.util.native import NativeLibraryError, load_library
 
 F64 = NDArray[np.float64]
 LIB = "flytrack_fish_kernel"

@@ -1,8 +1,8 @@
 """The camera seam of the fish tracker: what the shape fit needs from a camera is where a world point lands
 in the image (`project`) and which 3D line a pixel sees (`lines`, origin + unit direction).
 
-`CameraView` wraps FlyTrack's camera model (pinhole + OpenCV distortion, `flytrack_host.camera.Camera`),
-including its refraction at a flat interface (`Camera.interface`, `flytrack_host.refraction`: Braid's
+`CameraView` wraps FlyTrack's camera model (pinhole + OpenCV distortion, `flytrack_host.geometry.camera.Camera`),
+including its refraction at a flat interface (`Camera.interface`, `flytrack_host.geometry.refraction`: Braid's
 `<water>` surface or a tank wall): `project` then goes through the interface and `lines` are the refracted,
 underwater continuations of the camera's rays, which is what the fit's Plucker lines must be.
 """
@@ -15,7 +15,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 F64 = NDArray[np.float64]
 
@@ -95,7 +95,7 @@ def tank_rig(top_size: tuple[int, int] = (1280, 1024), side_size: tuple[int, int
     if water is not None:
         import dataclasses
 
-        from flytrack_host.refraction import FlatInterface
+        from flytrack_host.geometry.refraction import FlatInterface
 
         walls = {"top": ((0.0, 0.0, 0.40), (0.0, 0.0, 1.0)), "side": ((0.0, 0.0, 0.0), (0.0, -1.0, 0.0)),
                  "end": ((0.0, 0.0, 0.0), (-1.0, 0.0, 0.0))}

@@ -1,1 +1,4 @@
-"""Import and export of tracking data: Braid's .braidz, flydra's .h5, CSV; offline re-tracking."""
+"""Import and export of tracking data: Braid's .braidz, flydra's .h5, CSV; offline re-tracking.
+
+May import: util, protocol, geometry, tracking, trigger, recording.
+"""

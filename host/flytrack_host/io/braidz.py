@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flytrack_host import __version__, hostclock
+from flytrack_host import __version__
+from flytrack_host.util import hostclock
 from flytrack_host.io.data2d import Data2D, empty_rows
 from flytrack_host.io.reprojection import associated_reprojection
 from flytrack_host.recording.reader import Recording
@@ -109,7 +110,7 @@ def _calibration_xml(rec: Recording) -> bytes | None:
     if name.endswith(".xml"):
         return data
     # Another format: convert with the calibration package (flydra XML is what Braid reads).
-    from flytrack_host.calibration.formats import load_calibration, save_flydra_xml
+    from flytrack_host.geometry.formats import load_calibration, save_flydra_xml
 
     with tempfile.TemporaryDirectory() as d:
         src = Path(d) / name
@@ -265,7 +266,7 @@ def _hlogs(rec: Recording, kal: pd.DataFrame, assoc: pd.DataFrame, data2d: pd.Da
         if h.total:
             out["reconstruct_latency_usec.hlog"] = hlog_text(h, t0, duration, "trigger to 3D estimate, microseconds")
     if cal_xml is not None and len(assoc) and len(kal):
-        from flytrack_host.calibration.formats import load_flydra_xml
+        from flytrack_host.geometry.formats import load_flydra_xml
 
         with tempfile.TemporaryDirectory() as d:
             p = Path(d) / "calibration.xml"

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.recording.schema import DATA2D, FLAG_DVS, FLAG_REJECTED
 from flytrack_host.tracking.types import FrameBundle

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 
 def associated_reprojection(est: pd.DataFrame, assoc: pd.DataFrame, rows: np.ndarray,

@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import ValidationError
 from tqdm import tqdm
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.io.data2d import Data2D, dvs_rows_left_out, fill_undistorted, iter_bundles, n_frames
 from flytrack_host.recording.finalize import RecordingError
 from flytrack_host.recording.reader import load_recording
@@ -66,7 +66,7 @@ def load_2d(path: Path | str) -> Data2D:
 def cameras_for(data: Data2D, calibration: Path | None = None, warnings: list[str] | None = None) -> dict[int, Camera]:
     """camera index -> Camera, from `calibration` (a file: flydra XML or .h5, pymvg, ...) or the calibration
     inside the data. Cameras with 2D data but no calibration are named in `warnings` (and data.notes)."""
-    from flytrack_host.calibration.formats import load_calibration
+    from flytrack_host.geometry.formats import load_calibration
 
     warns = warnings if warnings is not None else data.notes
     if calibration is not None:
@@ -94,7 +94,7 @@ def cameras_for(data: Data2D, calibration: Path | None = None, warnings: list[st
 def calibration_xml(data: Data2D, cameras: Mapping[int, Camera]) -> bytes:
     """The cameras used, as flydra XML named as in the data (exact: K_dist and <water> included), so a
     retrack's output can be retracked again."""
-    from flytrack_host.calibration.formats import save_flydra_xml
+    from flytrack_host.geometry.formats import save_flydra_xml
 
     by_name = {data.cam_names.get(i, cam.name): cam for i, cam in sorted(cameras.items())}
     with tempfile.TemporaryDirectory() as d:
@@ -234,7 +234,7 @@ def retrack(
         })
         rec.start()
         # The calibration used travels with the result (so it can be retracked again).
-        from flytrack_host.calibration.formats import CalibrationFormatError
+        from flytrack_host.geometry.formats import CalibrationFormatError
 
         try:
             rec.attach("calibration.xml", calibration_xml(data, cameras))
@@ -259,7 +259,7 @@ def retrack(
             rec.append("dvs_point_covariance", data.dvs_cov)
         if clock is not None:
             rec.append("trigger_clock_info", clock)
-    from flytrack_host.pipeline import result_rows
+    from flytrack_host.recording.rows import result_rows
 
     t0 = time.perf_counter()
     n = n_estimates = 0

@@ -7,6 +7,8 @@ One module per idea: `host` (the `HostPipeline` loop), `rows` (recording rows), 
 `ResultSink` seam for live consumers), `dvs` (event cameras), `report` (status line and summary),
 `cameras` (calibration), `run` (`flytrack run`). Every name other code imports from
 `flytrack_host.pipeline` is re-exported here.
+
+May import: util, protocol, geometry, tracking, rig, intake, trigger, recording, live, actuation, dvs.
 """
 
 from flytrack_host.pipeline.cameras import calibration_problems, load_cameras
@@ -20,7 +22,7 @@ from flytrack_host.pipeline.host import (
     default_recording_path,
     default_tracker_factory,
 )
-from flytrack_host.pipeline.rows import data2d_rows, result_rows
+from flytrack_host.recording.rows import data2d_rows, result_rows
 from flytrack_host.pipeline.run import run_command
 from flytrack_host.pipeline.sink import ResultSink
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.rig import RigConfig
 
 
@@ -25,7 +25,7 @@ def load_cameras(rig: RigConfig) -> dict[int, Camera]:
     path = rig.calibration_path
     if path is None:
         return {}
-    from flytrack_host.calibration.formats import load_calibration
+    from flytrack_host.geometry.formats import load_calibration
 
     by_name = load_calibration(path)
     cams = {}

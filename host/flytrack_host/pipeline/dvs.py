@@ -1,12 +1,12 @@
 """Event cameras (DVS) in the host pipeline: their time slices are kept and their clusters join the
-bundles of the frame cameras (flytrack_host.eventcam). A mixin of `HostPipeline`."""
+bundles of the frame cameras (flytrack_host.dvs.clusters). A mixin of `HostPipeline`."""
 
 from __future__ import annotations
 
 import math
 
-from flytrack_host.receiver import DvsSlice
-from flytrack_host.sync import (
+from flytrack_host.intake.receiver import DvsSlice
+from flytrack_host.intake.sync import (
     SyncedBundle,
 )
 
@@ -16,7 +16,7 @@ class DvsIntake:
 
     def _dvs_slice(self, item: DvsSlice) -> None:
         """An event camera's time slice: kept, to give its clusters to the tracker at the trigger
-        frames it covers (flytrack_host.eventcam)."""
+        frames it covers (flytrack_host.dvs.clusters)."""
         self.dvs_slices[item.camera_index] = self.dvs_slices.get(item.camera_index, 0) + 1
         if self.dvs_obs is not None:
             self.dvs_obs.add(item, self._frame_of_host_time)

@@ -7,7 +7,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 
 
 class PipelineReport:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from flytrack_host.outputs.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
+from flytrack_host.live.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
 from flytrack_host.pipeline.cameras import calibration_problems, load_cameras
 from flytrack_host.pipeline.host import RECORDING_INCOMPLETE_EXIT, HostPipeline
 
@@ -77,7 +77,7 @@ def run_command(
     session = None
     if not no_trigger:
         from flytrack_host.trigger.common import TriggerError
-        from flytrack_host.trigger_session import TriggerSession
+        from flytrack_host.trigger.session import TriggerSession
 
         session = TriggerSession(rig.trigger, port=trigger_port, reset_wait_s=trigger_reset_wait)
         try:

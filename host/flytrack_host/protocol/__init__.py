@@ -6,6 +6,8 @@
 - Trigger serial link (trigger_link.py): CRC-16, COBS, frames, typed messages, FrameSplitter.
 - DVS128 USB words (dvs.py): DvsDecoder, encode_events.
 - canonical_fields (canonical.py): the SPEC §5 text the golden vectors compare.
+
+May import: util.
 """
 
 PROTOCOL_VERSION = 2

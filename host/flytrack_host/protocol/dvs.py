@@ -22,7 +22,7 @@ SYNC_BIT = 0x8000  # in the u16 at bytes 0-1 (byte 1, bit 7)
 DVS_WIDTH = DVS_HEIGHT = 128
 
 #: One address event, 16 bytes, the C struct ft_event of edge/events: t (us), x, y, p (1 = ON). The one event
-#: layout of the project: the event-file readers (flytrack_host.events) and this decoder both give it.
+#: layout of the project: the event-file readers (flytrack_host.dvs.events) and this decoder both give it.
 EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "u1"],
                         "offsets": [0, 8, 10, 12], "itemsize": 16})
 # Raw fields of every word (the canonical text of §5 lists these).

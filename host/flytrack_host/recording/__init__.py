@@ -1,4 +1,7 @@
-"""Recording: crash-safe append-only capture of a run, finalised to HDF5 (see writer.py)."""
+"""Recording: crash-safe append-only capture of a run, finalised to HDF5 (see writer.py).
+
+May import: util, protocol, geometry, tracking, intake.
+"""
 
 from flytrack_host.recording.finalize import FinalizeReport, RecordingError, finalize
 from flytrack_host.recording.reader import Recording, load_recording

@@ -139,7 +139,7 @@ def finalize(folder: Path | str, out: Path | str | None = None) -> FinalizeRepor
 
 def _write_h5(folder: Path, meta: dict, report: FinalizeReport, tmp: Path) -> None:
     last_t: list[float] = []
-    from flytrack_host.latency import LatencyStats  # (import cycle)
+    from flytrack_host.recording.latency import LatencyStats  # (import cycle)
 
     lat_stats = LatencyStats()
     with h5py.File(tmp, "w") as h5:

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.recording.schema import TABLES, dtype_to_json
 
 RAW_SUFFIX = ".bin"

@@ -9,9 +9,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from flytrack_host.outputs.launch import POSE_HELP, LiveOutputs, OutputsError
+from flytrack_host.live.launch import POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
-from flytrack_host.sim.placement import FRAMES_PER_HARDWARE_CPU
+from flytrack_host.util.placement import FRAMES_PER_HARDWARE_CPU
 from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
 
 

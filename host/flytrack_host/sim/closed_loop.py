@@ -31,7 +31,7 @@ from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import load_rules
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig, RigConfig
-from flytrack_host.sim.placement import run_as_hardware
+from flytrack_host.util.placement import run_as_hardware
 
 MATCH_WINDOW_S = 0.3  # a firing further than this from every true entry is a false fire
 LATENCY_DEFINITION = (

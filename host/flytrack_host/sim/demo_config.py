@@ -1,5 +1,5 @@
 """The simulated rig's settings (`flytrack demo`'s options), its errors, and the live parts a fault
-injector is handed (flytrack_host.faults)."""
+injector is handed (flytrack_host.sim.faults)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.flight import FlightParams
 from flytrack_host.sim.render import RenderParams
 
@@ -20,7 +20,7 @@ PREROLL_FRAMES = 3
 
 @dataclass
 class DemoContext:
-    """What a fault injector may touch in a running demo (flytrack_host.faults)."""
+    """What a fault injector may touch in a running demo (flytrack_host.sim.faults)."""
 
     host: Any
     session: Any
@@ -61,7 +61,7 @@ class DemoConfig:
     rules: Path | None = None  # closed-loop rules file (sim/closed_loop.py drives its lab devices)
     # Called with the host pipeline before it starts: live outputs join its sinks (`--serve`).
     attach: list[Callable[[Any], object]] = field(default_factory=list)
-    # Fault injection (flytrack_host.faults): an object with start(ctx: DemoContext) and stop(), started
+    # Fault injection (flytrack_host.sim.faults): an object with start(ctx: DemoContext) and stop(), started
     # once the trigger runs; and the host on a fixed-rate clock instead of the trigger's (--no-trigger).
     fault: Any = None
     host_fixed_clock: bool = False

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 # EVT 2.0 word types (bits 31..28)
 EVT2_CD_OFF = 0x0

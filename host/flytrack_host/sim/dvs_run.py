@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from flytrack_host.camera import Camera
-from flytrack_host.evaluation import FrameTracks, score_tracks
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.tracking.evaluation import FrameTracks, score_tracks
 from flytrack_host.sim.demo_config import DemoConfig
 from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.report import _scored_mask
@@ -43,7 +43,7 @@ def dvs_support_options(width: int, height: int) -> list[str]:
 def _dvs_comparison(cfg: DemoConfig, gt: GroundTruth, cams: list[Camera], warmup: int, host: Any,
                     dvs_indices: range) -> dict[str, Any]:
     """The run's bundles tracked again, with and without the DVS cameras' points, scored alike."""
-    from flytrack_host.eventcam.comparison import with_and_without
+    from flytrack_host.dvs.clusters.comparison import with_and_without
 
     runs = with_and_without(list(host.dvs_bundles), host.cameras, host.params, 1.0 / cfg.fps, dvs_indices)
     scored = _scored_mask(gt, cams)

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from flytrack_host.calibration.observations import Observations
 from flytrack_host.calibration.synthetic import led_path, make_rig, observe
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.dvs import DVS_SIZES, DvsParams, DvsRenderer, Evt2Encoder, _pack, evt2_header
 
 __all__ = ["WandParams", "WandScene", "simulate_wand", "dvs_cameras"]

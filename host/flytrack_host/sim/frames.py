@@ -31,10 +31,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.dvs import evt2_header
 from flytrack_host.sim.flight import GroundTruth
-from flytrack_host.sim.placement import run_as_hardware
+from flytrack_host.util.placement import run_as_hardware
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 
 STAGE_TAIL = 64  # bytes of a staged frame written at its pulse (under PIPE_BUF: one atomic write)

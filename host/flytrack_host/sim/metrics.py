@@ -1,4 +1,4 @@
-"""Figures of the simulated rig that are not tracking quality (that is flytrack_host.evaluation):
+"""Figures of the simulated rig that are not tracking quality (that is flytrack_host.tracking.evaluation):
 percentiles of a flat array of latencies."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 def latency_percentiles_ms(latencies_s: Sequence[float] | NDArray[np.float64]) -> dict[str, float]:
     """P50, P99, max and mean of a flat array of latencies in seconds, in milliseconds (NaN when there
-    are none). Not flytrack_host.latency.latency_summary, which splits LATENCY recording rows by part."""
+    are none). Not flytrack_host.recording.latency.latency_summary, which splits LATENCY recording rows by part."""
     a = np.asarray(latencies_s, dtype=np.float64)
     a = a[np.isfinite(a)]
     if a.size == 0:

@@ -12,7 +12,7 @@ matplotlib.use("Agg")  # files only; never needs a display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from flytrack_host.evaluation import FrameTracks  # noqa: E402
+from flytrack_host.tracking.evaluation import FrameTracks  # noqa: E402
 from flytrack_host.sim.flight import GroundTruth  # noqa: E402
 
 

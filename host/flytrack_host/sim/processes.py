@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.demo_config import ROOT, DemoError
 
 
@@ -151,7 +151,7 @@ class _LiveCounter:
     """Counts LIVE_ESTIMATES frames published to the rig's live subscriber (a stimulus program)."""
 
     def __init__(self, port: int, counter: list[int]):
-        from flytrack_host.live import LiveClient
+        from flytrack_host.live.udp import LiveClient
 
         self.client = LiveClient(port=port)
         self.counter = counter

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 U8 = NDArray[np.uint8]
 

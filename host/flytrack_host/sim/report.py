@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.camera import Camera
-from flytrack_host.evaluation import FrameTracks, TrackingScores, score_tracks
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.tracking.evaluation import FrameTracks, TrackingScores, score_tracks
 from flytrack_host.sim.demo_config import DemoConfig
 from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.goals import check_goals

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.rig import CameraConfig, HostConfig, RecordingConfig, RigConfig, TriggerConfig
 from flytrack_host.sim.flight import Arena
 
@@ -151,7 +151,7 @@ def write_rig(rig: RigConfig, path: Path) -> Path:
 
 def _write_calibration(cams: list[Camera], path: Path, notes: list[str]) -> Path | None:
     try:
-        from flytrack_host.calibration.formats import save_flydra_xml
+        from flytrack_host.geometry.formats import save_flydra_xml
     except ImportError:
         notes.append("calibration writer missing: the host got the cameras directly")
         return None
@@ -163,7 +163,7 @@ def _host_cameras(rig: Any, cams: list[Camera], calib_path: Path | None) -> dict
     """Cameras for the host, read back from the calibration file when there is one (as a user's)."""
     by_name = {c.name: c for c in cams}
     if calib_path is not None:
-        from flytrack_host.calibration.formats import load_calibration
+        from flytrack_host.geometry.formats import load_calibration
 
         by_name = load_calibration(calib_path)
     return {c.index: by_name[c.calib_name] for c in rig.cameras}

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.demo_config import (
     PREROLL_FRAMES,
     ROOT,
@@ -33,7 +33,7 @@ from flytrack_host.sim.demo_config import (
 from flytrack_host.sim.dvs_run import DVS_SLICE_US, _dvs_comparison, _dvs_counts, dvs_edge_command, dvs_support_options
 from flytrack_host.sim.flight import Arena, simulate_flight
 from flytrack_host.sim.frames import FrameFeeder
-from flytrack_host.sim.placement import Placement, choose_split, run_as_hardware
+from flytrack_host.util.placement import Placement, choose_split, run_as_hardware
 from flytrack_host.sim.processes import (
     CpuSampler,
     EdgeFleet,
@@ -175,7 +175,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         from flytrack_host.pipeline import HostPipeline
         from flytrack_host.rig import load_rig
         from flytrack_host.trigger.common import TriggerError
-        from flytrack_host.trigger_session import TriggerSession
+        from flytrack_host.trigger.session import TriggerSession
 
         rig = load_rig(rig_path)  # exactly what a user's host would read
         cameras_for_host = _host_cameras(rig, cams, calib_path)

@@ -25,7 +25,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from flytrack_host.evaluation import score_frames
+from flytrack_host.tracking.evaluation import score_frames
 from flytrack_host.tracking.kernel import KernelUnavailable
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.refraction import triangulate_rays
+from flytrack_host.geometry.refraction import triangulate_rays
 from flytrack_host.tracking.association import PointSet
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.tracking.params import TrackingParams
 
 

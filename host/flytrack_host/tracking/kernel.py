@@ -4,7 +4,7 @@ The library (host/flytrack_host/tracking/kernel/tracker_kernel.c) gathers a fram
 projects, gates, associates and updates all targets in one call; `Tracker` uses it when it is built
 and falls back to the NumPy path otherwise (tracker.py says which). Every buffer is a NumPy array owned
 here and handed over once as a pointer in the `Buffers` struct: a frame allocates nothing.
-Where the library is: flytrack_host.native (`host/flytrack_host/tracking/kernel/` under
+Where the library is: flytrack_host.util.native (`host/flytrack_host/tracking/kernel/` under
 $FLYTRACK_BUILD_DIR, else under <repo>/build; built by `make cbuild`).
 """
 
@@ -16,7 +16,7 @@ import sys
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.native import NativeLibraryError, library_path, load_library
+from flytrack_host.util.native import NativeLibraryError, library_path, load_library
 from flytrack_host.tracking.association import PointSet
 from flytrack_host.tracking.birth import _SEED_GATE
 from flytrack_host.tracking.observation import CameraArray

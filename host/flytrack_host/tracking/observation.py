@@ -17,8 +17,8 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.camera import Camera
-from flytrack_host.refraction import refraction_point, refraction_point_jacobian, trace_rays
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.geometry.refraction import refraction_point, refraction_point_jacobian, trace_rays
 
 F64 = NDArray[np.float64]
 

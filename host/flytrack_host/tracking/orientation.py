@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 F64 = NDArray[np.float64]
 

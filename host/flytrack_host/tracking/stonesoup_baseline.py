@@ -47,7 +47,7 @@ from stonesoup.types.state import GaussianState, State
 from stonesoup.types.track import Track
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.tracking.birth import Birth
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.types import FrameBundle

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.protocol import POINT_DTYPE
-from flytrack_host.refraction import FlatInterface
+from flytrack_host.geometry.refraction import FlatInterface
 from flytrack_host.tracking.types import FrameBundle
 
 F64 = NDArray[np.float64]

@@ -32,7 +32,7 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.tracking import kernel as ckernel
 from flytrack_host.tracking.association import PointSet, _assign_camera_globally, _prevent_merges, associate

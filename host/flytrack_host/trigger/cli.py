@@ -11,7 +11,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 
 from .common import TriggerError, check_port_exists
 from .flash import BOARDS, avrdude_command, firmware_mcu

@@ -55,7 +55,7 @@ def record_crystal_run(seconds: float, ppm: float = 37.0, drift_ppm_per_s: float
                        query_period_s: float = 0.01, elf: object = None, harness: object = None) -> CrystalRun:
     """Runs the firmware paced with the given crystal error for `seconds`, querying its clock every
     query_period_s (plus the round trip) over the pty, as TriggerDevice does."""
-    from flytrack_host.sim.placement import run_as_hardware
+    from flytrack_host.util.placement import run_as_hardware
 
     with SimulatedTrigger(elf=elf, harness=harness, realtime=True, ppm=ppm, drift_ppm_per_s=drift_ppm_per_s) as sim:
         # The harness stands for silicon, whose crystal a busy host never delays: it runs ahead of the

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import serial
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.protocol.errors import ProtocolError
 

@@ -26,7 +26,7 @@ import time
 
 import serial
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 
 from .clock_model import EARLY_FRACTION, ClockModel, LinkTiming
 from .common import ClockThread, RateChoice, SerialTrigger, TriggerError, choose_rate, open_serial

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.rules import parse_rules
 from flytrack_host.rig import ActuatorConfig

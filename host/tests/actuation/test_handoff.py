@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices import base
 from flytrack_host.actuation.devices.base import Handoff
 from flytrack_host.actuation.firings import STAGES, send_split, stage_latencies

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flytrack_host.camera import Camera, triangulate
+from flytrack_host.geometry.camera import Camera, triangulate
 
 
 def _cam(dist: tuple[float, ...] = (-0.2, 0.05, 1e-3, -2e-3, 0.01)) -> Camera:
@@ -76,7 +76,7 @@ def test_triangulate_exact() -> None:
 def test_undistort_gives_nan_where_the_model_folds_over_not_a_wrong_point() -> None:
     import numpy as np
 
-    from flytrack_host.camera import Camera
+    from flytrack_host.geometry.camera import Camera
 
     # Barrel distortion: the model's image of the plane folds back beyond r ~ 1.3 (distorted radius
     # 0.86), so points far outside the image have no preimage; inside, undistort inverts distort.
@@ -91,7 +91,7 @@ def test_undistort_gives_nan_where_the_model_folds_over_not_a_wrong_point() -> N
 def test_triangulating_parallel_rays_gives_nan() -> None:
     import numpy as np
 
-    from flytrack_host.camera import Camera, triangulate
+    from flytrack_host.geometry.camera import Camera, triangulate
 
     a = Camera.look_at("a", [0, -1, 0], [0, 0, 0], 640, 480, 500)
     b = Camera.look_at("b", [0.01, -1, 0], [0.01, 0, 0], 640, 480, 500)  # same direction, side by side

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from flytrack_host.calibration.collect import points_from_recording
-from flytrack_host.calibration.formats import save_calibration
+from flytrack_host.geometry.formats import save_calibration
 from flytrack_host.calibration.observations import load_points
 from flytrack_host.calibration.synthetic import synthetic_rig
 from flytrack_host.recording import Recorder

@@ -23,7 +23,7 @@ from flytrack_host.calibration.led_events import (
 from flytrack_host.calibration.observations import load_points, save_points
 from flytrack_host.calibration.selfcal import self_calibrate
 from flytrack_host.cli import app
-from flytrack_host.events import EVENT_DTYPE, read_events_and_triggers, write_events
+from flytrack_host.dvs.events import EVENT_DTYPE, read_events_and_triggers, write_events
 from flytrack_host.sim.dvs_wand import simulate_wand
 
 LED_HZ = 500.0
@@ -204,7 +204,7 @@ def test_cli_dvs_points_and_its_errors(wand, extracted, tmp_path: Path):
 
 
 def test_cli_dvs_sim_writes_what_the_readme_uses(tmp_path: Path):
-    from flytrack_host.calibration.formats import load_calibration
+    from flytrack_host.geometry.formats import load_calibration
 
     out = tmp_path / "wand"
     r = _cli("dvs-sim", str(out), "--seconds", "0.3", "--dvs", "1", "--frame-cameras", "3")

@@ -8,7 +8,7 @@ import pytest
 from flytrack_host.calibration.factorization import FactorizationError, projective_factorization
 from flytrack_host.calibration.metric_upgrade import MetricUpgradeError, metric_upgrade
 from flytrack_host.calibration.synthetic import led_path
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 
 def _cameras(n: int) -> list[Camera]:

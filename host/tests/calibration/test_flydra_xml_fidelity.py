@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.calibration.formats import flydra_projection, load_calibration, load_flydra_xml, save_flydra_xml
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.formats import flydra_projection, load_calibration, load_flydra_xml, save_flydra_xml
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.cli import app
 
 

@@ -12,7 +12,7 @@ from flytrack_host.calibration.bundle import bundle_adjust
 from flytrack_host.calibration.evaluate import centre_error
 from flytrack_host.calibration.schur import levenberg_marquardt, project_jacobian
 from flytrack_host.calibration.synthetic import synthetic_rig
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 
 def _random_problem(nd: int, seed: int = 0):  # noqa: ANN202

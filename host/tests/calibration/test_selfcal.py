@@ -17,7 +17,7 @@ from flytrack_host.calibration.evaluate import centre_error, reprojection_error
 from flytrack_host.calibration.observations import Observations, load_points, save_points
 from flytrack_host.calibration.selfcal import SelfCalError, self_calibrate
 from flytrack_host.calibration.synthetic import make_rig, observe, synthetic_rig
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 
 
 @pytest.mark.parametrize(("n_cams", "seed", "focal_error", "init"),
@@ -164,7 +164,7 @@ def test_cli_selfcal_align_convert(tmp_path: Path) -> None:
     assert "mean reprojection error" in r.stdout and (tmp_path / "p.png").stat().st_size > 10000
     r = _run_cli("align", str(tmp_path / "raw.xml"), "--centres", str(centres), "-o", str(tmp_path / "w.json"))
     assert r.returncode == 0, r.stderr
-    from flytrack_host.calibration.formats import load_calibration
+    from flytrack_host.geometry.formats import load_calibration
 
     world = load_calibration(tmp_path / "w.json")
     for k, c in rig.cameras.items():
@@ -279,7 +279,7 @@ def test_bundle_holds_only_the_named_cameras_intrinsics() -> None:
 
 
 def test_cli_refine_intrinsics(tmp_path: Path) -> None:
-    from flytrack_host.calibration.formats import load_calibration, save_calibration
+    from flytrack_host.geometry.formats import load_calibration, save_calibration
 
     rig = synthetic_rig(4, n_points=800, seed=3)
     pts = tmp_path / "pts.npz"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host.calibration.formats import CalibrationFormatError, save_calibration
+from flytrack_host.geometry.formats import CalibrationFormatError, save_calibration
 from flytrack_host.io.retrack import RetrackError, params_with
 from flytrack_host.rig import RigError, load_rig, parse_rig
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flytrack_host.events import EVENT_DTYPE
-from flytrack_host.events.algos import ClusterTracker, NoiseFilter
+from flytrack_host.dvs.events import EVENT_DTYPE
+from flytrack_host.dvs.events.algos import ClusterTracker, NoiseFilter
 
 W, H = 346, 260
 

@@ -9,7 +9,7 @@ import numpy as np
 from typer.testing import CliRunner
 
 from flytrack_host.cli import app
-from flytrack_host.events import EVENT_DTYPE, read_events, write_events
+from flytrack_host.dvs.events import EVENT_DTYPE, read_events, write_events
 
 from .test_files import dv_read, expelliarmus_write, same
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from expelliarmus import Wizard
 
-from flytrack_host.events import (
+from flytrack_host.dvs.events import (
     EVENT_DTYPE,
     EventFileError,
     EventReader,

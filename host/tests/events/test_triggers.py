@@ -8,7 +8,7 @@ import struct
 
 import numpy as np
 
-from flytrack_host.events import (
+from flytrack_host.dvs.events import (
     TRIGGER_DTYPE,
     EventReader,
     read_events,

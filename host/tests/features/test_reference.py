@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from flytrack_host.camera import Camera
-from flytrack_host.features import ExtractorParams, FeatureError, FeatureExtractor
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.edges.features import ExtractorParams, FeatureError, FeatureExtractor
 
 F32 = np.float32
 
@@ -273,7 +273,7 @@ def test_bad_input_is_a_clear_error() -> None:
 
 
 def test_missing_library_tells_how_to_build(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
-    from flytrack_host.features import FeatureLibraryError, _lib
+    from flytrack_host.edges.features import FeatureLibraryError, _lib
 
     monkeypatch.setenv("FLYTRACK_BUILD_DIR", str(tmp_path))
     monkeypatch.setattr(_lib, "_lib", None)

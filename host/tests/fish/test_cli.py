@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.calibration.formats import save_calibration
+from flytrack_host.geometry.formats import save_calibration
 from flytrack_host.cli import app
 from flytrack_host.fish.io import read_tracks
 from flytrack_host.fish.render import render_sequence

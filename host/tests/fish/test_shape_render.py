@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.fish.render import background, coverage, dense_model, render_image
 from flytrack_host.fish.shape import (
     arclength,

@@ -7,10 +7,10 @@ import logging
 import numpy as np
 import pytest
 
-from flytrack_host.calibration.formats import CalibrationFormatError, load_flydra_xml, save_calibration, save_flydra_xml
-from flytrack_host.camera import Camera, triangulate
-from flytrack_host.evaluation import score_frames
-from flytrack_host.refraction import (
+from flytrack_host.geometry.formats import CalibrationFormatError, load_flydra_xml, save_calibration, save_flydra_xml
+from flytrack_host.geometry.camera import Camera, triangulate
+from flytrack_host.tracking.evaluation import score_frames
+from flytrack_host.geometry.refraction import (
     FlatInterface,
     refract,
     refraction_point,
@@ -199,7 +199,7 @@ def test_tracker_follows_fish_under_water_on_the_numpy_path(caplog, monkeypatch)
 
 
 def test_triangulate_rays_leaves_out_a_line_that_is_not_finite():
-    from flytrack_host.refraction import triangulate_rays
+    from flytrack_host.geometry.refraction import triangulate_rays
 
     o = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     d = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [np.nan, 0.0, 1.0]])

@@ -13,14 +13,14 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from flytrack_host import hostclock
-from flytrack_host.faults import inject as fi
-from flytrack_host.latency import LatencyStats
+from flytrack_host.util import hostclock
+from flytrack_host.sim.faults import inject as fi
+from flytrack_host.recording.latency import LatencyStats
 from flytrack_host.pipeline import data2d_rows
-from flytrack_host.ratelog import RateLimitedLog
-from flytrack_host.receiver import Receiver
+from flytrack_host.util.ratelog import RateLimitedLog
+from flytrack_host.intake.receiver import Receiver
 from flytrack_host.recording.schema import FLAG_REJECTED, FLAG_TRACKED
-from flytrack_host.sync import CameraFrame, FixedRateClock, FrameSynchronizer, SyncedBundle, SyncEvent, UntrackedFrame
+from flytrack_host.intake.sync import CameraFrame, FixedRateClock, FrameSynchronizer, SyncedBundle, SyncEvent, UntrackedFrame
 
 FPS = 100.0
 P = 1.0 / FPS
@@ -154,13 +154,13 @@ def test_wall_steps_from_the_environment_reach_a_real_process():
     # Host time moves as the monotonic clock did, bracketed by monotonic reads on either side (a loaded
     # machine sleeps 0.3 s for 0.35 s or more: `round(elapsed, 1) == 0.3` failed so), untouched by the
     # -1 h step of the wall clock.
-    code = ("import time; from flytrack_host import hostclock as h; m=time.monotonic; "
+    code = ("import time; from flytrack_host.util import hostclock as h; m=time.monotonic; "
             "a=m(); t=h.now(); b=m(); w=h.wall(); time.sleep(0.3); c=m(); t2=h.now(); d=m(); "
             "print(round(h.wall()-w-(t2-t)), int(c-b <= t2-t <= d-a), int(t2-t >= 0.3))")
     env = dict(os.environ, FLYTRACK_FAULT_WALL_STEPS="0.1:-3600")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.split() == ["-3600", "1", "1"], out
-    bad = subprocess.run([sys.executable, "-c", "import flytrack_host.hostclock"], capture_output=True, text=True,
+    bad = subprocess.run([sys.executable, "-c", "import flytrack_host.util.hostclock"], capture_output=True, text=True,
                          env=dict(os.environ, FLYTRACK_FAULT_WALL_STEPS="soon"))
     assert bad.returncode != 0 and "AT_SECONDS:STEP_SECONDS" in bad.stderr
 

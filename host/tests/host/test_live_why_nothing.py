@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.protocol.udp import FeatureFrame, encode_features

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from flytrack_host.live import LiveClient
+from flytrack_host.live.udp import LiveClient
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol.udp import decode_datagram
 from flytrack_host.recording import load_recording

@@ -7,11 +7,11 @@ import time
 
 import numpy as np
 
-from flytrack_host.live import LiveClient, LiveSender
+from flytrack_host.live.udp import LiveClient, LiveSender
 from flytrack_host.pipeline import HostPipeline
-from flytrack_host.receiver import Receiver
+from flytrack_host.intake.receiver import Receiver
 from flytrack_host.recording import load_recording
-from flytrack_host.sync import CameraFrame
+from flytrack_host.intake.sync import CameraFrame
 from flytrack_host.tracking.types import Estimate, FrameResult
 
 ADDR = ("127.0.0.1", 5555)
@@ -156,7 +156,7 @@ def test_datagrams_arriving_during_a_slow_batch_are_not_dated_before_they_were_s
     in the middle of it."""
     import socket
 
-    from flytrack_host import hostclock
+    from flytrack_host.util import hostclock
 
     rx = Receiver(helpers.make_rig(1), bind="127.0.0.1:0")
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 import pytest
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.recording import Recorder, finalize, load_recording
 from flytrack_host.recording.finalize import RecordingError, read_meta, read_raw_table, read_raw_textlog
 from flytrack_host.recording.schema import DATA2D, LATENCY, TABLES, dtype_to_json
@@ -352,7 +352,7 @@ def test_finalize_reads_every_time_column_and_every_whole_log_line(tmp_path) -> 
 def test_finalize_onto_a_full_disk_says_how_much_is_needed_and_leaves_nothing(tmp_path) -> None:
     import shutil
 
-    from flytrack_host.testing import small_tmpfs
+    from flytrack_host.util.testing import small_tmpfs
 
     folder = tmp_path / "r"
     rec = Recorder(folder, flush_interval_s=0.05)

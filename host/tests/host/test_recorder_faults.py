@@ -20,7 +20,7 @@ from flytrack_host.pipeline import HostPipeline
 from flytrack_host.recording import Recorder, load_recording
 from flytrack_host.recording import writer as writer_mod
 from flytrack_host.recording.schema import DATA2D
-from flytrack_host.testing import small_tmpfs
+from flytrack_host.util.testing import small_tmpfs
 
 
 def _rows(start: int, n: int) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flytrack_host.sync import (
+from flytrack_host.intake.sync import (
     CameraFrame,
     FixedRateClock,
     FrameSynchronizer,
@@ -248,7 +248,7 @@ def test_stats_count_every_frame_once_and_bundles_by_how_they_closed() -> None:
     The counts add up: every frame is tracked or reported untracked with one reason."""
     import dataclasses
 
-    from flytrack_host.sync import CameraSyncStats
+    from flytrack_host.intake.sync import CameraSyncStats
 
     d = make(dead_timeout_s=0.3)
     frames = stream({0: 0, 1: 0, 2: 0}, range(120))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flytrack_host.sync import (
+from flytrack_host.intake.sync import (
     CameraFrame,
     FixedRateClock,
     FrameSynchronizer,

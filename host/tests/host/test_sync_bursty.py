@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from flytrack_host.sync import (
+from flytrack_host.intake.sync import (
     CameraFrame,
     FixedRateClock,
     FrameSynchronizer,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from flytrack_host.sync import FixedRateClock, FrameSynchronizer
+from flytrack_host.intake.sync import FixedRateClock, FrameSynchronizer
 
 sys.path.insert(0, str(Path(__file__).parent))  # the builders of test_sync_behaviour.py
 from test_sync_behaviour import (  # noqa: E402

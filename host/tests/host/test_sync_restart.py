@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from flytrack_host.sync import CameraFrame, FixedRateClock, FrameSynchronizer, SyncedBundle, UntrackedFrame
+from flytrack_host.intake.sync import CameraFrame, FixedRateClock, FrameSynchronizer, SyncedBundle, UntrackedFrame
 
 FPS = 100.0
 P = 1.0 / FPS

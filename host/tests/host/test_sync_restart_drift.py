@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host.sync import FixedRateClock, FrameSynchronizer, SyncOutput, _LagWindow
+from flytrack_host.intake.sync import FixedRateClock, FrameSynchronizer, SyncOutput, _LagWindow
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_sync_behaviour import FPS, LAG8, T0, L, NotReadyClock, P, Run, cam_frames, frame, make, stream  # noqa: E402

@@ -4,7 +4,7 @@ as tuples come and go; they must always equal min()/max() over what the window h
 import copy
 import random
 
-from flytrack_host.sync import _Window
+from flytrack_host.intake.sync import _Window
 
 
 def test_window_min_max_follow_appends_pops_and_clears():
@@ -42,7 +42,7 @@ def test_lag_window_min_lag_equals_the_python_formula_bit_for_bit():
     """The mapped-ahead check reads every camera's lags under the clock model of now through
     `_LagWindow.min_lag`: it must give exactly what walking the tuples gives, through ring wrap-around,
     growth past its first capacity, pops and clears, with and without the arrival cut-off."""
-    from flytrack_host.sync import _LagWindow
+    from flytrack_host.intake.sync import _LagWindow
 
     rng = random.Random(11)
     w = _LagWindow()

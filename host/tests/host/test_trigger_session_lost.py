@@ -6,7 +6,7 @@ import serial
 
 from flytrack_host.rig import TriggerConfig
 from flytrack_host.trigger.common import TriggerError
-from flytrack_host.trigger_session import LOST_AFTER_FAILURES, TriggerSession
+from flytrack_host.trigger.session import LOST_AFTER_FAILURES, TriggerSession
 
 
 class FlakyDevice:

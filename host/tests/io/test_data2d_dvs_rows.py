@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from flytrack_host.io.data2d import dvs_rows_left_out, iter_bundles, n_frames
-from flytrack_host.pipeline.rows import dvs_covariance_rows
+from flytrack_host.recording.rows import dvs_covariance_rows
 from flytrack_host.recording.schema import DATA2D, FLAG_DVS
 
 

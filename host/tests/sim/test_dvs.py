@@ -50,7 +50,7 @@ def test_events_follow_the_animals_and_noise_keeps_its_rate(world):
 
 
 def test_evt2_stream_decodes_event_for_event_with_its_syncs(world, tmp_path):
-    from flytrack_host.events.files import EventReader
+    from flytrack_host.dvs.events.files import EventReader
 
     gt, cam = world
     r = DvsRenderer(cam, DvsParams(noise_hz_per_px=0.5), seed=2, t0_us=5_000_000)

@@ -1,4 +1,4 @@
-"""The simulated rig's own figures (tracking quality is scored by flytrack_host.evaluation)."""
+"""The simulated rig's own figures (tracking quality is scored by flytrack_host.tracking.evaluation)."""
 
 import math
 

@@ -10,7 +10,7 @@ import threading
 
 import pytest
 
-from flytrack_host.sim.placement import Placement, run_as_hardware, split_cpus, threads_of, to_hardware
+from flytrack_host.util.placement import Placement, run_as_hardware, split_cpus, threads_of, to_hardware
 
 
 def test_split_gives_the_host_the_first_half_and_the_hardware_the_rest():
@@ -85,7 +85,7 @@ def test_a_process_that_is_gone_is_not_an_error():
 
 
 def test_auto_splits_unless_the_cameras_need_more_than_their_half():
-    from flytrack_host.sim.placement import FRAMES_PER_HARDWARE_CPU, choose_split
+    from flytrack_host.util.placement import FRAMES_PER_HARDWARE_CPU, choose_split
 
     assert choose_split("auto", 5 * 100, {0, 1}) == (True, "")  # the default demo
     split, why = choose_split("auto", 11 * 200, {0, 1})  # make demo-stress: the cameras need the machine

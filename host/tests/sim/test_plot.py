@@ -1,6 +1,6 @@
 import numpy as np
 
-from flytrack_host.evaluation import FrameTracks
+from flytrack_host.tracking.evaluation import FrameTracks
 from flytrack_host.sim.flight import simulate_flight
 from flytrack_host.sim.plot import plot_tracks
 

@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from flytrack_host.features import extractor
+from flytrack_host.edges.features import extractor
 from flytrack_host.sim.flight import Arena, simulate_flight
 from flytrack_host.sim.render import CameraRenderer, RenderParams
 from flytrack_host.sim.rig import make_cameras
-from flytrack_host.testing import missing_part
+from flytrack_host.util.testing import missing_part
 
 
 def test_extractor_finds_every_drawn_animal_to_a_fraction_of_a_pixel():

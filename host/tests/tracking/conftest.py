@@ -1,11 +1,11 @@
 """Tests marked `c_kernel` need the C tracker kernel: under make (which builds it) its absence fails
-them, in a bare pytest run without a build it skips them (flytrack_host.testing.missing_part)."""
+them, in a bare pytest run without a build it skips them (flytrack_host.util.testing.missing_part)."""
 
 from __future__ import annotations
 
 import pytest
 
-from flytrack_host.testing import missing_part
+from flytrack_host.util.testing import missing_part
 from flytrack_host.tracking import kernel as ckernel
 
 

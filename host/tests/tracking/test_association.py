@@ -269,7 +269,7 @@ def test_no_candidate_or_no_point_counts_nothing() -> None:
 def test_rays_start_on_the_water_surface_for_refractive_cameras() -> None:
     """Under water the camera ray bends at the surface: the distance is taken to the refracted line
     (PointSet.origins), so exact points of the target are at ~0, not off by the refraction."""
-    from flytrack_host.refraction import FlatInterface
+    from flytrack_host.geometry.refraction import FlatInterface
     from flytrack_host.tracking.synthetic import arena_cameras
 
     cams = arena_cameras(4, seed=7, interface=FlatInterface.water_surface(1.333, z=0.3))

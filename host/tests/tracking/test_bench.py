@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.testing import under_make
+from flytrack_host.util.testing import under_make
 from flytrack_host.tracking.bench import app
 from flytrack_host.tracking.synthetic import arena_cameras
 from flytrack_host.tracking.tracker import KERNEL_ENV

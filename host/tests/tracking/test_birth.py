@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from flytrack_host.camera import Camera, triangulate
-from flytrack_host.refraction import FlatInterface
-from flytrack_host.testing import missing_part
+from flytrack_host.geometry.camera import Camera, triangulate
+from flytrack_host.geometry.refraction import FlatInterface
+from flytrack_host.util.testing import missing_part
 from flytrack_host.tracking.birth import find_births, sampson2, search_births, seed_pairs, triangulate_batch
 from flytrack_host.tracking.kernel import unavailable_reason
 from flytrack_host.tracking.observation import CameraArray

@@ -75,8 +75,8 @@ def test_c_and_numpy_paths_agree_frame_by_frame(name: str) -> None:
 def test_flydra_distortion_frame_agrees() -> None:
     """Cameras whose distortion is about another K than P's (Camera.K_dist, flydra's intrinsic_linear):
     the kernel's distortion frame gives the NumPy path's estimates, and both track well."""
-    from flytrack_host.camera import Camera
-    from flytrack_host.evaluation import score_frames
+    from flytrack_host.geometry.camera import Camera
+    from flytrack_host.tracking.evaluation import score_frames
     from flytrack_host.tracking.synthetic import arena_cameras
 
     cams = {}

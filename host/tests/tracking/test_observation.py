@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flytrack_host.camera import Camera
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.synthetic import arena_cameras
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flytrack_host.outputs import braid
+from flytrack_host.live import braid
 
 sys.path.insert(0, str(Path(__file__).parent))
 from frames import make_result  # noqa: E402

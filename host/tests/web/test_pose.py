@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host.outputs.pose import (
+from flytrack_host.live.pose import (
     FLAG_LOCKED,
     FLAG_NO_OBJECT,
     POSE_SIZE,

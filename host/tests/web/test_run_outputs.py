@@ -81,7 +81,7 @@ def test_run_refuses_a_busy_http_address_and_bad_pose_settings(tmp_path):
 def test_default_port_taken_warns_and_runs_without_the_live_view(tmp_path):
     """`flytrack run` with the default --http: a taken port is a warning, not a stopped run (tracking
     matters more than the view); an address the user gave must bind (tested above)."""
-    from flytrack_host.outputs.launch import DEFAULT_HTTP, LiveOutputs
+    from flytrack_host.live.launch import DEFAULT_HTTP, LiveOutputs
     from flytrack_host.pipeline import HostPipeline
     from flytrack_host.rig import load_rig
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host.outputs.braid import iter_sse
-from flytrack_host.web.server import LiveServer, is_loopback, parse_bind
+from flytrack_host.live.braid import iter_sse
+from flytrack_host.live.web.server import LiveServer, is_loopback, parse_bind
 
 sys.path.insert(0, str(Path(__file__).parent))
 from frames import make_result  # noqa: E402

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flytrack_host.wingbeat.analysis import WingbeatResult, WingTrack, _combine, score_wings, track_wings
-from flytrack_host.wingbeat.geometry import WingbeatError
-from flytrack_host.wingbeat.native import NativeWingbeat, edge_beats
-from flytrack_host.wingbeat.simulate import FlySimParams, simulate_tethered_fly
+from flytrack_host.dvs.wingbeat.analysis import WingbeatResult, WingTrack, _combine, score_wings, track_wings
+from flytrack_host.dvs.wingbeat.geometry import WingbeatError
+from flytrack_host.dvs.wingbeat.native import NativeWingbeat, edge_beats
+from flytrack_host.dvs.wingbeat.simulate import FlySimParams, simulate_tethered_fly
 
 SIM = FlySimParams(duration_s=1.0, manoeuvre_start_s=0.4, manoeuvre_s=0.3, seed=7)
 
@@ -80,7 +80,7 @@ def test_live_estimate_follows_the_manoeuvre(fly, both):
 
 def test_no_fly_is_a_clear_error_and_nothing_breaks():
     rng = np.random.default_rng(1)
-    from flytrack_host.events.files import EVENT_DTYPE
+    from flytrack_host.dvs.events.files import EVENT_DTYPE
 
     ev = np.zeros(30_000, EVENT_DTYPE)  # 0.3 s of uniform noise, 100 k events/s
     ev["t"] = np.sort(rng.integers(0, 300_000, len(ev)))

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flytrack_host.wingbeat.analysis import score_wings, track_wings
-from flytrack_host.wingbeat.ekf import EkfParams, ekf_track
-from flytrack_host.wingbeat.geometry import FlyGeometry, WingbeatError
-from flytrack_host.wingbeat.simulate import EVENT_DTYPE, FlySimParams, simulate_tethered_fly
+from flytrack_host.dvs.wingbeat.analysis import score_wings, track_wings
+from flytrack_host.dvs.wingbeat.ekf import EkfParams, ekf_track
+from flytrack_host.dvs.wingbeat.geometry import FlyGeometry, WingbeatError
+from flytrack_host.dvs.wingbeat.simulate import EVENT_DTYPE, FlySimParams, simulate_tethered_fly
 
 # A 200 Hz fly whose beat rises by 10 % from 0.5 s to 0.8 s while its amplitudes grow by 10 %,
 # with 20 % of all events noise.
@@ -116,8 +116,8 @@ def test_no_fly_is_a_clear_error():
 def test_events_read_back_from_aedat4_and_evt3_track_the_same(fly, ekf_result, tmp_path, suffix):
     """The simulated fly through the event file writers and readers (AEDAT 4.0, EVT 3.0) and the CLI's
     loader: the same events, so the same wing beats."""
-    from flytrack_host.events.files import EventWriter
-    from flytrack_host.wingbeat.cli import load_events
+    from flytrack_host.dvs.events.files import EventWriter
+    from flytrack_host.dvs.wingbeat.cli import load_events
 
     ev, _ = fly
     part = ev[ev["t"] < 400_000]

@@ -29,7 +29,7 @@
 extern "C" {
 #endif
 
-/* One change-detection event; 16 bytes, the NumPy dtype EVENT_DTYPE of flytrack_host.events. */
+/* One change-detection event; 16 bytes, the NumPy dtype EVENT_DTYPE of flytrack_host.dvs.events. */
 typedef struct {
     int64_t t;  /* microseconds, the file's own time base, made monotonic across counter wraps */
     uint16_t x; /* column, 0 = left as the format defines it */

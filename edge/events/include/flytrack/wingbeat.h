@@ -1,5 +1,5 @@
 /* Wing beats of a tethered fly from its events, streaming (seed 002, part II): the same algorithm
- * as the host's flytrack_host.wingbeat (geometry.py, ekf.py, analysis.py), for the edge.
+ * as the host's flytrack_host.dvs.wingbeat (geometry.py, ekf.py, analysis.py), for the edge.
  *
  * Initialisation (once, on a buffer): the events of the first init_us of event time are kept;
  * pixels that fire at least 4 times in it are the beating wings' (noise fires once or twice);

@@ -25,9 +25,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.rules import Action
-from flytrack_host.ratelog import RateLimitedLog
+from flytrack_host.util.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig
 
 log = logging.getLogger("flytrack.actuation")

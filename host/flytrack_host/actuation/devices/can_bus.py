@@ -7,7 +7,7 @@ or put on the bus for the virtual and UDP interfaces).
 
 from __future__ import annotations
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 from flytrack_host.trigger.common import TriggerError
 

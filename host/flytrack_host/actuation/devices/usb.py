@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from flytrack_host import hostclock
+from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 
 

@@ -1,0 +1,6 @@
+"""Small shared pieces every subsystem may use: the host clock seam (`hostclock`), rate-limited logging
+(`ratelog`), finding the C libraries and binaries `make build` made (`native`), placing simulated hardware
+processes on their own CPUs (`placement`), and test helpers (`testing`).
+
+May import: nothing of FlyTrack.
+"""
