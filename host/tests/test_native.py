@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host.util import native
 from flytrack_host.edges.features import _lib as features_lib
 from flytrack_host.tracking import kernel as tracker_kernel
+from flytrack_host.util import native
 
 
 def test_finds_the_library_under_the_build_dir(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:

@@ -17,8 +17,8 @@ from typer.testing import CliRunner
 from flytrack_host.cli import app
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.sim.run import DemoConfig, run_demo
-from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
+from flytrack_host.util.testing import missing_part
 
 ROOT = Path(__file__).resolve().parents[2]
 RULES = ROOT / "examples" / "closed_loop.toml"

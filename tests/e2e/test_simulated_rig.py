@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from flytrack_host.sim.run import PREROLL_FRAMES, DemoConfig, find_edge_binary, run_demo, write_json
-from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
+from flytrack_host.util.testing import missing_part
 
 
 @pytest.fixture(scope="module")

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from flytrack_host.dvs.events import EVENT_DTYPE, write_events
-from flytrack_host.protocol import DvsClusters, DvsWingbeat, EdgeStatus
 from flytrack_host.dvs.wingbeat.simulate import FlySimParams, simulate_tethered_fly
+from flytrack_host.protocol import DvsClusters, DvsWingbeat, EdgeStatus
 
 from .test_edge_events import run
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
+from flytrack_host.util.testing import missing_part
 
 FIGURES: dict[str, str] = {}
 DVS_FIGURES: dict[str, str] = {}

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from flytrack_host.protocol import trigger_link as tl
-from flytrack_host.util.placement import run_as_hardware
 from flytrack_host.trigger.clock_model import ClockModel
 from flytrack_host.trigger.crystal import record_crystal_run, score_fit
 from flytrack_host.trigger.device import FIRMWARE_BAUD, TriggerDevice, TriggerError, clock_link_timing
@@ -22,6 +21,7 @@ from flytrack_host.trigger.simulator import (
     read_pacing_anchor,
     rising,
 )
+from flytrack_host.util.placement import run_as_hardware
 
 
 def _falling(edges, name):

@@ -19,11 +19,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from flytrack_host.intake.sync import FixedRateClock
 from flytrack_host.live.udp import LiveClient
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol.udp import FeatureFrame, encode_features
 from flytrack_host.rig import parse_rig
-from flytrack_host.intake.sync import FixedRateClock
 from flytrack_host.tracking.synthetic import make_scenario
 
 

@@ -12,9 +12,9 @@ from pathlib import Path
 from flytrack_host.geometry.camera import Camera
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.rig import parse_rig
-from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
 from flytrack_host.trigger.session import TriggerSession
+from flytrack_host.util.testing import missing_part
 
 
 def _wait(cond, timeout_s: float) -> bool:

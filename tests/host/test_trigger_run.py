@@ -22,16 +22,16 @@ import pytest
 from scipy.stats import theilslopes
 from typer.testing import CliRunner
 
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.cli import app
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol.udp import POINT_DTYPE, FeatureFrame, encode_features
 from flytrack_host.recording import load_recording
 from flytrack_host.recording.schema import FLAG_TRACKED
 from flytrack_host.rig import parse_rig
-from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
 from flytrack_host.trigger.session import TriggerSession
+from flytrack_host.util.testing import missing_part
 
 FPS = 100.0
 P0 = np.array([-0.25, 0.15, 0.10])

@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 from flytrack_host.live.launch import LiveOutputs
-from flytrack_host.sim.run import DemoConfig, run_demo
 from flytrack_host.live.web import browser as browser_mod
+from flytrack_host.sim.run import DemoConfig, run_demo
 
 
 def main() -> int:

@@ -20,8 +20,8 @@ import pytest
 from flytrack_host.live.braid import ROW_FIELDS, iter_sse
 from flytrack_host.live.launch import LiveOutputs
 from flytrack_host.live.pose import PoseClient
-from flytrack_host.sim.run import DemoConfig, find_edge_binary, run_demo
 from flytrack_host.live.web import browser as browser_mod
+from flytrack_host.sim.run import DemoConfig, find_edge_binary, run_demo
 
 CAMERAS = 3
 

@@ -13,10 +13,10 @@ import urllib.request
 import numpy as np
 import pytest
 
+from flytrack_host.live.web.server import LiveServer
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.rig import parse_rig
 from flytrack_host.sim.run import find_edge_binary
-from flytrack_host.live.web.server import LiveServer
 
 W, H = 320, 240
 

@@ -22,13 +22,13 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.firings import percentiles_ms
 from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
 from flytrack_host.actuation.rules import parse_rules
 from flytrack_host.rig import ActuatorConfig
 from flytrack_host.tracking.types import Estimate, FrameResult
+from flytrack_host.util import hostclock
 
 BUSY_S = 0.001  # the tracking thread's work after a frame, in the side-by-side of the hand-off
 BOX = {"inside": {"box": {"min": [1, -1, -1], "max": [2, 1, 1]}}}

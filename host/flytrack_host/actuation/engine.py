@@ -34,15 +34,15 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices import Output, make_output
 from flytrack_host.actuation.devices.base import HANDOFF_MAX_S, WORKER_NICE, Handoff, Job, Outcome, OutputWorker
 from flytrack_host.actuation.firings import FiringLog, summarize
 from flytrack_host.actuation.history import Fire, RuleEvaluator
 from flytrack_host.actuation.prediction import StepVelocities, reachable_frame
 from flytrack_host.actuation.rules import RuleSet, bind_rules, load_rules
-from flytrack_host.util.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig, RigConfig
+from flytrack_host.util import hostclock
+from flytrack_host.util.ratelog import RateLimitedLog
 
 log = logging.getLogger("flytrack.actuation")
 SWITCH_INTERVAL_S = 0.0002

@@ -14,11 +14,11 @@ from rich.console import Console
 
 from flytrack_host.calibration.align import AlignError, align_cameras, umeyama
 from flytrack_host.calibration.dlt import DLTError, dlt_camera
-from flytrack_host.geometry.formats import CalibrationFormatError, load_calibration, save_calibration
 from flytrack_host.calibration.intrinsics import IntrinsicsError
 from flytrack_host.calibration.observations import PointsFileError, load_points, save_points
 from flytrack_host.calibration.selfcal import SelfCalError
 from flytrack_host.geometry.camera import Camera, triangulate
+from flytrack_host.geometry.formats import CalibrationFormatError, load_calibration, save_calibration
 
 app = typer.Typer(help="Camera calibration: DLT, LED self-calibration, alignment, formats.", no_args_is_help=True)
 console = Console()

@@ -110,12 +110,12 @@ def track_command(
 ) -> None:
     """Track fish shapes in 3D from a top and a side video; write position, heading, midline parameters,
     cross-sections, curvature and covariance per fish per frame to HDF5."""
-    from flytrack_host.geometry.formats import CalibrationFormatError, load_calibration
     from flytrack_host.fish.fit import FitConfig
     from flytrack_host.fish.io import write_tracks
     from flytrack_host.fish.pipeline import TrackingError, track
     from flytrack_host.fish.tracker import TrackerConfig
     from flytrack_host.fish.views import views_from_calibration
+    from flytrack_host.geometry.formats import CalibrationFormatError, load_calibration
 
     if len(videos) < 2:
         raise _fail("give at least two videos: the top view, then a side view")

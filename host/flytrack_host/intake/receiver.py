@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flytrack_host.util import hostclock
+from flytrack_host.intake.sync import CameraFrame
 from flytrack_host.protocol import (
     DvsClusters,
     EdgeStatus,
@@ -46,9 +46,9 @@ from flytrack_host.protocol import (
     decode_datagram,
     join_feature_parts,
 )
-from flytrack_host.util.ratelog import RateLimitedLog
 from flytrack_host.rig import RigConfig
-from flytrack_host.intake.sync import CameraFrame
+from flytrack_host.util import hostclock
+from flytrack_host.util.ratelog import RateLimitedLog
 
 SEQ_MOD = 1 << 32
 _HALF = 1 << 31

@@ -41,11 +41,11 @@ import numpy as np
 import pandas as pd
 
 from flytrack_host import __version__
-from flytrack_host.util import hostclock
 from flytrack_host.io.data2d import Data2D, empty_rows
 from flytrack_host.io.reprojection import associated_reprojection
 from flytrack_host.recording.reader import Recording
 from flytrack_host.recording.schema import DVS_COVARIANCE, FLAG_DVS, FLAG_REJECTED
+from flytrack_host.util import hostclock
 
 BRAID_SCHEMA = 3
 KALMAN_COLUMNS = ["obj_id", "frame", "timestamp", "x", "y", "z", "xvel", "yvel", "zvel",

@@ -26,9 +26,9 @@ import numpy as np
 import pandas as pd
 
 from flytrack_host.geometry.camera import Camera, face_the_scene, mirrored_world_note
+from flytrack_host.geometry.refraction import FlatInterface
 from flytrack_host.io.braidz import _rows_from_braid_df
 from flytrack_host.io.data2d import Data2D
-from flytrack_host.geometry.refraction import FlatInterface
 
 _FPS_RE = re.compile(r"running at\s+([0-9]+(?:\.[0-9]*)?(?:[eE][+-]?[0-9]+)?)\s*fps")
 

@@ -26,8 +26,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import IO, Any
 
-from flytrack_host.util import hostclock
 from flytrack_host.tracking.types import FrameResult
+from flytrack_host.util import hostclock
 
 BRAID_VERSION = 3
 EVENT_NAME = "braid"

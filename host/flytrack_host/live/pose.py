@@ -39,8 +39,8 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
-from flytrack_host.util import hostclock
 from flytrack_host.tracking.types import FrameResult
+from flytrack_host.util import hostclock
 
 MAGIC = b"FTPS"
 VERSION = 1

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flytrack_host.util import hostclock
 from flytrack_host.protocol import OBJECT_DTYPE, LiveEstimates, ProtocolError, decode_datagram, encode
 from flytrack_host.tracking.types import FrameResult
+from flytrack_host.util import hostclock
 
 LIVE_MAX_OBJECTS = 27
 _COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))

@@ -22,9 +22,9 @@ from flytrack_host.pipeline.host import (
     default_recording_path,
     default_tracker_factory,
 )
-from flytrack_host.recording.rows import data2d_rows, result_rows
 from flytrack_host.pipeline.run import run_command
 from flytrack_host.pipeline.sink import ResultSink
+from flytrack_host.recording.rows import data2d_rows, result_rows
 
 __all__ = [
     "MAX_BACKLOG_S",

@@ -27,19 +27,26 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.util import hostclock
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.dvs.clusters.observations import DvsObservations
-from flytrack_host.recording.latency import LatencyStats
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.intake.receiver import DvsSlice, Receiver, StatusReport
+from flytrack_host.intake.sync import (
+    CameraFrame,
+    FixedRateClock,
+    FrameClock,
+    FrameSynchronizer,
+    SyncedBundle,
+    SyncEvent,
+    UntrackedFrame,
+)
 from flytrack_host.live.udp import LiveSender
 from flytrack_host.pipeline.cameras import calibration_problems
 from flytrack_host.pipeline.cpu_latency import CpuWakeLatency, wanted_us
 from flytrack_host.pipeline.dvs import DvsIntake
 from flytrack_host.pipeline.report import PipelineReport
-from flytrack_host.recording.rows import data2d_rows, dvs_covariance_rows, result_rows
 from flytrack_host.pipeline.sink import ResultSink
-from flytrack_host.util.ratelog import RateLimitedLog
-from flytrack_host.intake.receiver import DvsSlice, Receiver, StatusReport
+from flytrack_host.recording.latency import LatencyStats
+from flytrack_host.recording.rows import data2d_rows, dvs_covariance_rows, result_rows
 from flytrack_host.recording.schema import (
     CAM_INFO,
     CAMERA_STATUS,
@@ -50,17 +57,10 @@ from flytrack_host.recording.schema import (
 )
 from flytrack_host.recording.writer import Recorder
 from flytrack_host.rig import RigConfig
-from flytrack_host.intake.sync import (
-    CameraFrame,
-    FixedRateClock,
-    FrameClock,
-    FrameSynchronizer,
-    SyncedBundle,
-    SyncEvent,
-    UntrackedFrame,
-)
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.types import FrameBundle, FrameResult
+from flytrack_host.util import hostclock
+from flytrack_host.util.ratelog import RateLimitedLog
 
 log = logging.getLogger("flytrack.pipeline")
 

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from flytrack_host.intake.sync import (
+    CameraFrame,
+)
 from flytrack_host.recording.schema import (
     ASSOCIATION,
     COV_NAMES,
@@ -17,9 +20,6 @@ from flytrack_host.recording.schema import (
     FLAG_TRACKED,
     FLAG_TRUNCATED,
     KALMAN,
-)
-from flytrack_host.intake.sync import (
-    CameraFrame,
 )
 from flytrack_host.tracking.types import FrameResult
 

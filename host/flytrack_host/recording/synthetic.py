@@ -43,8 +43,8 @@ def write_scenario_frames(rec: Recorder, scenario: Any, fps: float, *, track: bo
     """Append every bundle's 2D rows (trigger time t0 + frame / fps, arrival 2 ms later) and, with `track`,
     the real tracker's kalman_estimates and data_association rows. Each camera frame is numbered trigger frame
     + `camera_frame_offset`; `on_frame(n, bundle)` runs after each bundle."""
-    from flytrack_host.recording.rows import data2d_rows, result_rows
     from flytrack_host.intake.sync import CameraFrame
+    from flytrack_host.recording.rows import data2d_rows, result_rows
     from flytrack_host.tracking.params import TrackingParams
     from flytrack_host.tracking.tracker import Tracker
 

@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.util import hostclock
 from flytrack_host.recording.schema import TABLES, dtype_to_json
+from flytrack_host.util import hostclock
 
 RAW_SUFFIX = ".bin"
 TEXTLOG_NAME = "textlog.jsonl"

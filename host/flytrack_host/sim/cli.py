@@ -11,8 +11,8 @@ from rich.table import Table
 
 from flytrack_host.live.launch import POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
-from flytrack_host.util.placement import FRAMES_PER_HARDWARE_CPU
 from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
+from flytrack_host.util.placement import FRAMES_PER_HARDWARE_CPU
 
 
 def _f(x: float, fmt: str = ".2f") -> str:

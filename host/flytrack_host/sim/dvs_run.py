@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Any
 
 from flytrack_host.geometry.camera import Camera
-from flytrack_host.tracking.evaluation import FrameTracks, score_tracks
 from flytrack_host.sim.demo_config import DemoConfig
 from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.report import _scored_mask
+from flytrack_host.tracking.evaluation import FrameTracks, score_tracks
 
 # DVS slice length in the demo: 2 slices per 100 fps frame keeps the host's datagram load low (1 ms
 # slices are 1000 datagrams/s per DVS camera for the Python receiver).

@@ -34,8 +34,8 @@ import numpy as np
 from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.dvs import evt2_header
 from flytrack_host.sim.flight import GroundTruth
-from flytrack_host.util.placement import run_as_hardware
 from flytrack_host.sim.render import CameraRenderer, RenderParams
+from flytrack_host.util.placement import run_as_hardware
 
 STAGE_TAIL = 64  # bytes of a staged frame written at its pulse (under PIPE_BUF: one atomic write)
 # Rendering the next frames (CPU-heavy, at the simulated hardware's priority) starts this fraction of

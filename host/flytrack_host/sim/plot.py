@@ -12,8 +12,8 @@ matplotlib.use("Agg")  # files only; never needs a display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from flytrack_host.tracking.evaluation import FrameTracks  # noqa: E402
 from flytrack_host.sim.flight import GroundTruth  # noqa: E402
+from flytrack_host.tracking.evaluation import FrameTracks  # noqa: E402
 
 
 def _tracks_by_id(hyps: Sequence[FrameTracks]) -> dict[int, tuple[np.ndarray, np.ndarray]]:

@@ -13,11 +13,11 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.geometry.camera import Camera
-from flytrack_host.tracking.evaluation import FrameTracks, TrackingScores, score_tracks
 from flytrack_host.sim.demo_config import DemoConfig
 from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.goals import check_goals
 from flytrack_host.sim.metrics import latency_percentiles_ms
+from flytrack_host.tracking.evaluation import FrameTracks, TrackingScores, score_tracks
 
 
 @dataclass

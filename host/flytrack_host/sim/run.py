@@ -33,7 +33,6 @@ from flytrack_host.sim.demo_config import (
 from flytrack_host.sim.dvs_run import DVS_SLICE_US, _dvs_comparison, _dvs_counts, dvs_edge_command, dvs_support_options
 from flytrack_host.sim.flight import Arena, simulate_flight
 from flytrack_host.sim.frames import FrameFeeder
-from flytrack_host.util.placement import Placement, choose_split, run_as_hardware
 from flytrack_host.sim.processes import (
     CpuSampler,
     EdgeFleet,
@@ -58,6 +57,7 @@ from flytrack_host.sim.report import (
 )
 from flytrack_host.sim.rig import _host_cameras, _write_calibration, make_cameras, rig_config, write_rig
 from flytrack_host.sim.trigger_source import DemoTrigger
+from flytrack_host.util.placement import Placement, choose_split, run_as_hardware
 
 # The names other code (and tests) import from here, where they lived before the split.
 __all__ = [

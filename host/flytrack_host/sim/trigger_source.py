@@ -68,8 +68,8 @@ class DemoTrigger:
         """Start the simulated box (call after the frame feeder is following the FIFO); returns the
         serial port for the rig file ("software" for the stand-in, which the host opens itself)."""
         if self.mode == "simavr":
-            from flytrack_host.util.placement import run_as_hardware
             from flytrack_host.trigger.simulator import SimulatedTrigger
+            from flytrack_host.util.placement import run_as_hardware
 
             self.sim = SimulatedTrigger(elf=self.firmware, realtime=True, edge_log=self.fifo)
             self.port = self.sim.pty

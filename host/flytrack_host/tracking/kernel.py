@@ -16,11 +16,11 @@ import sys
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.util.native import NativeLibraryError, library_path, load_library
 from flytrack_host.tracking.association import PointSet
 from flytrack_host.tracking.birth import _SEED_GATE
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams
+from flytrack_host.util.native import NativeLibraryError, library_path, load_library
 
 LIB = "flytrack_tracker_kernel"
 SUBDIR = "host/flytrack_host/tracking/kernel"

@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flytrack_host.geometry.camera import Camera
-from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.geometry.refraction import FlatInterface
+from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.tracking.types import FrameBundle
 
 F64 = NDArray[np.float64]

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import serial
 
-from flytrack_host.util import hostclock
 from flytrack_host.protocol import trigger_link as tl
 from flytrack_host.protocol.errors import ProtocolError
+from flytrack_host.util import hostclock
 
 from .clock_model import ClockModel, LinkTiming
 from .common import PRESCALERS, ClockThread, RateChoice, SerialTrigger, TriggerError, choose_rate, open_serial

@@ -40,11 +40,11 @@ from typing import Any, Protocol
 
 import serial
 
-from flytrack_host.util import hostclock
 from flytrack_host.rig import TriggerConfig
 from flytrack_host.trigger.clock_model import ClockModel
 from flytrack_host.trigger.common import TriggerError
 from flytrack_host.trigger.device import ClockReading
+from flytrack_host.util import hostclock
 
 log = logging.getLogger("flytrack.trigger_session")
 

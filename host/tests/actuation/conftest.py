@@ -8,11 +8,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.engine import ActuationEngine
 from flytrack_host.actuation.rules import parse_rules
 from flytrack_host.rig import ActuatorConfig
 from flytrack_host.tracking.types import Estimate, FrameResult
+from flytrack_host.util import hostclock
 
 BOX_RULE = {"name": "enter", "when": {"inside": {"box": {"min": [1, -1, -1], "max": [2, 1, 1]}}}}
 

@@ -12,12 +12,12 @@ import time
 
 import numpy as np
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices import base
 from flytrack_host.actuation.devices.base import Handoff
 from flytrack_host.actuation.firings import STAGES, send_split, stage_latencies
 from flytrack_host.actuation.peers import ModbusPeerProcess, free_tcp_port
 from flytrack_host.rig import ActuatorConfig
+from flytrack_host.util import hostclock
 
 
 def _udp_engine(act, rx: socket.socket):  # noqa: ANN001, ANN202

@@ -8,16 +8,16 @@ import time
 import numpy as np
 import pytest
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Job, OutputError
 from flytrack_host.actuation.devices.trigger_pulse import TriggerPulseOutput
 from flytrack_host.actuation.rules import Action
 from flytrack_host.recording.schema import FIRING_FRAME_EXACT
 from flytrack_host.rig import ActuatorConfig
-from flytrack_host.util.testing import missing_part
 from flytrack_host.trigger import simulator
 from flytrack_host.trigger.device import TriggerDevice
 from flytrack_host.trigger.simulator import SimulatedTrigger, rising
+from flytrack_host.util import hostclock
+from flytrack_host.util.testing import missing_part
 
 FPS = 100.0
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from flytrack_host.calibration.collect import points_from_recording
-from flytrack_host.geometry.formats import save_calibration
 from flytrack_host.calibration.observations import load_points
 from flytrack_host.calibration.synthetic import synthetic_rig
+from flytrack_host.geometry.formats import save_calibration
 from flytrack_host.recording import Recorder
 from flytrack_host.recording.schema import CAM_INFO, DATA2D, FLAG_REJECTED
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.geometry.formats import flydra_projection, load_calibration, load_flydra_xml, save_flydra_xml
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.cli import app
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.geometry.formats import flydra_projection, load_calibration, load_flydra_xml, save_flydra_xml
 
 
 def _xml(P: np.ndarray, nl: dict[str, float], name: str = "cam1") -> str:

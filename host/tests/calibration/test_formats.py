@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from flytrack_host.geometry.camera import Camera
 from flytrack_host.geometry.formats import (
     CalibrationFormatError,
     detect_format,
@@ -17,7 +18,6 @@ from flytrack_host.geometry.formats import (
     save_flydra_xml,
     save_pymvg_json,
 )
-from flytrack_host.geometry.camera import Camera
 
 
 def _rig() -> dict[str, Camera]:

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from flytrack_host.geometry.formats import load_calibration, save_calibration
 from flytrack_host.calibration.intrinsics import Charuco, Checkerboard, IntrinsicsError
 from flytrack_host.calibration.observations import save_points
 from flytrack_host.calibration.selfcal import initial_cameras
 from flytrack_host.calibration.synthetic import led_path, make_rig, observe
 from flytrack_host.geometry.camera import Camera
+from flytrack_host.geometry.formats import load_calibration, save_calibration
 
 W, H = 640, 480
 SS = 2  # supersampling per axis

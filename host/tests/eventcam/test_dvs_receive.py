@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
+from flytrack_host.intake.receiver import DvsSlice, Receiver
 from flytrack_host.protocol import DvsClusters
 from flytrack_host.protocol.udp import CLUSTER_DTYPE, encode
-from flytrack_host.intake.receiver import DvsSlice, Receiver
 from flytrack_host.rig import RigError, parse_rig
 
 

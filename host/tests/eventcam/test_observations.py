@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from flytrack_host.dvs.clusters.observations import DvsObservations
+from flytrack_host.intake.receiver import DvsSlice
 from flytrack_host.protocol import DvsClusters
 from flytrack_host.protocol.udp import CLUSTER_DTYPE
-from flytrack_host.intake.receiver import DvsSlice
 
 FPS = 100.0
 T0_US = 7_000_123  # the sensor's time of trigger frame 0 (unknown to the host)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.edges.features import ExtractorParams, FeatureError, FeatureExtractor
+from flytrack_host.geometry.camera import Camera
 
 F32 = np.float32
 

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.geometry.formats import save_calibration
 from flytrack_host.cli import app
 from flytrack_host.fish.io import read_tracks
 from flytrack_host.fish.render import render_sequence
 from flytrack_host.fish.school import make_school
 from flytrack_host.fish.shape import default_model
 from flytrack_host.fish.views import AirView, tank_rig
+from flytrack_host.geometry.formats import save_calibration
 
 runner = CliRunner()
 N_BG = 3

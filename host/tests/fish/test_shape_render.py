@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.fish.render import background, coverage, dense_model, render_image
 from flytrack_host.fish.shape import (
     arclength,
@@ -19,6 +18,7 @@ from flytrack_host.fish.shape import (
 )
 from flytrack_host.fish.silhouette import warm_up
 from flytrack_host.fish.views import AirView
+from flytrack_host.geometry.camera import Camera
 
 
 def test_body_frame_has_no_roll_and_is_orthonormal() -> None:

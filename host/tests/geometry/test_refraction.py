@@ -7,9 +7,8 @@ import logging
 import numpy as np
 import pytest
 
-from flytrack_host.geometry.formats import CalibrationFormatError, load_flydra_xml, save_calibration, save_flydra_xml
 from flytrack_host.geometry.camera import Camera, triangulate
-from flytrack_host.tracking.evaluation import score_frames
+from flytrack_host.geometry.formats import CalibrationFormatError, load_flydra_xml, save_calibration, save_flydra_xml
 from flytrack_host.geometry.refraction import (
     FlatInterface,
     refract,
@@ -18,6 +17,7 @@ from flytrack_host.geometry.refraction import (
     trace_rays,
     triangulate_rays,
 )
+from flytrack_host.tracking.evaluation import score_frames
 from flytrack_host.tracking.observation import CameraArray
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario

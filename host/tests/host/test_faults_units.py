@@ -13,14 +13,21 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from flytrack_host.util import hostclock
-from flytrack_host.sim.faults import inject as fi
-from flytrack_host.recording.latency import LatencyStats
-from flytrack_host.pipeline import data2d_rows
-from flytrack_host.util.ratelog import RateLimitedLog
 from flytrack_host.intake.receiver import Receiver
+from flytrack_host.intake.sync import (
+    CameraFrame,
+    FixedRateClock,
+    FrameSynchronizer,
+    SyncedBundle,
+    SyncEvent,
+    UntrackedFrame,
+)
+from flytrack_host.pipeline import data2d_rows
+from flytrack_host.recording.latency import LatencyStats
 from flytrack_host.recording.schema import FLAG_REJECTED, FLAG_TRACKED
-from flytrack_host.intake.sync import CameraFrame, FixedRateClock, FrameSynchronizer, SyncedBundle, SyncEvent, UntrackedFrame
+from flytrack_host.sim.faults import inject as fi
+from flytrack_host.util import hostclock
+from flytrack_host.util.ratelog import RateLimitedLog
 
 FPS = 100.0
 P = 1.0 / FPS

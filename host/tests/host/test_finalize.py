@@ -14,9 +14,9 @@ import numpy as np
 from typer.testing import CliRunner
 
 from flytrack_host.cli import app
-from flytrack_host.recording.latency import LatencyStats, latency_summary
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.recording import Recorder, finalize, load_recording
+from flytrack_host.recording.latency import LatencyStats, latency_summary
 from flytrack_host.recording.reader import _load_raw
 from flytrack_host.recording.schema import DATA2D, LATENCY
 

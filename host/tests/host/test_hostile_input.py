@@ -7,11 +7,11 @@ import time
 
 import numpy as np
 
+from flytrack_host.intake.receiver import Receiver
+from flytrack_host.intake.sync import CameraFrame
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol import FeatureFlags, FeatureFrame, encode
-from flytrack_host.intake.receiver import Receiver
 from flytrack_host.recording import load_recording
-from flytrack_host.intake.sync import CameraFrame
 
 ADDR = ("127.0.0.1", 5555)
 

@@ -17,10 +17,10 @@ import h5py
 import numpy as np
 import pytest
 
-from flytrack_host.util import hostclock
 from flytrack_host.recording import Recorder, finalize, load_recording
 from flytrack_host.recording.finalize import RecordingError, read_meta, read_raw_table, read_raw_textlog
 from flytrack_host.recording.schema import DATA2D, LATENCY, TABLES, dtype_to_json
+from flytrack_host.util import hostclock
 
 
 def _rows(start: int, n: int) -> np.ndarray:

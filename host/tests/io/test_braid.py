@@ -12,15 +12,15 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.cli import app
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.intake.sync import CameraFrame
 from flytrack_host.io.braidz import export_braidz, read_braidz
 from flytrack_host.io.hdr import Histogram, decode
 from flytrack_host.pipeline import data2d_rows
 from flytrack_host.recording import load_recording
 from flytrack_host.recording.schema import FLAG_REJECTED, LATENCY
 from flytrack_host.recording.synthetic import start_synthetic_recording, write_scenario_frames
-from flytrack_host.intake.sync import CameraFrame
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import make_scenario
 
@@ -133,8 +133,8 @@ def test_braid_folder_imports_and_retracks(braidz: tuple[Path, dict], tmp_path: 
 def test_retrack_with_a_calibration_xml_cannot_hold_says_so(braidz: tuple[Path, dict], tmp_path: Path) -> None:
     """Cameras behind a vertical tank wall (not Braid's <water>): the retrack runs and says why its output
     carries the source's calibration instead of the one used."""
-    from flytrack_host.io.retrack import cameras_for, load_2d, retrack
     from flytrack_host.geometry.refraction import FlatInterface
+    from flytrack_host.io.retrack import cameras_for, load_2d, retrack
 
     path, _ = braidz
     data = load_2d(path)

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.geometry.formats import load_calibration
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.cli import app
+from flytrack_host.geometry.camera import Camera
+from flytrack_host.geometry.formats import load_calibration
 from flytrack_host.io.compare import compare, load_tracks
 from flytrack_host.io.retrack import cameras_for, load_2d, retrack
 from flytrack_host.recording import load_recording

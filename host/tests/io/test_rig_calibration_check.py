@@ -6,8 +6,8 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from flytrack_host.geometry.formats import save_flydra_xml
 from flytrack_host.cli import app
+from flytrack_host.geometry.formats import save_flydra_xml
 from flytrack_host.tracking.synthetic import arena_cameras
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -1,8 +1,8 @@
 import numpy as np
 
-from flytrack_host.tracking.evaluation import FrameTracks
 from flytrack_host.sim.flight import simulate_flight
 from flytrack_host.sim.plot import plot_tracks
+from flytrack_host.tracking.evaluation import FrameTracks
 
 
 def test_figure_is_written(tmp_path):

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from flytrack_host.util.testing import missing_part
 from flytrack_host.tracking import kernel as ckernel
+from flytrack_host.util.testing import missing_part
 
 
 def pytest_configure(config: pytest.Config) -> None:

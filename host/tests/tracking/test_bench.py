@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flytrack_host.util.testing import under_make
 from flytrack_host.tracking.bench import app
 from flytrack_host.tracking.synthetic import arena_cameras
 from flytrack_host.tracking.tracker import KERNEL_ENV
+from flytrack_host.util.testing import under_make
 
 
 def test_bench_cli_writes_figures(tmp_path: Path) -> None:

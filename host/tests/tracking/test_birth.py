@@ -9,7 +9,6 @@ from pydantic import ValidationError
 
 from flytrack_host.geometry.camera import Camera, triangulate
 from flytrack_host.geometry.refraction import FlatInterface
-from flytrack_host.util.testing import missing_part
 from flytrack_host.tracking.birth import find_births, sampson2, search_births, seed_pairs, triangulate_batch
 from flytrack_host.tracking.kernel import unavailable_reason
 from flytrack_host.tracking.observation import CameraArray
@@ -17,6 +16,7 @@ from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import arena_cameras, make_scenario, point_array
 from flytrack_host.tracking.tracker import Tracker
 from flytrack_host.tracking.types import FrameBundle
+from flytrack_host.util.testing import missing_part
 
 
 def test_triangulate_batch_matches_camera_triangulate() -> None:

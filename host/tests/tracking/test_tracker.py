@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flytrack_host.tracking.evaluation import TrackingScores, score_frames
 from flytrack_host.protocol import POINT_DTYPE
+from flytrack_host.tracking.evaluation import TrackingScores, score_frames
 from flytrack_host.tracking.params import TrackingParams
 from flytrack_host.tracking.synthetic import Scenario, make_scenario
 from flytrack_host.tracking.tracker import Tracker

@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 
 from flytrack_host.actuation.firings import FiringLog
+from flytrack_host.intake.sync import CameraFrame, SyncedBundle
+from flytrack_host.live.web.server import LiveServer, to_json
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol import POINT_DTYPE
 from flytrack_host.recording.schema import FIRINGS
 from flytrack_host.sim.flight import Arena
 from flytrack_host.sim.rig import make_cameras, rig_config
-from flytrack_host.intake.sync import CameraFrame, SyncedBundle
 from flytrack_host.tracking.types import FrameBundle
-from flytrack_host.live.web.server import LiveServer, to_json
 
 sys.path.insert(0, str(Path(__file__).parent))
 from frames import make_result  # noqa: E402

@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from flytrack_host.protocol import ImageChunk
 from flytrack_host.live.web.thumbs import ThumbnailAssembler
+from flytrack_host.protocol import ImageChunk
 
 
 def chunks(img: np.ndarray, image_id: int = 1, cam: int = 0, size: int = 1000, kind: int = 0) -> list[ImageChunk]:

@@ -17,10 +17,10 @@ from typer.testing import CliRunner
 
 from flytrack_host.cli import app
 from flytrack_host.dvs.events.files import EVENT_DTYPE, write_events
-from flytrack_host.protocol import DvsClusters, DvsWingbeat, encode
-from flytrack_host.protocol.udp import WINGEDGE_DTYPE
 from flytrack_host.dvs.wingbeat.live import N_WINGS, WingbeatReceiver, score_live
 from flytrack_host.dvs.wingbeat.simulate import FlySimParams, fly_truth
+from flytrack_host.protocol import DvsClusters, DvsWingbeat, encode
+from flytrack_host.protocol.udp import WINGEDGE_DTYPE
 
 
 def _free_port() -> int:

@@ -25,10 +25,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.rules import Action
-from flytrack_host.util.ratelog import RateLimitedLog
 from flytrack_host.rig import ActuatorConfig
+from flytrack_host.util import hostclock
+from flytrack_host.util.ratelog import RateLimitedLog
 
 log = logging.getLogger("flytrack.actuation")
 

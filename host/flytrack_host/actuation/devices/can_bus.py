@@ -7,8 +7,8 @@ or put on the bus for the virtual and UDP interfaces).
 
 from __future__ import annotations
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
+from flytrack_host.util import hostclock
 
 
 class CanOutput(Output):

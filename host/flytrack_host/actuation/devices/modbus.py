@@ -18,8 +18,8 @@ import struct
 import time
 from typing import Any
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
+from flytrack_host.util import hostclock
 
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux
 

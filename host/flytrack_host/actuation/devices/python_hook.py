@@ -14,8 +14,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
+from flytrack_host.util import hostclock
 
 
 def load_hook(address: str, base_dir: Path | None = None) -> Callable[..., Any]:

@@ -15,9 +15,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
 from flytrack_host.trigger.common import TriggerError
+from flytrack_host.util import hostclock
 
 DEFAULT_WIDTH_MS = 1.0
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import socket
 
-from flytrack_host.util import hostclock
 from flytrack_host.actuation.devices.base import Done, Job, Output, OutputError
+from flytrack_host.util import hostclock
 
 
 class UdpOutput(Output):

@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flytrack_host.geometry.camera import Camera
-from flytrack_host.protocol.udp import POINT_DTYPE
 from flytrack_host.intake.receiver import DvsSlice
 from flytrack_host.intake.sync import CameraFrame
+from flytrack_host.protocol.udp import POINT_DTYPE
 
 SLICES_KEPT = 256  # per camera: a few frames of 1 ms slices
 

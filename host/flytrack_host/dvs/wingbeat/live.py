@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from flytrack_host.protocol import DvsWingbeat, EdgeStatus, ProtocolError, decode_datagram
 from flytrack_host.dvs.wingbeat.analysis import WingbeatResult, WingScore, WingTrack, score_wings
 from flytrack_host.dvs.wingbeat.plot import plot_truth_beats, save_figure
 from flytrack_host.dvs.wingbeat.wra import BeatSeries
+from flytrack_host.protocol import DvsWingbeat, EdgeStatus, ProtocolError, decode_datagram
 
 DEFAULT_PORT = 7700  # flytrack-edge's default --port
 N_WINGS = 2

@@ -15,9 +15,9 @@ import functools
 import numpy as np
 
 from flytrack_host.dvs.events.files import EVENT_DTYPE
-from flytrack_host.util.native import NativeLibraryError, load_library
 from flytrack_host.dvs.wingbeat.geometry import WingbeatError
 from flytrack_host.dvs.wingbeat.wra import BeatSeries
+from flytrack_host.util.native import NativeLibraryError, load_library
 
 MAX_HARMONICS = 4
 #: One beat of one edge, as ft_wb_beat lays it out (edge 0 leading / OFF, 1 trailing / ON).

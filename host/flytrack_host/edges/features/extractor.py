@@ -12,8 +12,8 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numpy.typing import NDArray
 
-from flytrack_host.geometry.camera import Camera
 from flytrack_host.edges.features import _lib
+from flytrack_host.geometry.camera import Camera
 
 PIXEL_FORMATS = {"mono8": 0, "mono16": 1, "yuyv": 2}
 POLARITIES = {"both": 0, "bright": 1, "dark": 2}

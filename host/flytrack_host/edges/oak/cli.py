@@ -34,10 +34,10 @@ def edge_oak_command(
     """Run a Luxonis OAK camera as an edge: its frames (device sequence numbers and clock) go through
     the C feature extractor and out as FEATURES, with a STATUS heartbeat every second, exactly like
     `flytrack-edge`. A lost device is reported (STATUS ERROR) and reconnected."""
+    from flytrack_host.edges.features.extractor import ExtractorParams, FeatureError
     from flytrack_host.edges.oak.edge import OakEdge, OakEdgeConfig, OakEdgeError
     from flytrack_host.edges.oak.pipeline import CameraSpec, OakConfigError
     from flytrack_host.edges.oak.source import DepthaiSource, available_devices
-    from flytrack_host.edges.features.extractor import ExtractorParams, FeatureError
 
     logging.basicConfig(level=logging.INFO, format="edge-oak: %(message)s")
     spec = CameraSpec(kind=kind, socket=socket_name, resolution=resolution, fps=fps)

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flytrack_host.edges.oak.source import BadFrame, DeviceLost, FrameSource, OakFrame, frame_from_imgframe
 from flytrack_host.edges.features.extractor import ExtractorParams, FeatureError, FeatureExtractor
+from flytrack_host.edges.oak.source import BadFrame, DeviceLost, FrameSource, OakFrame, frame_from_imgframe
 from flytrack_host.protocol import CameraState, EdgeStatus, FeatureFrame, PixelFormat, encode
 from flytrack_host.protocol.udp import encode_features, make_points
 

@@ -56,7 +56,14 @@ is dead (bundles stop waiting for it) until its packets return.
 from flytrack_host.intake.sync.clock import FixedRateClock, FrameClock
 from flytrack_host.intake.sync.state import _Cam, _Pending
 from flytrack_host.intake.sync.synchronizer import FrameSynchronizer
-from flytrack_host.intake.sync.types import CameraFrame, CameraSyncStats, SyncedBundle, SyncEvent, SyncOutput, UntrackedFrame
+from flytrack_host.intake.sync.types import (
+    CameraFrame,
+    CameraSyncStats,
+    SyncedBundle,
+    SyncEvent,
+    SyncOutput,
+    UntrackedFrame,
+)
 from flytrack_host.intake.sync.windows import _LagWindow, _Window
 
 __all__ = [

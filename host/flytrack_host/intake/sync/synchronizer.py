@@ -13,7 +13,14 @@ from flytrack_host.intake.sync.clock import FixedRateClock, FrameClock
 from flytrack_host.intake.sync.drift import _DriftDetection
 from flytrack_host.intake.sync.restart import _RestartPlacement
 from flytrack_host.intake.sync.state import _Cam, _Pending
-from flytrack_host.intake.sync.types import CameraFrame, CameraSyncStats, SyncedBundle, SyncEvent, SyncOutput, UntrackedFrame
+from flytrack_host.intake.sync.types import (
+    CameraFrame,
+    CameraSyncStats,
+    SyncedBundle,
+    SyncEvent,
+    SyncOutput,
+    UntrackedFrame,
+)
 from flytrack_host.tracking.types import FrameBundle
 
 

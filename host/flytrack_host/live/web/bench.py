@@ -36,17 +36,17 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.util import hostclock
+from flytrack_host.intake.sync import FixedRateClock
 from flytrack_host.live import braid
 from flytrack_host.live.pose import PoseClient, PoseStream
+from flytrack_host.live.web import browser as browser_mod
+from flytrack_host.live.web.server import LiveServer, calibration_xml_of
 from flytrack_host.pipeline import HostPipeline
 from flytrack_host.protocol.udp import FeatureFrame, encode_features
 from flytrack_host.rig import parse_rig
-from flytrack_host.intake.sync import FixedRateClock
 from flytrack_host.tracking.synthetic import make_scenario
 from flytrack_host.tracking.types import FrameResult
-from flytrack_host.live.web import browser as browser_mod
-from flytrack_host.live.web.server import LiveServer, calibration_xml_of
+from flytrack_host.util import hostclock
 
 _EOF = re.compile(rb'"EndOfFrame":(\d+)')
 _UI = re.compile(rb'event: state\ndata: \{"time":[^,]+,"final":(?:true|false),"frame":(-?\d+),'

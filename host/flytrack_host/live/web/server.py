@@ -43,10 +43,10 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from flytrack_host.live import braid
-from flytrack_host.tracking.types import FrameResult
 from flytrack_host.live.web.clients import ClientSet
 from flytrack_host.live.web.state import LiveState
 from flytrack_host.live.web.thumbs import Requester, ThumbnailAssembler
+from flytrack_host.tracking.types import FrameResult
 
 log = logging.getLogger("flytrack.web")
 

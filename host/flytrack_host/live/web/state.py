@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.util import hostclock
 from flytrack_host.tracking.types import FrameResult
+from flytrack_host.util import hostclock
 
 TRAIL_SECONDS = 3.0
 TRAIL_POINTS = 60  # per track: one point every TRAIL_SECONDS / TRAIL_POINTS

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.util import hostclock
 from flytrack_host.protocol import FeatureFrame, encode_features, make_points
+from flytrack_host.util import hostclock
 
 log = logging.getLogger("flytrack.faults")
 

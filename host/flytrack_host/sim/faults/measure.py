@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.sim.faults.inject import ROGUE_MARK, Fault
 from flytrack_host.recording import load_recording
 from flytrack_host.recording.schema import FLAG_TRACKED
+from flytrack_host.sim.faults.inject import ROGUE_MARK, Fault
 
 
 def measure(recording: str | None, fault: Fault, preroll: int, n_frames: int, n_cams: int,

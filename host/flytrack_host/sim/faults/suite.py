@@ -115,9 +115,9 @@ def _run_killed(sc: Scenario, out: Path, timeout_s: float) -> dict[str, Any]:
     then `flytrack recording recover`: what was received up to the kill must be there."""
     import signal
 
-    from flytrack_host.util import hostclock
     from flytrack_host.recording import load_recording
     from flytrack_host.sim.run import PREROLL_FRAMES
+    from flytrack_host.util import hostclock
 
     row: dict[str, Any] = {"name": sc.name, "fault": sc.label, "lost_ok": sc.lost_ok}
     cmd = [sys.executable, "-m", "flytrack_host.sim.faults", "one", sc.name, "--out", str(out)]
