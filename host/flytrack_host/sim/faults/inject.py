@@ -310,5 +310,6 @@ class EdgeRestart(Fault):
             self.truth[self.camera] = dict(edge.written)
 
 
-if __name__ == "__main__":  # the flood's own process: python -m flytrack_host.sim.faults.inject HOST PORT N N_VALID RATE
+# The flood's own process: python -m flytrack_host.sim.faults.inject HOST PORT N N_VALID RATE
+if __name__ == "__main__":
     flood(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5]))
