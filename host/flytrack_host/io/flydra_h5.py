@@ -6,7 +6,7 @@ mean_val, sumsqf_val), `cam_info` (camn, cam_id), `textlog` (..., message), `kal
 frame, timestamp, x, y, z, ...) and `trigger_clock_info` (start_timestamp, framecount, tcnt,
 stop_timestamp).
 
-The calibration group is read as flydra's Reconstructor reads it:
+The calibration group is read (geometry.formats.flydra_h5) as flydra's Reconstructor reads it:
 - `calibration/pmat/<cam_id>` (3x4) is in the world units of `calibration/scale_factor2meters/<cam_id>`
   (e.g. 0.001: millimetres): P's last column is multiplied by it, so FlyTrack's world is in metres;
 - `calibration/intrinsic_linear/<cam_id>` is the K about which flydra applies the distortion
@@ -25,16 +25,11 @@ import h5py
 import numpy as np
 import pandas as pd
 
-from flytrack_host.geometry.camera import Camera, face_the_scene, mirrored_world_note
-from flytrack_host.geometry.refraction import FlatInterface
+from flytrack_host.geometry.formats.flydra_h5 import FlydraH5Error, read_flydra_calibration
 from flytrack_host.io.braidz import _rows_from_braid_df
 from flytrack_host.io.data2d import Data2D
 
 _FPS_RE = re.compile(r"running at\s+([0-9]+(?:\.[0-9]*)?(?:[eE][+-]?[0-9]+)?)\s*fps")
-
-
-class FlydraH5Error(Exception):
-    pass
 
 
 def _text(v: object) -> str:
@@ -52,63 +47,6 @@ def fps_from_textlog(messages: list[str]) -> float | None:
     return None
 
 
-def read_flydra_calibration(h5: h5py.File, warnings: list[str] | None = None) -> dict[str, Camera]:
-    """cam_id -> Camera from a flydra .h5's `calibration` group ({} when it has none)."""
-    warns = warnings if warnings is not None else []
-    if "calibration" not in h5 or "pmat" not in h5["calibration"]:
-        return {}
-    g = h5["calibration"]
-    water = None
-    if "refractive_interfaces" in g:
-        ri = g["refractive_interfaces"][...]
-        if len(ri) > 1:
-            raise FlydraH5Error(f"calibration/refractive_interfaces has {len(ri)} rows; FlyTrack reads one water "
-                                "surface")
-        if len(ri) == 1:
-            r = ri[0]
-            nrm = (float(r["plane_normal_x"]), float(r["plane_normal_y"]), float(r["plane_normal_z"]))
-            if nrm != (0.0, 0.0, 1.0) or float(r["plane_dist_from_origin"]) != 0.0:
-                raise FlydraH5Error("calibration/refractive_interfaces: only the plane z = 0 (normal +z) is "
-                                    "flydra's water surface")
-            water = FlatInterface((0.0, 0.0, 0.0), nrm, n_far=float(r["n2"]), n_near=float(r["n1"]))
-    cams = {}
-    for cam_id, ds in g["pmat"].items():
-        P = np.asarray(ds[...], dtype=np.float64)
-        if P.shape != (3, 4) or not np.all(np.isfinite(P)):
-            raise FlydraH5Error(f"calibration/pmat/{cam_id} is not a finite 3x4 matrix")
-        if "scale_factor2meters" in g and cam_id in g["scale_factor2meters"]:
-            sf = float(np.asarray(g["scale_factor2meters"][cam_id][...]).ravel()[0])
-            if not (np.isfinite(sf) and sf > 0):
-                raise FlydraH5Error(f"calibration/scale_factor2meters/{cam_id} is {sf!r}, not a positive number")
-            P = P.copy()
-            P[:, 3] *= sf  # flydra: X_m = sf X_units, so P X_units = [M | sf p4] X_m
-        if "resolution" in g and cam_id in g["resolution"]:
-            w, h = (int(v) for v in np.asarray(g["resolution"][cam_id][...]).ravel()[:2])
-        else:
-            w, h = 640, 480
-            warns.append(f"camera {cam_id!r}: no calibration/resolution; assumed 640x480")
-        dist = np.zeros(5)
-        if "intrinsic_nonlinear" in g and cam_id in g["intrinsic_nonlinear"]:
-            nl = np.asarray(g["intrinsic_nonlinear"][cam_id][...], dtype=np.float64).ravel()
-            dist[: min(5, nl.size)] = nl[:5]
-        K_dist = None
-        if "intrinsic_linear" in g and cam_id in g["intrinsic_linear"]:
-            K = np.asarray(g["intrinsic_linear"][cam_id][...], dtype=np.float64).reshape(3, 3)
-            # flydra's helper is built from fc = K[0,0], K[1,1] and cc = K[0,2], K[1,2] only.
-            K_dist = np.array([[K[0, 0], 0.0, K[0, 2]], [0.0, K[1, 1], K[1, 2]], [0.0, 0.0, 1.0]])
-        elif np.any(dist != 0):
-            warns.append(f"camera {cam_id!r}: no calibration/intrinsic_linear; the distortion is taken about "
-                         "P's own K")
-        try:
-            cams[cam_id] = Camera.from_P(cam_id, P, w, h, dist, interface=water,
-                                         K_dist=K_dist if np.any(dist != 0) else None)
-        except ValueError as exc:
-            raise FlydraH5Error(str(exc)) from None
-    turned_cams, turned = face_the_scene(list(cams.values()))
-    if turned:
-        warns.append(mirrored_world_note(turned))
-        cams = {c.name: c for c in turned_cams}
-    return cams
 
 
 def _table(h5: h5py.File, name: str) -> np.ndarray | None:

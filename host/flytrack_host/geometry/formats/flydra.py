@@ -235,10 +235,10 @@ def save_flydra_xml(cameras: Mapping[str, Camera], path: str | Path, minimum_ecc
 
 
 def load_flydra_h5_calibration(path: str | Path, warnings: list[str] | None = None) -> dict[str, Camera]:
-    """The `calibration` group of a flydra .h5 (io.flydra_h5.read_flydra_calibration)."""
+    """The `calibration` group of a flydra .h5 (flydra_h5.read_flydra_calibration)."""
     import h5py
 
-    from flytrack_host.io.flydra_h5 import FlydraH5Error, read_flydra_calibration
+    from .flydra_h5 import FlydraH5Error, read_flydra_calibration
 
     try:
         with h5py.File(path, "r") as h5:
