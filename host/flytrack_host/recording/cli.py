@@ -11,7 +11,7 @@ from rich.console import Console
 
 from flytrack_host.recording.finalize import RecordingError, finalize
 from flytrack_host.recording.reader import load_recording
-from flytrack_host.recording.writer import H5_NAME
+from flytrack_host.recording.schema import H5_NAME
 
 app = typer.Typer(help="Recordings: recover after a crash, summarise.", no_args_is_help=True)
 console = Console()

@@ -19,8 +19,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from flytrack_host.recording.schema import dtype_from_json
-from flytrack_host.recording.writer import H5_NAME, META_NAME, RAW_SUFFIX, TEXTLOG_NAME
+from flytrack_host.recording.schema import H5_NAME, META_NAME, RAW_SUFFIX, TEXTLOG_NAME, dtype_from_json
 
 ATTACHED = ("rig.toml", "rig.json")  # rig.json: a rig given without its TOML text
 

@@ -16,8 +16,7 @@ from flytrack_host.recording.finalize import (
     read_raw_table,
     read_raw_textlog,
 )
-from flytrack_host.recording.schema import TABLES, dtype_from_json
-from flytrack_host.recording.writer import H5_NAME
+from flytrack_host.recording.schema import H5_NAME, TABLES, dtype_from_json
 
 
 @dataclass

@@ -8,6 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
+# The files of a recording folder: one raw file per table, the text log, the metadata, and the HDF5 file
+# that finalising writes.
+RAW_SUFFIX = ".bin"
+TEXTLOG_NAME = "textlog.jsonl"
+META_NAME = "meta.json"
+H5_NAME = "recording.h5"
+
 # Upper triangle of the 6x6 state covariance, row-major: P00 P01 ... P05 P11 ... P55 (21 values).
 COV_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
 COV_NAMES = [f"P{i}{j}" for i, j in COV_UPPER]

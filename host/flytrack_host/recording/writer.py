@@ -32,13 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.recording.schema import TABLES, dtype_to_json
+from flytrack_host.recording.schema import H5_NAME, META_NAME, RAW_SUFFIX, TABLES, TEXTLOG_NAME, dtype_to_json
 from flytrack_host.util import hostclock
 
-RAW_SUFFIX = ".bin"
-TEXTLOG_NAME = "textlog.jsonl"
-META_NAME = "meta.json"
-H5_NAME = "recording.h5"
 FORMAT_VERSION = 1
 TEXTLOG_KEY = "__textlog__"
 DEFAULT_MAX_QUEUE_BYTES = 256 << 20  # minutes of a big rig's 2D data; a stuck disk must not eat the RAM
