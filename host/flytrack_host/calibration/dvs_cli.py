@@ -1,7 +1,8 @@
 """`flytrack calibrate dvs-points` and `dvs-sim`: DVS cameras calibrated with the frame cameras from a
 blinking LED (calibration/led_events.py finds it; sim/dvs_wand.py simulates it).
 
-Registered on the `calibrate` typer app by calibration/cli.py (imported at its end).
+Commands of the `calibrate` typer app (cli_common.py); calibration/cli.py imports this module at its end so
+they are registered.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from flytrack_host.calibration.cli import InputError, _clean_errors, _parse_size, app, console, err
+from flytrack_host.calibration.cli_common import InputError, _clean_errors, _parse_size, app, console, err
 from flytrack_host.calibration.led_events import EventOrderError, LedExtractor, LedParams, LedPoints, SyncError
 from flytrack_host.calibration.observations import Observations, load_points, save_points
 
