@@ -117,7 +117,7 @@ def test_events_read_back_from_aedat4_and_evt3_track_the_same(fly, ekf_result, t
     """The simulated fly through the event file writers and readers (AEDAT 4.0, EVT 3.0) and the CLI's
     loader: the same events, so the same wing beats."""
     from flytrack_host.dvs.events.files import EventWriter
-    from flytrack_host.dvs.wingbeat.cli import load_events
+    from flytrack_host.dvs.wingbeat.files import load_events
 
     ev, _ = fly
     part = ev[ev["t"] < 400_000]

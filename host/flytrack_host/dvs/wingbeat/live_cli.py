@@ -81,7 +81,7 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
              seconds: float | None, timeout: float, csv_path: Path | None, plot: Path | None,
              edge_bin: Path | None, harmonics: int, per_update: int, start_freq: float | None = None) -> int:
     """The live run; returns the exit code (errors: one line on `err`, 2)."""
-    from flytrack_host.dvs.wingbeat.cli import save_events
+    from flytrack_host.dvs.wingbeat.files import save_events
     from flytrack_host.dvs.wingbeat.native import MAX_HARMONICS
 
     if file is not None and harmonics > MAX_HARMONICS:
@@ -199,8 +199,8 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
         # Side by side: the live path (the edge's C tracker, sampled every report) and the file path (the
         # host's Python EKF per beat) on the same event file, both against the simulation.
         from flytrack_host.dvs.wingbeat.analysis import score_wings, track_wings
-        from flytrack_host.dvs.wingbeat.cli import load_events
         from flytrack_host.dvs.wingbeat.ekf import EkfParams
+        from flytrack_host.dvs.wingbeat.files import load_events
 
         offline = track_wings(load_events(file), "ekf", start_freq_hz=start_freq,
                               ekf=EkfParams(harmonics=harmonics, events_per_update=per_update))
