@@ -11,6 +11,6 @@ test-dvs-calib: cbuild
 # selfcal, DVS reprojection and camera-centre errors. DVS_CALIB_ARGS='--seconds S --dvs N
 # --sensor dvs128 --no-frequency-check'; BENCH_JSON=PATH writes the figures.
 demo-dvs-calib: cbuild
-	@$(PY) -m flytrack_host.calibration.dvs_demo $(DVS_CALIB_ARGS) $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@$(PY) -m flytrack_host.sim.dvs_calibration $(DVS_CALIB_ARGS) $(if $(BENCH_JSON),--json $(BENCH_JSON))
 
 PART_TARGETS += test-dvs-calib demo-dvs-calib

@@ -38,6 +38,11 @@ _GROUPS: list[tuple[str, str, str, str]] = [
     ("flytrack_host.dvs.events.cli", "app", "events", "Event-camera files: info, convert (AEDAT 2/3/4, EVT 2/3, DAT)."),
     ("flytrack_host.fish.cli", "app", "fish", "Fish: offline 3D shape tracking of schooling fish (track, demo)."),
 ]
+# (group module, function module, function, command name): commands added to a group from a higher
+# subsystem, so the group's own package need not import it (calibrate dvs-sim runs the simulator).
+_GROUP_COMMANDS: list[tuple[str, str, str, str]] = [
+    ("flytrack_host.calibration.cli", "flytrack_host.sim.dvs_calibration", "dvs_sim_cmd", "dvs-sim"),
+]
 # (module, function, command name): top-level commands that live in their components.
 _COMMANDS: list[tuple[str, str, str]] = [
     ("flytrack_host.pipeline", "run_command", "run"),
@@ -91,6 +96,9 @@ def _register_groups() -> None:
     for module, attr, name, help_text in _GROUPS:
         sub = getattr(importlib.import_module(module), attr)
         app.add_typer(sub, name=name, help=help_text)
+    for group_module, module, func, name in _GROUP_COMMANDS:
+        group = importlib.import_module(group_module).app
+        group.command(name)(getattr(importlib.import_module(module), func))
     for module, func, name in _COMMANDS:
         app.command(name)(getattr(importlib.import_module(module), func))
 

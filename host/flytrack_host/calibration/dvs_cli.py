@@ -1,5 +1,5 @@
-"""`flytrack calibrate dvs-points` and `dvs-sim`: DVS cameras calibrated with the frame cameras from a
-blinking LED (calibration/led_events.py finds it; sim/dvs_wand.py simulates it).
+"""`flytrack calibrate dvs-points`: DVS cameras calibrated with the frame cameras from a blinking LED
+(calibration/led_events.py finds it; sim/dvs_wand.py simulates it, sim/dvs_calibration.py has `dvs-sim`).
 
 Commands of the `calibrate` typer app (cli_common.py); calibration/cli.py imports this module at its end so
 they are registered.
@@ -221,40 +221,3 @@ def dvs_points_cmd(
     save_points(obs, out)
     console.print(f"written {out}: {len(obs.frame)} points of {', '.join(obs.camera_names)} "
                   "(next: flytrack calibrate selfcal " + str(out) + " -o cal.xml)", highlight=False)
-
-
-@app.command("dvs-sim")
-@_clean_errors
-def dvs_sim_cmd(
-    out_dir: Path = typer.Argument(..., help="Folder to write frames.csv, dvsN.raw, truth.xml and led.csv into."),
-    frame_cameras: int = typer.Option(4, help="Frame cameras."),
-    dvs: int = typer.Option(2, help="DVS cameras."),
-    seconds: float = typer.Option(10.0, help="Length of the wave, seconds."),
-    fps: float = typer.Option(100.0, help="Trigger rate (frames per second)."),
-    led_hz: float = typer.Option(500.0, "--led-hz", help="LED blink frequency."),
-    sensor: str = typer.Option("davis346", help="DVS sensor: davis346 or dvs128."),
-    seed: int = typer.Option(0, help="Random seed."),
-) -> None:
-    """Simulate an LED wand blinking at --led-hz waved through a 1 m arena: the frame cameras' points
-    (frames.csv), one EVT 2.0 file per DVS camera with a moving non-blinking distractor, noise and sync
-    events (dvsN.raw), the true cameras (truth.xml) and LED positions per frame (led.csv)."""
-    from flytrack_host.geometry.formats import save_calibration
-    from flytrack_host.sim.dvs_wand import WandParams, simulate_wand
-
-    try:
-        params = WandParams(led_hz=led_hz)
-        with Progress(TextColumn("[bold]rendering DVS events[/bold]"), BarColumn(), console=err,
-                      transient=True) as prog:
-            prog.add_task("sim", total=None)
-            scene = simulate_wand(out_dir, frame_cameras, dvs, seconds, fps, sensor=sensor, seed=seed, params=params)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
-    save_points(scene.frame_obs, out_dir / "frames.csv")
-    save_calibration({**scene.frame_cameras, **scene.dvs_cameras}, out_dir / "truth.xml")
-    with (out_dir / "led.csv").open("w") as fh:
-        fh.write("frame,x,y,z\n")
-        for i, (x, y, z) in enumerate(scene.led):
-            fh.write(f"{i},{float(x)!r},{float(y)!r},{float(z)!r}\n")
-    ev = ", ".join(f"{n}: {scene.dvs_events[n]} events, {scene.dvs_syncs[n]} sync" for n in scene.dvs_files)
-    console.print(f"written {out_dir}: frames.csv ({len(scene.frame_obs.frame)} points of {frame_cameras} frame "
-                  f"cameras), {ev}; truth.xml, led.csv", highlight=False)

@@ -8,7 +8,10 @@ the reprojection error of its own points, the error of its points against the LE
 ones, the camera-centre error (mm) and how far the camera projects the true points from the true
 camera (px). Prints a table; --json writes the figures.
 
-Run: python -m flytrack_host.calibration.dvs_demo [--seconds 20] [--dvs 2] [--frame-cameras 4]
+Also `flytrack calibrate dvs-sim` (`dvs_sim_cmd`, added to the calibrate group by flytrack_host/cli.py):
+the simulated wand's files, for trying `calibrate dvs-points` and `selfcal` by hand.
+
+Run: python -m flytrack_host.sim.dvs_calibration [--seconds 20] [--dvs 2] [--frame-cameras 4]
      [--sensor davis346] [--no-frequency-check] [--json PATH]   (make demo-dvs-calib)
 """
 
@@ -21,10 +24,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+import typer
+from rich.progress import BarColumn, Progress, TextColumn
 
+from flytrack_host.calibration.cli_common import InputError, _clean_errors, console, err
 from flytrack_host.calibration.dvs_cli import extract_file, to_observations
 from flytrack_host.calibration.evaluate import errors_against_truth
 from flytrack_host.calibration.led_events import LedParams
+from flytrack_host.calibration.observations import save_points
 from flytrack_host.calibration.selfcal import self_calibrate
 from flytrack_host.sim.dvs_wand import WandParams, simulate_wand
 
@@ -71,6 +78,42 @@ def run(seconds: float = 20.0, n_frame: int = 4, n_dvs: int = 2, sensor: str = "
                     "centre_err_mm": 1000 * te[name]["centre"], "truth_proj_mean_px": te[name]["proj_mean_px"],
                     "truth_proj_p95_px": te[name]["proj_p95_px"]})
     return fig
+
+
+@_clean_errors
+def dvs_sim_cmd(
+    out_dir: Path = typer.Argument(..., help="Folder to write frames.csv, dvsN.raw, truth.xml and led.csv into."),
+    frame_cameras: int = typer.Option(4, help="Frame cameras."),
+    dvs: int = typer.Option(2, help="DVS cameras."),
+    seconds: float = typer.Option(10.0, help="Length of the wave, seconds."),
+    fps: float = typer.Option(100.0, help="Trigger rate (frames per second)."),
+    led_hz: float = typer.Option(500.0, "--led-hz", help="LED blink frequency."),
+    sensor: str = typer.Option("davis346", help="DVS sensor: davis346 or dvs128."),
+    seed: int = typer.Option(0, help="Random seed."),
+) -> None:
+    """Simulate an LED wand blinking at --led-hz waved through a 1 m arena: the frame cameras' points
+    (frames.csv), one EVT 2.0 file per DVS camera with a moving non-blinking distractor, noise and sync
+    events (dvsN.raw), the true cameras (truth.xml) and LED positions per frame (led.csv)."""
+    from flytrack_host.geometry.formats import save_calibration
+    from flytrack_host.sim.dvs_wand import WandParams, simulate_wand
+
+    try:
+        params = WandParams(led_hz=led_hz)
+        with Progress(TextColumn("[bold]rendering DVS events[/bold]"), BarColumn(), console=err,
+                      transient=True) as prog:
+            prog.add_task("sim", total=None)
+            scene = simulate_wand(out_dir, frame_cameras, dvs, seconds, fps, sensor=sensor, seed=seed, params=params)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    save_points(scene.frame_obs, out_dir / "frames.csv")
+    save_calibration({**scene.frame_cameras, **scene.dvs_cameras}, out_dir / "truth.xml")
+    with (out_dir / "led.csv").open("w") as fh:
+        fh.write("frame,x,y,z\n")
+        for i, (x, y, z) in enumerate(scene.led):
+            fh.write(f"{i},{float(x)!r},{float(y)!r},{float(z)!r}\n")
+    ev = ", ".join(f"{n}: {scene.dvs_events[n]} events, {scene.dvs_syncs[n]} sync" for n in scene.dvs_files)
+    console.print(f"written {out_dir}: frames.csv ({len(scene.frame_obs.frame)} points of {frame_cameras} frame "
+                  f"cameras), {ev}; truth.xml, led.csv", highlight=False)
 
 
 def main() -> None:
