@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import socket
 import subprocess
 import threading
@@ -14,26 +13,16 @@ from collections.abc import Callable
 from pathlib import Path
 
 from flytrack_host.geometry.camera import Camera
-from flytrack_host.sim.demo_config import ROOT, DemoError
+from flytrack_host.sim.demo_config import DemoError
+from flytrack_host.util import native
 
 
 def find_edge_binary(explicit: Path | None = None) -> Path:
-    cands = [explicit] if explicit else []
-    env = os.environ.get("FLYTRACK_BUILD_DIR")
-    if env:
-        cands.append(Path(env) / "edge" / "feature_extractor" / "flytrack-edge")
-    cands.append(ROOT / "build" / "edge" / "feature_extractor" / "flytrack-edge")
-    which = shutil.which("flytrack-edge")
-    if which:
-        cands.append(Path(which))
-    for c in cands:
-        if c is not None and c.is_file() and os.access(c, os.X_OK):
-            return c
-    raise DemoError(
-        "the edge extractor `flytrack-edge` is not built (looked in "
-        + ", ".join(str(c) for c in cands if c)
-        + "); run `make build`"
-    )
+    """util.native.find_edge_binary, its error as the demo's (DemoError)."""
+    try:
+        return native.find_edge_binary(explicit)
+    except native.NativeLibraryError as exc:
+        raise DemoError(str(exc)) from None
 
 
 def _free_udp_port() -> int:

@@ -39,11 +39,11 @@ def _c_run(ev: np.ndarray, batches: list[tuple[int, int]]) -> tuple[float, np.nd
 
 def _daemon_cpu(ev: np.ndarray) -> tuple[float, int] | None:
     from flytrack_host.dvs.events import write_events
-    from flytrack_host.sim.run import DemoError, find_edge_binary
+    from flytrack_host.util.native import NativeLibraryError, find_edge_binary
 
     try:
         binary = find_edge_binary()
-    except DemoError as exc:
+    except NativeLibraryError as exc:
         print(f"  daemon: skipped ({exc})")
         return None
     with tempfile.TemporaryDirectory() as d, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:

@@ -106,11 +106,11 @@ def run_live(console: Console, err: Console, *, file: Path | None, simulate: flo
         elif not file.is_file():
             err.print(f"[red]error[/red] {file}: no such event file", highlight=False, soft_wrap=True)
             return 2
-        from flytrack_host.sim.run import DemoError, find_edge_binary
+        from flytrack_host.util.native import NativeLibraryError, find_edge_binary
 
         try:
             binary = find_edge_binary(edge_bin)
-        except DemoError as exc:
+        except NativeLibraryError as exc:
             err.print(f"[red]error[/red] {exc}", highlight=False, soft_wrap=True)
             return 2
     try:
