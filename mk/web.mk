@@ -10,4 +10,4 @@ test-web: build
 # Time the event stream + pose stream add to the tracking thread per frame, 11 cameras x 10 targets,
 # 10 Braid clients connected, against writing the events synchronously on the tracking thread.
 bench-web: setup
-	@$(PY) -m flytrack_host.live.web.bench --seconds 4 $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@$(PY) -m flytrack_host.pipeline.bench_live --seconds 4 $(if $(BENCH_JSON),--json $(BENCH_JSON))

@@ -14,7 +14,7 @@ Printed per run: the sinks' time per frame (mean including every frame, P50, P99
 trigger->estimate "tracking" part (which also shows what the other threads take from the tracking
 thread through the GIL), and, for the clients, trigger -> EndOfFrame received.
 
-    .venv/bin/python -m flytrack_host.live.web.bench [--seconds 4] [--cameras 11] [--targets 10] [--clients 10]
+    .venv/bin/python -m flytrack_host.pipeline.bench_live [--seconds 4] [--cameras 11] [--targets 10] [--clients 10]
 """
 
 from __future__ import annotations
