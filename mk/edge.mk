@@ -1,6 +1,12 @@
 # Edge feature extractor (edge/feature_extractor): C library + flytrack-edge daemon, host bindings.
 .PHONY: test-edge bench-edge
 
+# The extractor is built portable (x86-64-v2 with AVX2/AVX-512BW paths chosen at run time; armv8-a):
+# it runs on any camera computer. EDGE_NATIVE=ON builds it for this machine's CPU alone (-march=native).
+# Passed on every configure, so that a build directory configured when native was the default follows.
+EDGE_NATIVE ?= OFF
+CMAKE_FLAGS += -DFLYTRACK_EDGE_NATIVE=$(EDGE_NATIVE)
+
 # C unit tests (plain, ASan+UBSan, V4L2 seam), the NumPy reference comparison, the daemon end to end
 # (stdin, Y4M, control, Aravis fake camera; bad input against both flytrack-edge and its ASan+UBSan
 # build flytrack-edge-san).

@@ -181,6 +181,7 @@ int ft_fx_create(const ft_fx_params *p, size_t params_size, ft_fx **out) {
     if (!fx)
         return FT_FX_E_NOMEM;
     fx->p = *p;
+    fx->scan = ft_fx_scan_select();
     if (!fx->p.max_candidates)
         fx->p.max_candidates = DEFAULT_MAX_CANDIDATES;
     fx->w = p->width;
@@ -297,8 +298,8 @@ int ft_fx_process(ft_fx *fx, const void *frame, size_t nbytes, ft_fx_result *res
     int overflow = 0;
     uint32_t n = 0;
     uint32_t nr = fx->p.pixel_format == FT_FX_MONO16
-                      ? ft_fx_scan16(fx, img, stride / 2, &n, &overflow)
-                      : ft_fx_scan8(fx, img, stride, &n, &overflow);
+                      ? fx->scan->scan16(fx, img, stride / 2, &n, &overflow)
+                      : fx->scan->scan8(fx, img, stride, &n, &overflow);
     uint32_t total = 0, np = 0;
     if (nr)
         np = ft_fx_measure(fx, nr, &total);
