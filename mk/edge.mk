@@ -15,8 +15,15 @@ test-edge: cbuild
 	@$(PYTEST) -q host/tests/features tests/edge
 
 # C extractor vs an OpenCV-Python pipeline on the same frames, one core. BENCH_JSON=PATH writes figures.
+# Then the native build (build/edge/native) against the portable one, side by side with their ratio
+# (bench/fx_bench_paths.c; only where the portable build has the run-time paths).
+FX_BENCH_PATHS = $(BUILD)/edge/feature_extractor/fx_bench_paths
 bench-edge: cbuild
 	@$(PY) -m flytrack_host.features.bench $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@if [ -x $(FX_BENCH_PATHS) ] && [ -f $(BUILD)/edge/native/libflytrack_features.so ]; then \
+	  $(FX_BENCH_PATHS) $(BUILD)/edge/native/libflytrack_features.so \
+	    $(BUILD)/edge/feature_extractor/libflytrack_features.so; \
+	else echo "bench-edge: no native copy to compare (EDGE_NATIVE=ON, or not x86_64)"; fi
 
 # The extractor's portable vector path as the ARM edge computers build it: cross-compiled for aarch64
 # (GCC vector extensions -> NEON) with -Wall -Wextra -Werror, test_scan and test_features run under
