@@ -42,10 +42,11 @@ test-edge-arm:
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/scan.c -o $(ARM_OUT)/scan.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/features.c -o $(ARM_OUT)/features.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/regions.c -o $(ARM_OUT)/regions.o
+	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/undistort.c -o $(ARM_OUT)/undistort.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/background.c -o $(ARM_OUT)/background.o
 	@for t in test_scan test_features test_lazy_update; do \
 	  $(ARM_CC) $(ARM_FLAGS) -static $(FX_DIR)/tests/$$t.c $(ARM_OUT)/features.o $(ARM_OUT)/scan.o $(ARM_OUT)/regions.o \
-	    $(ARM_OUT)/background.o $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
+	    $(ARM_OUT)/undistort.o $(ARM_OUT)/background.o $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
 
 # Two builds of the extractor on the same random frames, every result and the background bit for bit:
 # OLD=path/to/libflytrack_features.so (e.g. main's, built in another build directory) against this
