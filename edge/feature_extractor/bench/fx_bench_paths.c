@@ -158,7 +158,8 @@ int main(int argc, char **argv) {
         }
         for (int r = 0; r < rounds; r++)
             for (int i0 = 0; i0 < count; i0 += interval) /* take turns, an interval at a time */
-                for (int k = 0; k < 2; k++) {
+                for (int j = 0; j < 2; j++) {
+                    const int k = (r + j) % 2; /* each goes first in every other round */
                     if (ft_bench_time_process(*(void **)&libs[k].proc, fx[k], &res,
                                               (const void *const *)fr, (size_t)nframes, (size_t)i0,
                                               (size_t)interval, (size_t)w * h, 1, ns)) {
