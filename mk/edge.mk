@@ -7,9 +7,10 @@
 EDGE_NATIVE ?= OFF
 CMAKE_FLAGS += -DFLYTRACK_EDGE_NATIVE=$(EDGE_NATIVE)
 
-# C unit tests (plain, ASan+UBSan, V4L2 seam), the NumPy reference comparison, the daemon end to end
-# (stdin, Y4M, control, Aravis fake camera; bad input against both flytrack-edge and its ASan+UBSan
-# build flytrack-edge-san).
+# C unit tests (plain, ASan+UBSan, V4L2 seam; each vector path, the run-time choice of path, no wide
+# instruction outside it), the NumPy reference comparison, the daemon end to end (stdin, Y4M, control,
+# Aravis fake camera; bad input against both flytrack-edge and its ASan+UBSan build flytrack-edge-san),
+# and no C file calling back into one that calls it (tests/edge/test_c_layering.py).
 test-edge: cbuild
 	@cd $(BUILD) && ctest --output-on-failure -R '^edge_'
 	@$(PYTEST) -q host/tests/features tests/edge
