@@ -14,6 +14,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 export FLYTRACK_BUILD_DIR := $(BUILD)
 
 # Filled by mk/*.mk
+CMAKE_FLAGS :=
 TEST_C_TARGETS :=
 BENCH_TARGETS :=
 
@@ -34,7 +35,7 @@ setup:
 	@./scripts/setup.sh
 
 cbuild: setup
-	@mkdir -p $(BUILD) && cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -Wno-dev > $(BUILD)/cmake.log 2>&1 \
+	@mkdir -p $(BUILD) && cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo $(CMAKE_FLAGS) -Wno-dev > $(BUILD)/cmake.log 2>&1 \
 	  || { cat $(BUILD)/cmake.log; exit 1; }
 	@set -o pipefail; env -u MAKELEVEL -u MAKEFLAGS -u MFLAGS cmake --build $(BUILD) -j $(JOBS) 2>&1 \
 	  | { grep -vE '^\[ *[0-9]+%\]|^-- |^g?make\[[0-9]+\]: (Entering|Leaving)' || true; }

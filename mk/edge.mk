@@ -1,16 +1,30 @@
 # Edge feature extractor (edge/feature_extractor): C library + flytrack-edge daemon, host bindings.
 .PHONY: test-edge bench-edge
 
-# C unit tests (plain, ASan+UBSan, V4L2 seam), the NumPy reference comparison, the daemon end to end
-# (stdin, Y4M, control, Aravis fake camera; bad input against both flytrack-edge and its ASan+UBSan
-# build flytrack-edge-san).
+# The extractor is built portable (x86-64-v2 with AVX2/AVX-512BW paths chosen at run time; armv8-a):
+# it runs on any camera computer. EDGE_NATIVE=ON builds it for this machine's CPU alone (-march=native).
+# Passed on every configure, so that a build directory configured when native was the default follows.
+EDGE_NATIVE ?= OFF
+CMAKE_FLAGS += -DFLYTRACK_EDGE_NATIVE=$(EDGE_NATIVE)
+
+# C unit tests (plain, ASan+UBSan, V4L2 seam; each vector path, the run-time choice of path, no wide
+# instruction outside it), the NumPy reference comparison, the daemon end to end (stdin, Y4M, control,
+# Aravis fake camera; bad input against both flytrack-edge and its ASan+UBSan build flytrack-edge-san),
+# and no C file calling back into one that calls it (tests/edge/test_c_layering.py).
 test-edge: cbuild
 	@cd $(BUILD) && ctest --output-on-failure -R '^edge_'
 	@$(PYTEST) -q host/tests/features tests/edge
 
 # C extractor vs an OpenCV-Python pipeline on the same frames, one core. BENCH_JSON=PATH writes figures.
+# Then the native build (build/edge/native) against the portable one, side by side with their ratio
+# (bench/fx_bench_paths.c; only where the portable build has the run-time paths).
+FX_BENCH_PATHS = $(BUILD)/edge/feature_extractor/fx_bench_paths
 bench-edge: cbuild
 	@$(PY) -m flytrack_host.edges.features.bench $(if $(BENCH_JSON),--json $(BENCH_JSON))
+	@if [ -x $(FX_BENCH_PATHS) ] && [ -f $(BUILD)/edge/native/libflytrack_features.so ]; then \
+	  $(FX_BENCH_PATHS) $(BUILD)/edge/native/libflytrack_features.so \
+	    $(BUILD)/edge/feature_extractor/libflytrack_features.so; \
+	else echo "bench-edge: no native copy to compare (EDGE_NATIVE=ON, or not x86_64)"; fi
 
 # The extractor's portable vector path as the ARM edge computers build it: cross-compiled for aarch64
 # (GCC vector extensions -> NEON) with -Wall -Wextra -Werror, test_scan and test_features run under
@@ -29,10 +43,11 @@ test-edge-arm:
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/scan.c -o $(ARM_OUT)/scan.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/features.c -o $(ARM_OUT)/features.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/regions.c -o $(ARM_OUT)/regions.o
+	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/undistort.c -o $(ARM_OUT)/undistort.o
 	@$(ARM_CC) $(ARM_FLAGS) -c $(FX_DIR)/src/background.c -o $(ARM_OUT)/background.o
 	@for t in test_scan test_features test_lazy_update; do \
 	  $(ARM_CC) $(ARM_FLAGS) -static $(FX_DIR)/tests/$$t.c $(ARM_OUT)/features.o $(ARM_OUT)/scan.o $(ARM_OUT)/regions.o \
-	    $(ARM_OUT)/background.o $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
+	    $(ARM_OUT)/undistort.o $(ARM_OUT)/background.o $(ARM_OUT)/thresholds.o -lm -o $(ARM_OUT)/$$t && qemu-aarch64 $(ARM_OUT)/$$t || exit 1; done
 
 # Two builds of the extractor on the same random frames, every result and the background bit for bit:
 # OLD=path/to/libflytrack_features.so (e.g. main's, built in another build directory) against this

@@ -1,5 +1,6 @@
-/* Internals shared by the event-file readers (ev_reader.c: input, headers, dispatch; ev_aedat.c and
- * ev_prophesee.c: the per-format decoders). */
+/* Internals shared by the event-file readers (ev_reader.c: opening, headers, dispatch; ev_aedat.c
+ * and ev_prophesee.c: the per-format decoders; ev_input.c: input buffer, errors, trigger times,
+ * which all of them use). Calls go one way: ev_reader.c -> decoders -> ev_input.c. */
 #ifndef FLYTRACK_EV_INTERNAL_H
 #define FLYTRACK_EV_INTERNAL_H
 
@@ -77,8 +78,8 @@ static inline void ev_put(ft_event *e, int64_t t, uint32_t x, uint32_t y, uint32
     memcpy(&e->x, &rest, 8);
 }
 
-/* Makes at least n unconsumed bytes available; 1 if so, 0 at the end of input (or on a read error,
- * which also marks the reader failed). May move data. */
+/* ev_input.c. Makes at least n unconsumed bytes available; 1 if so, 0 at the end of input (or on a
+ * read error, which also marks the reader failed). May move data. */
 int ev_need(ft_ev_reader *r, size_t n);
 /* Marks the reader failed at the given file offset: "<name>: at byte N: <message>". */
 void ev_fail(ft_ev_reader *r, uint64_t off, const char *fmt, ...)

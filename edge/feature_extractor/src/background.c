@@ -26,8 +26,9 @@ thr_cfg ft_fx_thr_config(const ft_fx *fx) {
 
 /* Running average: mean <- (1 - a) mean + a x, sumsq <- (1 - a) sumsq + a x^2; init: mean = x. */
 #define DEFINE_UPDATE(NAME, T)                                                                     \
-    static void NAME(size_t w, size_t h, const T *restrict img, size_t stride_px,                  \
-                     float *restrict mean, float *restrict sumsq, int init, thr_cfg c) {           \
+    static FT_FX_CLONES void NAME(size_t w, size_t h, const T *restrict img, size_t stride_px,     \
+                                  float *restrict mean, float *restrict sumsq, int init,           \
+                                  thr_cfg c) {                                                     \
         for (size_t y = 0; y < h; y++) {                                                           \
             const T *restrict r = img + y * stride_px;                                             \
             float *restrict m = mean + y * w;                                                      \
@@ -53,8 +54,8 @@ DEFINE_UPDATE(update16, uint16_t)
 /* bhi = min(hi), blo = max(lo) over each block of FT_BLOCK pixels of a row (the last one may be
  * short). */
 #define DEFINE_BLOCK_BOUNDS(NAME, T)                                                               \
-    static void NAME(size_t w, size_t h, size_t nblk, const T *restrict hi, const T *restrict lo,  \
-                     T *restrict bhi, T *restrict blo) {                                           \
+    static FT_FX_CLONES void NAME(size_t w, size_t h, size_t nblk, const T *restrict hi,           \
+                                  const T *restrict lo, T *restrict bhi, T *restrict blo) {        \
         for (size_t y = 0; y < h; y++) {                                                           \
             for (size_t b = 0; b < nblk; b++) {                                                    \
                 size_t x0 = b * FT_BLOCK, x1 = x0 + FT_BLOCK < w ? x0 + FT_BLOCK : w;              \
@@ -75,8 +76,9 @@ DEFINE_BLOCK_BOUNDS(block_bounds16, uint16_t)
 /* ghi = min(bhi), glo = max(blo) over the rows of each band of FT_BAND rows (the last one may have
  * fewer), block by block; whi, wlo the same over the whole band. */
 #define DEFINE_BAND_BOUNDS(NAME, T)                                                                \
-    static void NAME(size_t h, size_t nblk, const T *restrict bhi, const T *restrict blo,          \
-                     T *restrict ghi, T *restrict glo, T *restrict whi, T *restrict wlo) {         \
+    static FT_FX_CLONES void NAME(size_t h, size_t nblk, const T *restrict bhi,                    \
+                                  const T *restrict blo, T *restrict ghi, T *restrict glo,         \
+                                  T *restrict whi, T *restrict wlo) {                              \
         for (size_t y0 = 0; y0 < h; y0 += FT_BAND) {                                               \
             T *restrict gh = ghi + y0 / FT_BAND * nblk, *restrict gl = glo + y0 / FT_BAND * nblk;  \
             memcpy(gh, bhi + y0 * nblk, nblk * sizeof(T));                                         \

@@ -34,6 +34,16 @@ typedef struct {
     uint32_t rid;
 } ft_rank;
 
+/* One vector path of the candidate scan (scan.c): see ft_fx_scan8 below. */
+struct ft_fx;
+typedef struct {
+    const char *name; /* "avx512bw", "avx2" or "generic" */
+    uint32_t (*scan8)(struct ft_fx *fx, const uint8_t *img, size_t stride, uint32_t *n_cand,
+                      int *overflow);
+    uint32_t (*scan16)(struct ft_fx *fx, const uint16_t *img, size_t stride_px, uint32_t *n_cand,
+                       int *overflow);
+} ft_fx_scan_impl;
+
 struct ft_fx {
     ft_fx_params p;
     uint32_t w, h;
@@ -82,6 +92,7 @@ struct ft_fx {
     int need_bg;
     int have_bg;
     int scalar_scan; /* 1: the plain per-pixel scan (the reference the vector scan is tested on) */
+    const ft_fx_scan_impl *scan; /* the vector path, chosen at create (ft_fx_scan_select) */
 };
 
 /* The background model (background.c). take: the frame becomes the background; update: the
@@ -97,11 +108,13 @@ void ft_fx_bg_step(ft_fx *fx);
 void ft_fx_bg_finish(ft_fx *fx);
 void ft_fx_bg_refresh(ft_fx *fx);
 
-/* The candidate scan of one frame: fills cand_d and runs, returns the number of runs; *n_cand gets
- * the candidates, *overflow 1 when cap was reached (the candidates found so far are kept). */
-uint32_t ft_fx_scan8(ft_fx *fx, const uint8_t *img, size_t stride, uint32_t *n_cand, int *overflow);
-uint32_t ft_fx_scan16(ft_fx *fx, const uint16_t *img, size_t stride_px, uint32_t *n_cand,
-                      int *overflow);
+/* The candidate scan of one frame, fx->scan->scan8 or scan16: fills cand_d and runs, returns the
+ * number of runs; *n_cand gets the candidates, *overflow 1 when cap was reached (the candidates
+ * found so far are kept). One path per compile of scan.c; the portable x86 build (FT_FX_DISPATCH)
+ * links all three and picks at create. */
+extern const ft_fx_scan_impl ft_fx_scan_avx512bw, ft_fx_scan_avx2, ft_fx_scan_generic;
+/* The widest path this CPU runs among those linked in. */
+const ft_fx_scan_impl *ft_fx_scan_select(void);
 
 /* The scan's nr runs united into regions and measured (regions.c): fills fx->points, strongest
  * first, and returns how many (at most max_points); *total gets the regions kept before the cap. */
@@ -115,7 +128,10 @@ void ft_fx_debug_scalar_scan(ft_fx *fx, int on);
 void ft_fx_debug_eager_update(ft_fx *fx, int on);
 /* Tests only: rows of the model not yet brought up to date. */
 uint32_t ft_fx_debug_pending_rows(const ft_fx *fx);
-/* Tests only: the vector path this build uses ("avx512bw", "avx2" or "generic"). */
-const char *ft_fx_debug_scan_path(void);
+/* Tests only: the vector path fx uses ("avx512bw", "avx2" or "generic"). */
+const char *ft_fx_debug_scan_path(const ft_fx *fx);
+/* Tests only: makes fx use the named path; -1 (fx unchanged) when it is not linked in or this CPU
+ * cannot run it. */
+int ft_fx_debug_scan_force(ft_fx *fx, const char *name);
 
 #endif

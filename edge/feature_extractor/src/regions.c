@@ -1,5 +1,6 @@
 /* Regions of libflytrack_features: the scan's runs of candidates (scan.c) united into 8-connected
- * regions, and each region measured: peak, area, moments, shape, lens undistortion, ranking. */
+ * regions, and each region measured: peak, area, moments, shape, lens undistortion (undistort.c),
+ * ranking. */
 #include "fx_internal.h"
 
 #include <math.h>

@@ -13,9 +13,14 @@
  * difference to the background is stored: regions are then labelled run by run and measured from
  * these arrays (regions.c), never from the frame again.
  *
- * Vector code: AVX-512BW or AVX2 intrinsics when built for them (-march=native), else GCC vector
- * extensions (SSE2 on a portable x86 build, NEON on the ARM edge computers). scalar_scan selects
- * the plain per-pixel loop instead: the tests check that both give bit-identical results.
+ * Vector code: AVX-512BW or AVX2 intrinsics when compiled for them, else GCC vector extensions
+ * (SSE on a portable x86 build, NEON on the ARM edge computers). The portable x86 build compiles
+ * this file three times: once as itself (the baseline path and the choice of path) and once per
+ * wider path with FT_SCAN_VARIANT defined (scan_avx2.c, scan_avx512bw.c, built for the x86-64
+ * levels v3 and v4: AVX2, AVX-512); each compile defines its path as ft_fx_scan_<path>, and
+ * ft_fx_create takes the widest this CPU runs (ft_fx_scan_select), so one binary runs on old CPUs
+ * and is fast on new ones. scalar_scan selects the plain per-pixel loop instead: the tests check
+ * that every path gives bit-identical results.
  */
 #include "fx_internal.h"
 
@@ -29,7 +34,7 @@
 /* Vector kit: load, unsigned max/min, and "some lane of a above b" / "below b" tests */
 
 #if defined(__AVX512BW__)
-#define FT_PATH "avx512bw"
+#define FT_PATH avx512bw
 typedef __m512i vec;
 #define VB 64
 static inline vec ld(const void *p) {
@@ -46,7 +51,7 @@ static inline vec ld(const void *p) {
 #define ANY_GT16(a, b) (_mm512_cmpgt_epu16_mask(a, b) != 0)
 #define ANY_LT16(a, b) (_mm512_cmplt_epu16_mask(a, b) != 0)
 #elif defined(__AVX2__)
-#define FT_PATH "avx2"
+#define FT_PATH avx2
 typedef __m256i vec;
 #define VB 32
 static inline vec ld(const void *p) {
@@ -66,7 +71,7 @@ static inline vec ld(const void *p) {
 #define ANY_GT16(a, b) NE_ANY16(_mm256_max_epu16(a, b), b)
 #define ANY_LT16(a, b) NE_ANY16(_mm256_min_epu16(a, b), b)
 #else
-#define FT_PATH "generic"
+#define FT_PATH generic
 /* GCC vector extensions: the compiler picks the target's instructions (SSE2, NEON, ...); 16 bytes
  * is their register width. */
 #define VB 16
@@ -102,9 +107,13 @@ static inline vec sel16(vec16 m, vec a, vec b) {
 #define ANY_LT16(a, b) any_set((vec64)((vec16)(a) < (vec16)(b)))
 #endif
 
-const char *ft_fx_debug_scan_path(void) {
-    return FT_PATH;
-}
+/* This compile's names: ft_fx_scan8_<path> etc. (the objdump check in tests/check_isa.sh allows
+ * wide instructions in functions so named only). */
+#define FT_CAT_(a, b) a##_##b
+#define FT_CAT(a, b) FT_CAT_(a, b)
+#define FT_STR_(a) #a
+#define FT_STR(a) FT_STR_(a)
+#define FT_NAME(n) FT_CAT(n, FT_PATH)
 
 /* Some pixel of r[0 .. n - 1] above h or below l. Rows shorter than a vector go pixel by pixel.
  * Otherwise the first vector is read where the row starts and the rest from the next vector-aligned
@@ -447,12 +456,61 @@ static inline void prefetch_means(const float *m, uint64_t mask) {
         *overflow = s.overflow;                                                                    \
         return s.nr;                                                                               \
     }
-DEFINE_SCAN(ft_fx_scan8, uint8_t, hi8, lo8, bhi8, blo8, ghi8, glo8, whi8, wlo8, out8, mask8,
-            add_run8)
-DEFINE_SCAN(ft_fx_scan16, uint16_t, hi16, lo16, bhi16, blo16, ghi16, glo16, whi16, wlo16, out16,
-            mask16, add_run16)
+DEFINE_SCAN(FT_NAME(ft_fx_scan8), uint8_t, hi8, lo8, bhi8, blo8, ghi8, glo8, whi8, wlo8, out8,
+            mask8, add_run8)
+DEFINE_SCAN(FT_NAME(ft_fx_scan16), uint16_t, hi16, lo16, bhi16, blo16, ghi16, glo16, whi16, wlo16,
+            out16, mask16, add_run16)
+
+const ft_fx_scan_impl FT_NAME(ft_fx_scan) = {FT_STR(FT_PATH), FT_NAME(ft_fx_scan8),
+                                             FT_NAME(ft_fx_scan16)};
+
+#ifndef FT_SCAN_VARIANT /* the baseline compile: the choice of path, and the test hooks */
+
+/* FT_FX_DISPATCH (the portable x86 build): the wider paths are linked in, compiled apart for the
+ * x86-64 levels v4 and v3, and entered only on a CPU of that level (libgcc's checks include the OS
+ * saving the wide registers). */
+#ifdef FT_FX_DISPATCH
+static int cpu_runs(const ft_fx_scan_impl *s) {
+    __builtin_cpu_init(); /* needed only before constructors have run; cheap after */
+    if (s == &ft_fx_scan_avx512bw)
+        return __builtin_cpu_supports("x86-64-v4");
+    if (s == &ft_fx_scan_avx2)
+        return __builtin_cpu_supports("x86-64-v3");
+    return 1;
+}
+static const ft_fx_scan_impl *const paths[] = {&ft_fx_scan_avx512bw, &ft_fx_scan_avx2,
+                                               &FT_NAME(ft_fx_scan)};
+#else
+static int cpu_runs(const ft_fx_scan_impl *s) {
+    (void)s;
+    return 1; /* the only path is the one this file was compiled for */
+}
+static const ft_fx_scan_impl *const paths[] = {&FT_NAME(ft_fx_scan)};
+#endif
+
+/* The widest first. */
+const ft_fx_scan_impl *ft_fx_scan_select(void) {
+    for (size_t i = 0; i < sizeof paths / sizeof paths[0]; i++)
+        if (cpu_runs(paths[i]))
+            return paths[i];
+    return paths[sizeof paths / sizeof paths[0] - 1];
+}
+
+int ft_fx_debug_scan_force(ft_fx *fx, const char *name) {
+    for (size_t i = 0; fx && name && i < sizeof paths / sizeof paths[0]; i++)
+        if (!strcmp(paths[i]->name, name) && cpu_runs(paths[i])) {
+            fx->scan = paths[i];
+            return 0;
+        }
+    return -1;
+}
+
+const char *ft_fx_debug_scan_path(const ft_fx *fx) {
+    return fx && fx->scan ? fx->scan->name : "none";
+}
 
 void ft_fx_debug_scalar_scan(ft_fx *fx, int on) {
     if (fx)
         fx->scalar_scan = on != 0;
 }
+#endif

@@ -11,8 +11,9 @@
 /* Branch-free on purpose: a conditional here lets the compiler skip the float loads for masked
  * pixels, and then it no longer vectorises the loop. USE(i): whether pixel i is used. */
 #define DEFINE_THRESH_LOOP(NAME, T, USE)                                                           \
-    static void NAME(size_t n, const float *restrict mean, const float *restrict sumsq,            \
-                     const uint8_t *restrict mask, T *restrict hi, T *restrict lo, thr_cfg c) {    \
+    static FT_FX_CLONES void NAME(size_t n, const float *restrict mean,                            \
+                                  const float *restrict sumsq, const uint8_t *restrict mask,       \
+                                  T *restrict hi, T *restrict lo, thr_cfg c) {                     \
         const uint32_t bright = c.bright ? 1u : 0u, dark = c.dark ? 1u : 0u;                       \
         const uint32_t maxv = (uint32_t)c.maxv;                                                    \
         (void)mask;                                                                                \
@@ -71,8 +72,8 @@ void ft_fx_thresh16(size_t n, const float *restrict mean, const float *restrict 
  * the ignored polarity have hi = maxv and lo = 0; the bounds here are loosened by more than the
  * rounding and by one more level. */
 #define DEFINE_NEXT_BOUNDS(NAME, T)                                                                \
-    void NAME(size_t w, size_t blk, const float *restrict mean, T *restrict nbhi,                  \
-              T *restrict nblo, thr_cfg c) {                                                       \
+    FT_FX_CLONES void NAME(size_t w, size_t blk, const float *restrict mean, T *restrict nbhi,     \
+                           T *restrict nblo, thr_cfg c) {                                          \
         float mnv[64], mxv[64];                                                                    \
         for (size_t c0 = 0; c0 < w; c0 += 64 * blk, nbhi += 64, nblo += 64) {                      \
             size_t nb = 0; /* up to 64 blocks: their ranges of means, then their bounds */         \

@@ -5,6 +5,17 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* The portable x86 build (FT_FX_DISPATCH) compiles the per-pixel loops of the background model once
+ * per x86-64 level, v4 (AVX-512) and v3 (AVX2), as the scan's wider paths are (scan.c), and GCC
+ * runs the widest this CPU has (an ifunc, resolved at load): they run over every pixel at each
+ * update. Each clone gives the same floats: every operation rounds as IEEE says
+ * whatever the width, and -ffp-contract=off keeps fused multiply-adds out. */
+#if defined(FT_FX_DISPATCH) && defined(__x86_64__)
+#define FT_FX_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#else
+#define FT_FX_CLONES
+#endif
+
 /* Per-pixel thresholds of n pixels; mask NULL: every pixel used. */
 typedef struct {
     float a, a1, ns, dt, maxv;

@@ -178,6 +178,7 @@ static void test_spread_equals_whole(void) {
     static const int geo[][2] = {{640, 48}, {130, 37}, {64, 20}, {13, 9}, {300, 5}, {200, 61}};
     static const unsigned ivs[] = {1, 2, 3, 5, 17};
     long frames = 0, points = 0, on_demand = 0, spread_frames = 0;
+    const char *path = "none";
     for (int c = 0; c < 36; c++) {
         const int w0 = geo[c % 6][0], h = geo[c % 6][1], fmt = (c / 6) % 3,
                   pad = c % 4 == 3 ? 5 : 0;
@@ -196,6 +197,7 @@ static void test_spread_equals_whole(void) {
         CHECK(ft_fx_create(&p, sizeof p, &a) == FT_FX_OK && ft_fx_create(&p, sizeof p, &b) == 0,
               "create");
         ft_fx_debug_eager_update(b, 1);
+        path = ft_fx_debug_scan_path(a);
         uint32_t *v = malloc(sizeof(uint32_t) * (size_t)(w * h));
         uint8_t *mask = malloc((size_t)(w * h));
         for (int f = 0; f < 60; f++) {
@@ -255,7 +257,7 @@ static void test_spread_equals_whole(void) {
     CHECK(on_demand > 50, "the scan brought rows up to date itself in only %ld frames", on_demand);
     printf("test_lazy_update: spread = whole on %ld frames, %ld points; %ld of %ld frames with "
            "rows pending brought some up to date from the scan (%s)\n",
-           frames, points, on_demand, spread_frames, ft_fx_debug_scan_path());
+           frames, points, on_demand, spread_frames, path);
 }
 
 int main(void) {
