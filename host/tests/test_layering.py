@@ -174,3 +174,28 @@ def test_the_cycle_finder_finds_a_circle() -> None:
     """The check above is only as good as this: a circle of three and a self-contained chain."""
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+
+
+def test_the_architecture_page_shows_the_same_boxes() -> None:
+    """docs/architecture.md: its diagram has one box per subsystem and only allowed arrows; its table
+    lists each subsystem with exactly what the plan lets it import."""
+    import re
+
+    page = (PKG.parents[1] / "docs" / "architecture.md").read_text()
+    diagram = page.split("```mermaid", 1)[1].split("```", 1)[0]
+    boxes: set[str] = set()
+    for line in diagram.splitlines()[2:]:  # after "flowchart BT"
+        src, _, dst = line.strip().partition("-->")
+        src = src.strip()
+        if not src:
+            continue
+        boxes.add(src)
+        for target in (t.strip() for t in dst.split("&") if t.strip()):
+            boxes.add(target)
+            assert target in ALLOWED.get(src, set()), f"the diagram draws {src} --> {target}; the plan forbids it"
+    assert boxes == set(ALLOWED), f"diagram boxes {sorted(boxes ^ set(ALLOWED))} differ from the subsystems"
+    rows = dict(re.findall(r"^\| `([a-z]+)` \| [^|]+ \| ([^|]+) \|$", page, re.M))
+    assert set(rows) == set(ALLOWED), f"table rows {sorted(set(rows) ^ set(ALLOWED))} differ from the subsystems"
+    for name, said in rows.items():
+        said_set = set() if said.strip() == "nothing" else {s.strip() for s in said.split(",")}
+        assert said_set == ALLOWED[name], f"docs/architecture.md: {name} may import {sorted(said_set)}?"
