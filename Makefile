@@ -18,7 +18,7 @@ CMAKE_FLAGS :=
 TEST_C_TARGETS :=
 BENCH_TARGETS :=
 
-.PHONY: help setup build cbuild firmware test test-python test-c test-other-blas test-portability lint format bench demo clean
+.PHONY: help setup build cbuild firmware test test-python test-c test-other-blas test-portability test-load lint format bench demo clean
 
 help:
 	@echo "FlyTrack make targets:"
@@ -26,6 +26,7 @@ help:
 	@echo "  make test      set up, build, run every test (C and Python), then lint"
 	@echo "  make bench     run every benchmark (BENCH_JSON=PATH writes figures as JSON)"
 	@echo "  make test-portability  numerical tests under every OpenBLAS kernel x 1, 2 threads; suite in random order"
+	@echo "  make test-load the suite 3 times under a CPU load of twice the cores (stress-ng)"
 	@echo "  make build     build the C parts and the firmware"
 	@echo "  make firmware  build the AVR trigger firmware"
 	@echo "  make lint      ruff and clang-format checks"
@@ -63,6 +64,12 @@ test-other-blas: setup
 # threads, then the whole suite once in random order; prints the table.
 test-portability: build
 	@$(PY) scripts/test_portability.py $(PORTABILITY_ARGS)
+
+# Not in `make test`: the whole pytest suite 3 times under stress-ng (twice as many CPU hogs as cores);
+# prints the failures per run. LOAD_ARGS='--runs 1 -- host/tests/host' narrows it.
+test-load: build
+	@FLYTRACK_EXTRA_APT=scripts/apt-packages-load.txt ./scripts/setup.sh
+	@$(PY) scripts/test_load.py $(LOAD_ARGS)
 
 lint: setup
 	@$(VENV)/bin/ruff check -q host tests && echo "lint: ruff clean"
