@@ -1,7 +1,7 @@
 /* Wing-beat tracker of a tethered fly (see flytrack/wingbeat.h): the initialisation phase once per
  * window, then per event an angle, a running mean of events_per_update events, and one EKF update
- * of a fixed small size (at most 10 states). Mirrors flytrack_host.dvs.wingbeat step for step, so the
- * two can be checked against each other on the same events. */
+ * of a fixed small size (at most 10 states). Mirrors flytrack_host.dvs.wingbeat step for step, so
+ * the two can be checked against each other on the same events. */
 #include "flytrack/wingbeat.h"
 
 #include <math.h>
