@@ -9,9 +9,12 @@ and a README, with Braid's file and column names (braid_types / flydra_types, sc
 - data_association: obj_id, frame, cam_num, pt_idx
 - cam_info: camn, cam_id
 - trigger_clock_info: start_timestamp, framecount, tcnt, stop_timestamp
-- textlog: mainbrain_timestamp, cam_id, host_timestamp, message. Braid's reader takes the frame rate
-  from a "MainBrain running at F fps" line and the tracking parameters from a JSON line
-  {"tracking_params": {...}}, which it requires when kalman_estimates is present.
+- textlog: mainbrain_timestamp, cam_id, host_timestamp, message. Braid's reader (braidz-parser) takes
+  the frame rate from a line "MainBrain running at F fps, (...)" (F as Rust prints an f64, or
+  "unknown"; without the parenthesis it refuses the archive) and the tracking parameters from a JSON
+  line {"tracking_params": {...}, "git_revision": ...}, which it requires when kalman_estimates is
+  present (TrackingParams denies unknown fields);
+- experiment_info: uuid (one row per experiment UUID set during the run).
 
 Missing values (an unknown trigger timestamp, a NaN coordinate, a zero device timestamp or camera
 frame number, which Braid keeps as NonZeroU64) are written as empty fields, which Braid reads as
@@ -72,6 +75,12 @@ def _csv_gz(df: pd.DataFrame) -> bytes:
     return gzip.compress(text.encode("utf-8"), compresslevel=6, mtime=0)
 
 
+def _rust_f64(v: float) -> str:
+    """A float as Rust's `{}` prints an f64 (and braidz-parser reads it back): 100.0 -> "100"."""
+    text = repr(float(v))
+    return text[:-2] if text.endswith(".0") else text
+
+
 def braid_tracking_params(params: dict | None) -> dict:
     """FlyTrack TrackingParams -> Braid's TrackingParams (the JSON in textlog)."""
     p = params or {}
@@ -89,7 +98,8 @@ def braid_tracking_params(params: dict | None) -> dict:
             "minimum_pixel_abs_zscore": 0.0,
         },
         "num_observations_to_visibility": int(min(max(p.get("confirm_min_frames", 3), 0), 255)),  # u8
-        "mini_arena_config": "NoMiniArena",
+        # No `mini_arena_config`: Braid leaves it out when there is none (an internally tagged enum, so a
+        # plain string would not parse).
     }
 
 
@@ -194,8 +204,15 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
                           "stop_timestamp": c["stop_timestamp"]}, columns=CLOCK_COLUMNS)
 
     t0 = float(rec.meta.get("start_time", hostclock.wall()))  # a label: the export time if unknown
-    log_rows = [(t0, "", t0, f"MainBrain running at {fps:g} fps" if fps else "MainBrain running at unknown fps"),
-                (t0, "", t0, json.dumps({"tracking_params": braid_tracking_params(rec.meta.get("tracking_params"))}))]
+    # Braid's first two textlog lines, which braidz-parser reads: the rate as `^(\S+) fps, \((.*)\)$`
+    # (the number as Rust prints an f64, or "unknown") and the tracking parameters with the revision.
+    fps_text = _rust_f64(fps) if fps else "unknown"
+    tz = time.strftime("%Z", time.localtime(t0)) or "UTC"
+    revision = f"flytrack-{__version__}"
+    saver = {"tracking_params": braid_tracking_params(rec.meta.get("tracking_params")), "git_revision": revision}
+    log_rows = [(t0, "mainbrain", t0,
+                 f"MainBrain running at {fps_text} fps, (flytrack_version {__version__}, time_tzname0 {tz})"),
+                (t0, "mainbrain", t0, json.dumps(saver))]
     for r in rec.textlog:
         if str(r.get("message", "")).startswith("MainBrain running at"):
             continue
@@ -205,12 +222,15 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     if skipped_text:
         log_rows.append((t0, "", t0, f"FlyTrack export: rows left out ({skipped_text})"))
     textlog = pd.DataFrame(log_rows, columns=TEXTLOG_COLUMNS)
+    # Braid's experiment_info: one row per SetExperimentUuid of the run.
+    uuid = rec.meta.get("experiment_uuid")
+    experiment = pd.DataFrame({"uuid": [uuid] if uuid else []}, columns=["uuid"])
 
     rec_time = time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(t0))
     rec_time = rec_time[:-2] + ":" + rec_time[-2:]  # RFC 3339 offset, as chrono writes it
     metadata = (
         f"schema: {BRAID_SCHEMA}\n"
-        f"git_revision: flytrack-{__version__}\n"
+        f"git_revision: {revision}\n"
         f"original_recording_time: {rec_time}\n"
         "save_empty_data2d: true\n"
         "saving_program_name: flytrack\n"
@@ -218,7 +238,7 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
     readme = (
         "# FlyTrack recording in Braid's .braidz format\n\n"
         "A zip of gzipped CSV tables (kalman_estimates, data2d_distorted, data_association, cam_info,\n"
-        "trigger_clock_info, textlog), the calibration (flydra XML) and braid_metadata.yml.\n"
+        "trigger_clock_info, textlog, experiment_info), the calibration (flydra XML) and braid_metadata.yml.\n"
         "Read it with Braid's tools (braidz-parser, pybraidz-tools) or with pandas:\n\n"
         "    import zipfile, pandas as pd\n"
         "    z = zipfile.ZipFile('FILE.braidz')\n"
@@ -236,7 +256,8 @@ def export_braidz(rec: Recording, out: Path | str) -> dict[str, int]:
         if cal_xml is not None:
             z.writestr("calibration.xml", cal_xml, compress_type=zipfile.ZIP_DEFLATED)
         for name, df in (("kalman_estimates", kal), ("data2d_distorted", data2d), ("data_association", assoc),
-                         ("cam_info", cam_info), ("trigger_clock_info", clock), ("textlog", textlog)):
+                         ("cam_info", cam_info), ("trigger_clock_info", clock), ("textlog", textlog),
+                         ("experiment_info", experiment)):
             z.writestr(f"{name}.csv.gz", _csv_gz(df), compress_type=zipfile.ZIP_STORED)
         if dvs_points is not None:
             z.writestr(f"{DVS_POINTS}.csv.gz", _csv_gz(dvs_points), compress_type=zipfile.ZIP_STORED)

@@ -15,6 +15,8 @@ import datetime
 import gzip
 import io
 import json
+import math
+import re
 import time
 import zipfile
 
@@ -185,6 +187,110 @@ def test_braidz_export_matches_braid_schema(tracked_run, tmp_path):
         assert isinstance(params[key], float), key
     h = params["hypothesis_test_params"]
     assert 0 <= h["minimum_number_of_cameras"] <= 255 and isinstance(h["hypothesis_test_max_acceptable_error"], float)
+
+
+# Braid's TrackingParams (braid-types, serde deny_unknown_fields): field -> (kind, required).
+_TRACKING_PARAMS = {
+    "motion_noise_scale": ("f64", True), "initial_position_std_meters": ("f64", True),
+    "initial_vel_std_meters_per_sec": ("f64", True), "ekf_observation_covariance_pixels": ("f64", True),
+    "accept_observation_min_likelihood": ("f64", True), "max_position_std_meters": ("f64", True),
+    "hypothesis_test_params": ("hypothesis", False), "num_observations_to_visibility": ("u8", False),
+    "mini_arena_config": ("mini_arena", False),
+}
+_FPS_LINE = re.compile(r"^(\S+) fps, \((.*)\)$")
+
+
+def braidz_parser_basics(z: zipfile.ZipFile) -> dict:
+    r"""What braidz-parser's `parse_basics` (strand-braid, braidz/braidz-parser/src/incremental_parser.rs)
+    demands of an archive, rule by rule, raising AssertionError where Braid's tools return an error or
+    panic: the metadata parses; a textlog message starting "MainBrain running at " matches its
+    `^(\S+) fps, \((.*)\)$` (UnknownTextlogData otherwise) with a number or "unknown"; a message that
+    parses as JSON is an object (it unwraps it), and its `tracking_params`, if any, deserialises as
+    TrackingParams (unknown fields denied; `mini_arena_config` an internally tagged enum) and comes once;
+    kalman_estimates needs tracking parameters (MissingTrackingParameters). Returns fps and params."""
+    names = set(z.namelist())
+    yaml.safe_load(z.read("braid_metadata.yml"))
+    _, rows = read_csv_text(z, "textlog")
+    fps, params = math.nan, None
+    for r in rows:
+        msg = r[3]
+        if msg.startswith("MainBrain running at "):
+            m = _FPS_LINE.match(msg.removeprefix("MainBrain running at "))
+            assert m, f"textlog {msg!r}: braidz-parser's fps regex does not match (UnknownTextlogData)"
+            if m.group(1) != "unknown":
+                fps = float(m.group(1))  # Rust's f64 parse: plain decimal or exponent
+            continue
+        try:
+            js = json.loads(msg)
+        except ValueError:
+            continue
+        assert isinstance(js, dict), f"textlog {msg!r} is JSON but not an object: braidz-parser panics on it"
+        if "tracking_params" in js:
+            assert params is None, "tracking_params twice in the textlog (MultipleTrackingParameters)"
+            params = js["tracking_params"]
+            unknown = set(params) - set(_TRACKING_PARAMS)
+            assert not unknown, f"TrackingParams has deny_unknown_fields; unknown: {sorted(unknown)}"
+            for key, (kind, required) in _TRACKING_PARAMS.items():
+                if key not in params:
+                    assert not required, f"TrackingParams.{key} is missing"
+                    continue
+                v = params[key]
+                if kind == "f64":
+                    assert isinstance(v, float | int) and not isinstance(v, bool), key
+                elif kind == "u8":
+                    assert isinstance(v, int) and 0 <= v <= 255, key
+                elif kind == "hypothesis":
+                    assert v is None or (set(v) == {"minimum_number_of_cameras", "hypothesis_test_max_acceptable_error",
+                                                    "minimum_pixel_abs_zscore"}
+                                         and 0 <= v["minimum_number_of_cameras"] <= 255), key
+                else:  # #[serde(tag = "type")] enum MiniArenaConfig { NoMiniArena, XYGrid(..) }
+                    assert isinstance(v, dict) and v.get("type") in ("NoMiniArena", "XYGrid"), \
+                        f"mini_arena_config {v!r} is not Braid's internally tagged enum"
+    if "kalman_estimates.csv.gz" in names or "kalman_estimates.csv" in names:
+        assert params is not None, "kalman_estimates without tracking parameters (MissingTrackingParameters)"
+    read_csv_text(z, "cam_info")
+    return {"fps": fps, "tracking_params": params}
+
+
+def test_braidz_export_passes_braidz_parsers_rules(tracked_run, tmp_path):
+    """Braid's own tools (braidz-cli, the viewer, braid-offline, the Rerun export) open archives through
+    braidz-parser; pybraidz-chunked-iter reads only kalman_estimates, so it cannot tell."""
+    _, _, summary = tracked_run
+    out = tmp_path / "run.braidz"
+    export_braidz(load_recording(summary["recording"]), out)
+    with zipfile.ZipFile(out) as z:
+        basics = braidz_parser_basics(z)
+        assert basics["fps"] == FPS
+        assert "experiment_info.csv.gz" in z.namelist()  # Braid writes it with every recording
+        header, _ = read_csv_text(z, "experiment_info")
+        assert header == ["uuid"]
+        _, log_rows = read_csv_text(z, "textlog")
+        assert [r[1] for r in log_rows[:2]] == ["mainbrain", "mainbrain"]
+
+
+def test_the_braidz_parser_rules_refuse_what_braid_refuses(tmp_path):
+    """The checker above must fail where Braid does: the fps line without its parenthesis, a string
+    mini_arena_config, an unknown tracking field."""
+    def archive(messages: list[str]) -> zipfile.ZipFile:
+        path = tmp_path / f"a{len(list(tmp_path.iterdir()))}.zip"
+        log = "mainbrain_timestamp,cam_id,host_timestamp,message\n" + "".join(
+            f'1.0,mainbrain,1.0,"{m.replace(chr(34), chr(34) * 2)}"\n' for m in messages)
+        with zipfile.ZipFile(path, "w") as z:
+            z.writestr("braid_metadata.yml", "schema: 3\n")
+            z.writestr("textlog.csv.gz", gzip.compress(log.encode()))
+            z.writestr("cam_info.csv.gz", gzip.compress(b"camn,cam_id\n0,cam1\n"))
+        return zipfile.ZipFile(path)
+
+    good = json.dumps({"tracking_params": braid_tracking_params(None)})
+    assert braidz_parser_basics(archive(["MainBrain running at 100 fps, ()", good]))["fps"] == 100.0
+    for bad in (["MainBrain running at 100 fps", good],
+                ["MainBrain running at 100 fps, ()",
+                 json.dumps({"tracking_params": {**braid_tracking_params(None), "mini_arena_config": "NoMiniArena"}})],
+                ["MainBrain running at 100 fps, ()",
+                 json.dumps({"tracking_params": {**braid_tracking_params(None), "extra": 1}})],
+                ["MainBrain running at 100 fps, ()", "42"]):
+        with pytest.raises(AssertionError):
+            braidz_parser_basics(archive(bad))
 
 
 def test_braid_tracking_params_from_flytrack_params():
