@@ -78,8 +78,16 @@ def retrack_command(
     data.notes = [*data.notes, *warns]
     rate = fps or data.fps
     if not rate:
-        console.print("[red]error[/red] the source does not give the frame rate: pass --fps")
-        raise typer.Exit(code=2)
+        from flytrack_host.io.data2d import infer_fps
+
+        inferred = infer_fps(data.rows)
+        if inferred is None:
+            console.print("[red]error[/red] the source does not give the frame rate, and its 2D data spans too "
+                          "few frames to infer it: pass --fps")
+            raise typer.Exit(code=2)
+        rate, how = inferred
+        console.print(f"frame rate not in the source: {rate:.3f} fps inferred from {how} (--fps overrides)",
+                      highlight=False)
     if out is None:
         out = source.with_name(source.name.split(".")[0] + ".retrack.flytrack")
     if out.exists():

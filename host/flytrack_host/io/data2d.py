@@ -128,3 +128,30 @@ def iter_bundles(rows: np.ndarray, fps: float, camera_indices: list[int] | None 
 def n_frames(rows: np.ndarray, dvs_cov: np.ndarray | None = None) -> int:
     """Bundles iter_bundles gives for these rows."""
     return int(len(np.unique(rows["trigger_frame"][_usable(rows, dvs_cov)])))
+
+
+def infer_fps(rows: np.ndarray) -> tuple[float, str] | None:
+    """The frame rate from the 2D rows themselves, for a source that does not say it (a Braid textlog
+    with "unknown fps"), as braid-offline does: frames per second between the first and last frames, on
+    the trigger timestamps where every frame has one, else on the host's receive times. A straight-line
+    fit of frame number against each frame's median time keeps one late packet from moving it.
+    Returns (fps, how it was found) or None when fewer than two frames span a time."""
+    tf = rows["trigger_frame"]
+    ok = tf >= 0
+    for column, what in (("timestamp", "trigger timestamps"), ("cam_received_timestamp", "host receive times")):
+        t = rows[column]
+        use = ok & np.isfinite(t)
+        if column == "timestamp" and not np.array_equal(use, ok):
+            continue  # some frames lack a trigger time: use the receive times, which all rows have
+        frames, inverse = np.unique(tf[use], return_inverse=True)
+        if len(frames) < 2:
+            continue
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.flatnonzero(np.diff(inverse[order])) + 1
+        times = np.array([np.median(g) for g in np.split(t[use][order], bounds)])
+        if times[-1] - times[0] <= 0:
+            continue
+        slope = float(np.polyfit(times - times[0], frames.astype(np.float64), 1)[0])
+        if np.isfinite(slope) and slope > 0:
+            return slope, f"the {what} of frames {int(frames[0])}-{int(frames[-1])}"
+    return None

@@ -4,6 +4,7 @@ HdrHistogram logs and images, rows not exported counted, and Braid's .braid fold
 from __future__ import annotations
 
 import importlib.util
+import re
 import zipfile
 from pathlib import Path
 
@@ -128,6 +129,29 @@ def test_braid_folder_imports_and_retracks(braidz: tuple[Path, dict], tmp_path: 
     r = CliRunner().invoke(app, ["retrack", str(folder), "--no-progress"])
     assert r.exit_code == 0, r.output
     assert " 2 objects" in _flat(r.output) and (tmp_path / "20260101_120000.retrack.flytrack").exists()
+
+
+def test_retrack_infers_the_rate_braid_did_not_know(braidz: tuple[Path, dict], tmp_path: Path) -> None:
+    """A Braid recording whose textlog says "unknown fps" (Braid writes that when its trigger does not give
+    a rate): the rate comes from the frames' trigger timestamps, as braid-offline infers it, and is said."""
+    import gzip
+
+    path, _ = braidz
+    folder = tmp_path / "unknown_fps.braid"
+    with zipfile.ZipFile(path) as z:
+        z.extractall(folder)
+    log = pd.read_csv(folder / "textlog.csv.gz", compression="gzip")
+    first = log["message"].str.startswith("MainBrain running at")
+    assert first.sum() == 1
+    log.loc[first, "message"] = "MainBrain running at unknown fps, (flydra_version 2.0.0, time_tzname0 UTC)"
+    (folder / "textlog.csv.gz").write_bytes(gzip.compress(log.to_csv(index=False).encode()))
+    assert read_braidz(folder).fps is None
+    r = CliRunner().invoke(app, ["retrack", str(folder), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    out = _flat(r.output)
+    m = re.search(r"([0-9.]+) fps inferred from the trigger timestamps of frames", out)
+    assert m and abs(float(m.group(1)) - FPS) < 0.01 * FPS, out
+    assert " 2 objects" in out
 
 
 def test_retrack_with_a_calibration_xml_cannot_hold_says_so(braidz: tuple[Path, dict], tmp_path: Path) -> None:
