@@ -11,13 +11,12 @@ from __future__ import annotations
 import math
 import threading
 import time
-import urllib.request
 
 import h5py
 import numpy as np
 import pytest
 
-from flytrack_host.live.braid import ROW_FIELDS, iter_sse
+from flytrack_host.live.braid import ROW_FIELDS, iter_sse, open_event_stream
 from flytrack_host.live.launch import LiveOutputs
 from flytrack_host.live.pose import PoseClient
 from flytrack_host.live.web import browser as browser_mod
@@ -58,7 +57,7 @@ def live_demo(tmp_path_factory):
     def attach(pipe) -> None:
         outputs.attach(pipe, echo=lambda s: None)
         # Our own Braid client, connected before the pipeline starts: it must see every frame.
-        resp = urllib.request.urlopen(outputs.server.url + "events", timeout=60)
+        resp = open_event_stream(outputs.server.url + "events", timeout=60)
         it = iter_sse(resp)
         events.append(next(it))  # the calibration, sent on connect
         threading.Thread(target=lambda: events.extend(it), daemon=True).start()

@@ -138,6 +138,15 @@ class SseEvent:
         return json.loads(self.data)
 
 
+def open_event_stream(url: str, timeout: float = 10.0) -> IO[bytes]:
+    """Open Braid's event stream (`.../events`, with the page's token if it has one) as a client must:
+    with `Accept: text/event-stream`, which the server, like Braid's, requires. Read it with iter_sse."""
+    import urllib.request
+
+    return urllib.request.urlopen(urllib.request.Request(url, headers={"Accept": "text/event-stream"}),
+                                  timeout=timeout)
+
+
 def iter_sse(stream: IO[bytes]) -> Iterator[SseEvent]:
     """Parse a text/event-stream (WHATWG rules for event/data lines; comments and id/retry ignored)."""
     event, data = "message", []

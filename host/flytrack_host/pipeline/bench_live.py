@@ -144,7 +144,7 @@ def clients_process(addr: tuple[str, int] | None, n: int, conn: Any, page: bool,
         for i in range(n + (1 if page else 0)):
             s = socket.create_connection(addr)
             path = "/ui/events" if i == n else "/events"
-            s.sendall(f"GET {path} HTTP/1.0\r\n\r\n".encode())
+            s.sendall(f"GET {path} HTTP/1.0\r\nAccept: text/event-stream\r\n\r\n".encode())
             socks.append(s)
         # The pose stream's receiver lives here too, not in the measured host process.
         pose_client = PoseClient(0)

@@ -11,6 +11,8 @@ import time
 import urllib.request
 from pathlib import Path
 
+from flytrack_host.live.braid import open_event_stream
+
 ROOT = Path(__file__).resolve().parents[3]
 
 
@@ -43,7 +45,7 @@ def test_run_serves_events_and_pose_then_stops(tmp_path):
             assert p.stdout.readline().startswith("pose stream: 50 Hz to 127.0.0.1:")
             stats = json.loads(urllib.request.urlopen(m.group(1) + "api/stats", timeout=10).read())
             assert stats["clients"] == 0 and stats["unauthorised"] == 0
-            ev = urllib.request.urlopen(m.group(1) + "events", timeout=10)
+            ev = open_event_stream(m.group(1) + "events", timeout=10)
             assert ev.headers["Content-Type"] == "text/event-stream"
             data, _ = pose_sock.recvfrom(2048)  # no camera: NO_OBJECT datagrams at the rate
             assert data[:4] == b"FTPS" and data[5] == 2

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from flytrack_host.live.braid import iter_sse
+from flytrack_host.live.braid import iter_sse, open_event_stream
 from flytrack_host.live.web.server import LiveServer, is_loopback, parse_bind
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -62,7 +62,7 @@ class Reader:
     """A Braid client on its own thread, counting EndOfFrame events."""
 
     def __init__(self, s: LiveServer, stop_after: int | None = None):
-        self.resp = urllib.request.urlopen(s.url + "events", timeout=30)
+        self.resp = open_event_stream(s.url + "events", timeout=30)
         self.events: list = []
         self.stop_after = stop_after
         self.t = threading.Thread(target=self._run, daemon=True)
@@ -88,7 +88,7 @@ class RawReader:
 
     def __init__(self, s: LiveServer):
         self.sock = socket.create_connection(("127.0.0.1", s.port))
-        self.sock.sendall(b"GET /events HTTP/1.0\r\n\r\n")
+        self.sock.sendall(b"GET /events HTTP/1.0\r\nAccept: text/event-stream\r\n\r\n")
         self.buf = bytearray()
         self.t = threading.Thread(target=self._run, daemon=True)
         self.t.start()
@@ -139,7 +139,7 @@ def _never_reads(server: LiveServer) -> None:
     # A client that sends its request and then never reads a byte.
     lazy = socket.create_connection(("127.0.0.1", server.port))
     lazy.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    lazy.sendall(b"GET /events HTTP/1.1\r\nHost: x\r\n\r\n")
+    lazy.sendall(b"GET /events HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n")
     assert _wait(lambda: server.clients.count("braid") == 2)
     took = []
     # 1000 frames a second of 10 targets, ~9 MB: far beyond the 1 MB backlog plus what the kernel
@@ -171,7 +171,7 @@ def test_clients_leaving_mid_stream_are_counted_and_the_rest_go_on(server):
     assert all(not r.t.is_alive() for r in leavers)
     # A client that resets the connection at once.
     c = socket.create_connection(("127.0.0.1", server.port))
-    c.sendall(b"GET /events HTTP/1.0\r\n\r\n")
+    c.sendall(b"GET /events HTTP/1.0\r\nAccept: text/event-stream\r\n\r\n")
     c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
     c.close()
     _feed(server, range(300, 400), n=3)
@@ -253,7 +253,7 @@ def test_too_many_streaming_clients_are_refused_with_503():
         readers = [Reader(s) for _ in range(3)]
         assert _wait(lambda: s.clients.count() == 3)
         with pytest.raises(urllib.error.HTTPError) as e:
-            urllib.request.urlopen(s.url + "events", timeout=10)
+            open_event_stream(s.url + "events", timeout=10)
         assert e.value.code == 503
         assert s.stats()["clients_refused_busy"] == 1
         _feed(s, range(5), n=1)
@@ -324,3 +324,39 @@ def test_objects_gone_without_a_death_get_one(server):
     assert [next(iter(m)) for m in last] == ["Birth", "Update", "Death", "Death", "Death", "EndOfFrame"]
     assert [m["Death"] for m in last if "Death" in m] == [1, 2, 3]
     assert server.stats()["deaths_added"] == 3
+
+
+def test_braids_stream_needs_accept_event_stream_as_braid_does(server):
+    """Braid answers 400 to a GET /events without `Accept: text/event-stream`; so does FlyTrack."""
+    reply = _raw(server, b"GET /events HTTP/1.0\r\n\r\n")
+    assert reply.split(b" ")[1] == b"400" and b"text/event-stream" in reply
+    reply = _raw(server, b"GET /events HTTP/1.0\r\nAccept: text/html\r\n\r\n")
+    assert reply.split(b" ")[1] == b"400"
+    assert server.counts["not_event_stream"] == 2
+    ok = socket.create_connection(("127.0.0.1", server.port))
+    ok.sendall(b"GET /events HTTP/1.0\r\nAccept: text/event-stream\r\n\r\n")
+    assert ok.recv(64).startswith(b"HTTP/1.0 200")
+    ok.close()
+
+
+def test_a_quiet_braid_stream_gets_no_keep_alive_comments():
+    """Braid sends nothing on an idle stream, and its documented client braid_retransmit_udp.py takes every
+    block for a two-line event (it asserts so); only the page's stream gets keep-alive comments."""
+    from flytrack_host.live.web.clients import ClientSet
+
+    clients = ClientSet()
+    pairs = {kind: socket.socketpair() for kind in ("braid", "ui")}
+    for kind, (ours, _) in pairs.items():
+        assert clients.reserve()
+        clients.hand_over(kind, ours, kind, None)
+    clients.admit()
+    clients.keepalive(idle_s=0.0)  # every client idle for longer than the threshold
+    for kind, (_, theirs) in pairs.items():
+        theirs.setblocking(False)
+        try:
+            got = theirs.recv(100)
+        except BlockingIOError:
+            got = b""
+        assert got == (b": keep-alive\n\n" if kind == "ui" else b""), kind
+        for s in pairs[kind]:
+            s.close()

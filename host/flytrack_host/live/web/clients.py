@@ -200,8 +200,11 @@ class ClientSet:
             self._want_write(c)
 
     def keepalive(self, idle_s: float = 5.0) -> None:
+        """A comment line to the page's stream when it has been idle: proxies and browsers keep it open.
+        Never on Braid's stream: Braid sends none, and its clients (braid_retransmit_udp.py) take every
+        block for an event of two lines."""
         now = time.monotonic()
-        for c in list(self.clients):
+        for c in [c for c in self.clients if c.kind != "braid"]:
             ka = b": keep-alive\n\n"
             if not c.pending and now - c.last_write > idle_s and not c.queue(chunk(ka) if c.chunked else ka):
                 self.remove(c)

@@ -218,6 +218,13 @@ class _Handler(BaseHTTPRequestHandler):
         self._cookie = f"{COOKIE}={live.token}; Path=/; HttpOnly; SameSite=Strict" if set_cookie else None
         path = url.path
         if path == "/events":
+            # As Braid: its event stream only for a client that asks for one.
+            accept = ",".join(self.headers.get_all("Accept") or [])
+            if "text/event-stream" not in [a.split(";")[0].strip() for a in accept.split(",")]:
+                live.counts["not_event_stream"] += 1
+                self.send_error(HTTPStatus.BAD_REQUEST, 'It is required that you have an HTTP header '
+                                                        '"Accept: text/event-stream"')
+                return
             self._stream("braid", live._calibration_event())
         elif path == "/ui/events":
             self._stream("ui", live._last_ui_event)
@@ -324,7 +331,7 @@ class LiveServer:
         self.counts: dict[str, int] = {"frames_in": 0, "frames_dropped": 0, "frames_published": 0,
                                        "unauthorised": 0, "bad_requests": 0, "refused_connections": 0,
                                        "publish_errors": 0, "ui_snapshots": 0, "connection_errors": 0,
-                                       "handler_errors": 0, "deaths_added": 0}
+                                       "handler_errors": 0, "deaths_added": 0, "not_event_stream": 0}
         self._frames: deque[tuple[FrameResult, float, float]] = deque()
         self._live_ids: set[int] = set()
         self._frame_backlog = frame_backlog
