@@ -157,9 +157,12 @@ class ModbusPeerProcess:
         import subprocess
         import sys
 
-        self.proc = subprocess.Popen([sys.executable, "-m", "flytrack_host.actuation.peers", self.host,
-                                      str(self.port), self.log_path], stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.DEVNULL)
+        from flytrack_host.util import children
+
+        # Through util.children: the server ends with this process, however it ends.
+        self.proc = children.popen([sys.executable, "-m", "flytrack_host.actuation.peers", self.host,
+                                    str(self.port), self.log_path], stdout=subprocess.DEVNULL,
+                                   stderr=subprocess.DEVNULL)
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
             if self.proc.poll() is not None:

@@ -47,6 +47,7 @@ from flytrack_host.rig import parse_rig
 from flytrack_host.tracking.synthetic import make_scenario
 from flytrack_host.tracking.types import FrameResult
 from flytrack_host.util import hostclock
+from flytrack_host.util.children import tied
 
 _EOF = re.compile(rb'"EndOfFrame":(\d+)')
 _UI = re.compile(rb'event: state\ndata: \{"time":[^,]+,"final":(?:true|false),"frame":(-?\d+),'
@@ -191,7 +192,7 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
             server = LiveServer("127.0.0.1", 0, calibration_xml=calibration_xml_of(pipe), poll_s=a.poll_ms / 1e3)
             server.start()
             server.state.pipe = pipe
-            proc = cctx.Process(target=clients_process,
+            proc = cctx.Process(target=tied(clients_process),
                                 args=(("127.0.0.1", server.port), a.clients, child, not a.no_page, None))
             proc.start()
             _, pose_port = parent.recv()
@@ -206,7 +207,7 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
                 br.driver.get(server.url)
         elif mode == "sync":
             lp = _free_port()
-            proc = cctx.Process(target=clients_process, args=(None, a.clients, child, False, lp))
+            proc = cctx.Process(target=tied(clients_process), args=(None, a.clients, child, False, lp))
             proc.start()
             parent.recv()
             socks = [socket.create_connection(("127.0.0.1", lp)) for _ in range(a.clients)]
@@ -216,7 +217,7 @@ def run_once(mode: str, a: argparse.Namespace, sc: Any, plan: list) -> dict[str,
         ru0 = resource.getrusage(resource.RUSAGE_SELF)
         w0 = time.monotonic()
         pipe.start()
-        sender = ctx.Process(target=send_all, args=(plan, pipe.address, t_start, a.fps))
+        sender = ctx.Process(target=tied(send_all), args=(plan, pipe.address, t_start, a.fps))
         sender.start()
         sender.join()
         time.sleep(0.2)

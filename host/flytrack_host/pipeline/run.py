@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import threading
 import time
 from pathlib import Path
 
@@ -11,8 +10,12 @@ import typer
 from flytrack_host.live.launch import HTTP_HELP, POSE_HELP, THUMBS_HELP, LiveOutputs, OutputsError
 from flytrack_host.pipeline.cameras import calibration_problems, load_cameras
 from flytrack_host.pipeline.host import RECORDING_INCOMPLETE_EXIT, HostPipeline
+from flytrack_host.util.stopping import shielded, sigterm_as_ctrl_c
 
 
+# A SIGTERM (a service manager's, a supervisor's) stops the run as Ctrl-C does (util.stopping): the
+# trigger stops, pending frames are tracked, the recording is finalised, the same exit code.
+@sigterm_as_ctrl_c()
 def run_command(
     rig_path: Path = typer.Argument(..., help="The rig TOML file."),
     seconds: float | None = typer.Option(None, "--seconds", help="Stop after this many seconds (default: Ctrl-C)."),
@@ -41,12 +44,10 @@ def run_command(
         "the recording and counted (default: a bad rules file stops the run before it starts)."),
 ) -> None:
     """Run the host live: open the trigger, receive, synchronise, track, serve live estimates and record
-    until Ctrl-C.
+    until Ctrl-C (a SIGTERM, as a service manager sends, stops it the same way).
 
     Without a trigger board, pass --no-trigger (frames are timed by a fixed-rate clock anchored at the
     first frame), or use a rig file with [trigger] kind = "software"."""
-    import signal
-
     from rich.console import Console
     from rich.live import Live
 
@@ -104,46 +105,52 @@ def run_command(
         where = f"{bind or rig.host.listen} (features) or {http} (live outputs)"
         console.print(f"[red]error[/red] cannot listen on {where}: {exc}", highlight=False)
         raise typer.Exit(code=2) from None
-    if engine is not None:  # after start: its messages go into the recording's log too
-        engine.attach(pipe)
-        engine.start()
-    if session is not None:
-        session.attach(pipe)
-        try:
-            session.start(pipe)
-        except (TriggerError, OSError) as exc:
-            session.close()
-            pipe.stop()
-            Console(stderr=True).print(f"[red]error[/red] trigger did not start: {exc}", highlight=False,
-                                       soft_wrap=True)
-            raise typer.Exit(code=2) from None
-    host, port = pipe.address
-    # Plain first line, so scripts (and tests) can find the port and the recording.
-    print(f"listening on {host}:{port}; recording to {pipe.recording_path if pipe.record else '-'}", flush=True)
-    for line in outputs.started:
-        print(line, flush=True)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     end = None if seconds is None else time.monotonic() + seconds
+    trigger_failed: Exception | None = None
+    # From here on the pipeline runs and records: Ctrl-C (or SIGTERM) at any point, also while the
+    # trigger starts, ends in the finally below (trigger stopped, recording finalised).
     try:
-        if console.is_terminal:
-            with Live(pipe.status_line(), console=console, refresh_per_second=4, transient=False) as live:
-                while not stop.is_set() and (end is None or time.monotonic() < end) and pipe.running:
-                    stop.wait(0.25)
-                    live.update(pipe.status_line())
-        else:
-            last = 0.0
-            while not stop.is_set() and (end is None or time.monotonic() < end) and pipe.running:
-                stop.wait(0.25)
-                if time.monotonic() - last > 5:
-                    print(pipe.status_line(), flush=True)
-                    last = time.monotonic()
+        if engine is not None:  # after start: its messages go into the recording's log too
+            engine.attach(pipe)
+            engine.start()
+        if session is not None:
+            session.attach(pipe)
+            try:
+                session.start(pipe)
+            except (TriggerError, OSError) as exc:
+                trigger_failed = exc
+        if trigger_failed is None:
+            host, port = pipe.address
+            # Plain first line, so scripts (and tests) can find the port and the recording.
+            print(f"listening on {host}:{port}; recording to {pipe.recording_path if pipe.record else '-'}",
+                  flush=True)
+            for line in outputs.started:
+                print(line, flush=True)
+            if console.is_terminal:
+                with Live(pipe.status_line(), console=console, refresh_per_second=4, transient=False) as live:
+                    while (end is None or time.monotonic() < end) and pipe.running:
+                        time.sleep(0.25)
+                        live.update(pipe.status_line())
+            else:
+                last = 0.0
+                while (end is None or time.monotonic() < end) and pipe.running:
+                    time.sleep(0.25)
+                    if time.monotonic() - last > 5:
+                        print(pipe.status_line(), flush=True)
+                        last = time.monotonic()
     except KeyboardInterrupt:
         pass
     finally:
-        if session is not None:
-            session.stop()  # the cameras stop with the trigger; pending frames are tracked by pipe.stop()
-        summary = pipe.stop()
+        with shielded():  # a SIGTERM now waits for the recording to be finalised
+            if session is not None and trigger_failed is not None:
+                session.close()
+            elif session is not None:
+                session.stop()  # the cameras stop with the trigger; pending frames are tracked by pipe.stop()
+            summary = pipe.stop()
+    if trigger_failed is not None:
+        Console(stderr=True).print(f"[red]error[/red] trigger did not start: {trigger_failed}", highlight=False,
+                                   soft_wrap=True)
+        raise typer.Exit(code=2)
     console.print(pipe.status_line(), highlight=False)
     console.print(summary["latency_text"], highlight=False)
     for w in summary.get("why_nothing") or []:

@@ -13,6 +13,7 @@ from flytrack_host.live.launch import POSE_HELP, LiveOutputs, OutputsError
 from flytrack_host.sim.goals import check_goals
 from flytrack_host.sim.run import DemoConfig, DemoError, DemoReport, run_demo, write_json
 from flytrack_host.util.placement import FRAMES_PER_HARDWARE_CPU
+from flytrack_host.util.stopping import sigterm_as_ctrl_c, sigterm_received
 
 
 def _f(x: float, fmt: str = ".2f") -> str:
@@ -150,10 +151,19 @@ def demo_command(
     cfg.attach.append(lambda pipe: outputs.attach(pipe, echo=lambda s: console.print(s, highlight=False,
                                                                                       soft_wrap=True)))
     try:
-        report = run_demo(cfg, console)
+        # A SIGTERM (a service manager's, a supervisor's) stops the run as Ctrl-C does: the recording
+        # is finalised, every process the demo started is stopped, exit code 130 (util.stopping).
+        with sigterm_as_ctrl_c():
+            report = run_demo(cfg, console)
     except DemoError as exc:
         Console(stderr=True).print(f"[red]demo cannot run:[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
+    except KeyboardInterrupt:
+        rec = Path(cfg.out).resolve() / "recording.flytrack"
+        why = "SIGTERM" if sigterm_received() else "Ctrl-C"
+        Console(stderr=True).print(f"[yellow]stopped[/yellow] by {why} before the end of the run"
+                                   + (f"; recording {rec}" if rec.exists() else ""), highlight=False, soft_wrap=True)
+        raise typer.Exit(code=130) from None
     console.print(summary_table(report))
     goals = check_goals(report)
     met = sum(g.ok for g in goals)

@@ -35,6 +35,7 @@ from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.dvs import evt2_header
 from flytrack_host.sim.flight import GroundTruth
 from flytrack_host.sim.render import CameraRenderer, RenderParams
+from flytrack_host.util.children import tied
 from flytrack_host.util.placement import run_as_hardware
 
 STAGE_TAIL = 64  # bytes of a staged frame written at its pulse (under PIPE_BUF: one atomic write)
@@ -183,7 +184,7 @@ class FrameFeeder:
         self._dvs_sent = ctx.RawArray("q", 2 * max(1, self.n_dvs))  # per DVS camera: events, sync events
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
-            target=_feed,
+            target=tied(_feed),  # it ends with this process, also on SIGTERM or SIGKILL (util.children)
             args=(gt, list(cameras), list(edge_fds), child_conn, params, seed, frame_format, warmup_frames,
                   self._handoff, self._edge_t, self._counters, self._written, self._edge_true, self._pulses,
                   list(dvs), self._dvs_sent),

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from flytrack_host.geometry.camera import Camera
 from flytrack_host.sim.demo_config import DemoError
-from flytrack_host.util import native
+from flytrack_host.util import children, native
 
 
 def find_edge_binary(explicit: Path | None = None) -> Path:
@@ -46,7 +46,8 @@ def edge_command(edge_bin: Path, cam_index: int, cam: Camera, port: int) -> list
     ]
 
 class EdgeFleet:
-    """One `flytrack-edge` process per camera, frames (or events) on stdin, logs in the output folder."""
+    """One `flytrack-edge` process per camera, frames (or events) on stdin, logs in the output folder; each
+    ends with this process, whatever ends it (util.children)."""
 
     def __init__(self, edge_bin: Path, cameras: list[Camera], port: int, log_dir: Path, first_index: int = 0,
                  command: Callable[[Path, int, Camera, int], list[str]] = edge_command):
@@ -57,8 +58,8 @@ class EdgeFleet:
             log = log_dir / f"edge_{cam.name}.log"
             self.logs.append(log)
             with open(log, "wb") as lf:
-                p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=lf, stderr=subprocess.STDOUT,
-                                     close_fds=True)
+                # Through util.children: an edge ends with the demo, however the demo ends.
+                p = children.popen(cmd, stdin=subprocess.PIPE, stdout=lf, stderr=subprocess.STDOUT, close_fds=True)
             self.procs.append(p)
 
     @property

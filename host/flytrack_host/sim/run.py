@@ -58,6 +58,7 @@ from flytrack_host.sim.report import (
 from flytrack_host.sim.rig import _host_cameras, _write_calibration, make_cameras, rig_config, write_rig
 from flytrack_host.sim.trigger_source import DemoTrigger
 from flytrack_host.util.placement import Placement, choose_split, run_as_hardware
+from flytrack_host.util.stopping import shielded
 
 # The names other code (and tests) import from here, where they lived before the split.
 __all__ = [
@@ -256,24 +257,27 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
         time.sleep(max(0.2, 3.0 / cfg.fps))  # the last datagrams
         cpu.sample()
     finally:
-        placement.restore()
-        if cfg.fault is not None:
-            cfg.fault.stop()
-        if session is not None:
-            session.stop()
-            trigger_summary = session.summary()
-        host_summary = host.stop() if host is not None else {}
-        if live is not None:
-            live.stop()
-        if edges is not None:
-            edges.stop()
-        if dvs_edges is not None:
-            dvs_edges.stop()
-        if feeder is not None:
-            feeder.stop()
-        trig.close()
-        if lab is not None and engine is None:
-            lab.close()
+        # Also after Ctrl-C, or a SIGTERM (`flytrack demo` takes it as Ctrl-C: util.stopping), which
+        # then waits for the end of this block: the recording is finalised, every process stopped.
+        with shielded():
+            placement.restore()
+            if cfg.fault is not None:
+                cfg.fault.stop()
+            if session is not None:
+                session.stop()
+                trigger_summary = session.summary()
+            host_summary = host.stop() if host is not None else {}
+            if live is not None:
+                live.stop()
+            if edges is not None:
+                edges.stop()
+            if dvs_edges is not None:
+                dvs_edges.stop()
+            if feeder is not None:
+                feeder.stop()
+            trig.close()
+            if lab is not None and engine is None:
+                lab.close()
 
     fs = feeder.stats()
     report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,

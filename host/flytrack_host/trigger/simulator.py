@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from flytrack_host.util import children
+
 from .common import TriggerError
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
@@ -159,7 +161,8 @@ class SimulatedTrigger:
                     "--event-high", str(event_high_cycles)]
         self._stderr_path = Path(self._tmp.name) / "stderr.log"
         self._stderr = open(self._stderr_path, "w")  # noqa: SIM115 - lives as long as the process
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self._stderr, text=True)
+        # Through util.children: the harness ends with this process, however it ends.
+        self.proc = children.popen(cmd, stdout=subprocess.PIPE, stderr=self._stderr, text=True)
         self.pty = self._wait_pty()
 
     def _wait_pty(self, timeout_s: float = 10.0) -> str:

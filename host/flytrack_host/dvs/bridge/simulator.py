@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from flytrack_host.util import children
+
 REPO_ROOT = Path(__file__).resolve().parents[4]
 MCU = "atmega32u4"
 F_CPU = 16_000_000
@@ -209,7 +211,7 @@ def run_bridge(
             period, phase, high, count = sync
             cmd += ["--sync-period", str(period), "--sync-phase", str(phase), "--sync-high", str(high),
                     "--sync-count", str(count)]  # fmt: skip
-        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        p = children.run(cmd, capture_output=True, text=True, timeout=timeout_s)  # ends with this process
         if p.returncode != 0:
             raise RuntimeError(f"flytrack_dvs_sim failed ({p.returncode}): {p.stderr.strip()[-2000:]}")
         run = parse_log((dd / "out.txt").read_text())

@@ -24,6 +24,7 @@ from flytrack_host.dvs.wingbeat.analysis import WingbeatResult, WingScore, WingT
 from flytrack_host.dvs.wingbeat.plot import plot_truth_beats, save_figure
 from flytrack_host.dvs.wingbeat.wra import BeatSeries
 from flytrack_host.protocol import DvsWingbeat, EdgeStatus, ProtocolError, decode_datagram
+from flytrack_host.util import children
 
 DEFAULT_PORT = 7700  # flytrack-edge's default --port
 N_WINGS = 2
@@ -191,7 +192,7 @@ def start_edge(binary: Path, events_file: Path, port: int, realtime: bool = True
     args = [str(binary), "--source", "events", "--input", str(events_file), "--wingbeat", "1",
             "--host", "127.0.0.1", "--port", str(port), "--control-port", "0",
             "--realtime", "1" if realtime else "0", "--camera-name", "wingbeat", *extra]
-    return subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    return children.popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # ends with this process
 
 
 def plot_live(rx: WingbeatReceiver, path: Path, truth=None) -> Path:

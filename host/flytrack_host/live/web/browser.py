@@ -31,12 +31,19 @@ class Browser:
         from selenium import webdriver
         from selenium.webdriver.chrome.service import Service
 
+        from flytrack_host.util import children
+
         self.profile = tempfile.mkdtemp(prefix="flytrack-chromium-")
+        # chromedriver and chromium started through util.children's scripts: chromedriver ends with this
+        # process and chromium with chromedriver (its own helper processes end with it), however it ends.
+        tied = Path(self.profile) / "tied"
+        tied.mkdir()
         opts = webdriver.ChromeOptions()
-        opts.binary_location = CHROMIUM
+        opts.binary_location = str(children.script(tied / "chromium", CHROMIUM))
         for f in FLAGS + [f"--user-data-dir={self.profile}"]:
             opts.add_argument(f)
-        self.driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+        self.driver = webdriver.Chrome(service=Service(str(children.script(tied / "chromedriver", CHROMEDRIVER))),
+                                       options=opts)
         self.driver.set_page_load_timeout(30)
 
     def js(self, script: str):

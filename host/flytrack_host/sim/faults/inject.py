@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.protocol import FeatureFrame, encode_features, make_points
-from flytrack_host.util import hostclock
+from flytrack_host.util import children, hostclock
 
 log = logging.getLogger("flytrack.faults")
 
@@ -135,7 +135,7 @@ class HostStop(Fault):
 
     def inject(self, ctx: Any) -> None:
         pid = os.getpid()
-        subprocess.run(["sh", "-c", f"kill -STOP {pid}; sleep {self.hold_s}; kill -CONT {pid}"], check=True)
+        children.run(["sh", "-c", f"kill -STOP {pid}; sleep {self.hold_s}; kill -CONT {pid}"], check=True)
 
 
 class TriggerPause(Fault):
@@ -203,7 +203,7 @@ class GarbageFlood(Fault):
     rate = 25_000.0
 
     def inject(self, ctx: Any) -> None:
-        subprocess.run([sys.executable, "-m", "flytrack_host.sim.faults.inject", "127.0.0.1", str(ctx.port),
+        children.run([sys.executable, "-m", "flytrack_host.sim.faults.inject", "127.0.0.1", str(ctx.port),
                         str(self.n), str(self.n_valid), str(self.rate)], check=True, timeout=120)
         self.info["sent"] = self.n + self.n_valid
 
@@ -235,8 +235,10 @@ class _FedEdge:
         cam = ctx.cameras[camera]
         self.frame = np.full((cam.height, cam.width), 40, dtype=np.uint8).tobytes()
         log = open(ctx.out / log_name, "wb")  # noqa: SIM115 (kept open for the process's life)
-        self.proc = subprocess.Popen(edge_command(ctx.edge_bin, camera, cam, ctx.port), stdin=subprocess.PIPE,
-                                     stdout=log, stderr=subprocess.STDOUT, close_fds=True)
+        # Started from the fault's thread, which ends before this edge: util.children forks it from a
+        # thread that lasts, and it ends with the demo.
+        self.proc = children.popen(edge_command(ctx.edge_bin, camera, cam, ctx.port), stdin=subprocess.PIPE,
+                                   stdout=log, stderr=subprocess.STDOUT, close_fds=True)
         self.written: dict[int, int] = {}  # camera frame -> trigger frame (pulse) it answers
 
     def feed_until(self, ctx: Any, end_mono: float, stop: threading.Event) -> None:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.sim.faults import inject as fi
+from flytrack_host.util import children
 
 RESULT_TAG = "FAULT-RESULT "
 
@@ -75,8 +76,9 @@ SCENARIOS: list[Scenario] = [
 BY_NAME = {s.name: s for s in SCENARIOS}
 
 
-def run_one(name: str, out: Path) -> dict[str, Any]:
-    """Run one scenario in this process (it forks the simulated cameras: call it in a fresh one)."""
+def run_one(name: str, out: Path, seconds: float | None = None) -> dict[str, Any]:
+    """Run one scenario in this process (it forks the simulated cameras: call it in a fresh one);
+    `seconds`: its run this long instead of the scenario's own length."""
     from flytrack_host.sim.faults.measure import measure
     from flytrack_host.sim.run import PREROLL_FRAMES, DemoConfig, run_demo
 
@@ -88,7 +90,8 @@ def run_one(name: str, out: Path) -> dict[str, Any]:
         return row
     # 320 x 240 frames: a quarter of the rendering and extraction, so three runs at once fit a busy machine.
     # CPUs shared: with several runs at once, a split would put every run's host on the same CPUs.
-    cfg = DemoConfig(cameras=3, animals=2, fps=100.0, seconds=sc.seconds, seed=3, out=out, progress=False,
+    seconds = sc.seconds if seconds is None else seconds
+    cfg = DemoConfig(cameras=3, animals=2, fps=100.0, seconds=seconds, seed=3, out=out, progress=False,
                      width=320, height=240, cpus="share",
                      trigger=sc.trigger, fault=fault, host_fixed_clock=sc.fixed_clock)
     rep = run_demo(cfg)
@@ -110,7 +113,7 @@ def run_one(name: str, out: Path) -> dict[str, Any]:
     return row
 
 
-def _run_killed(sc: Scenario, out: Path, timeout_s: float) -> dict[str, Any]:
+def _run_killed(sc: Scenario, out: Path, timeout_s: float, more: list[str]) -> dict[str, Any]:
     """The host process SIGKILLed during its recording (with everything it started: its process group),
     then `flytrack recording recover`: what was received up to the kill must be there."""
     import signal
@@ -120,8 +123,8 @@ def _run_killed(sc: Scenario, out: Path, timeout_s: float) -> dict[str, Any]:
     from flytrack_host.util import hostclock
 
     row: dict[str, Any] = {"name": sc.name, "fault": sc.label, "lost_ok": sc.lost_ok}
-    cmd = [sys.executable, "-m", "flytrack_host.sim.faults", "one", sc.name, "--out", str(out)]
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    cmd = [sys.executable, "-m", "flytrack_host.sim.faults", "one", sc.name, "--out", str(out), *more]
+    p = children.popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     meta = out / "recording.flytrack" / "meta.json"
     end = time.monotonic() + timeout_s
     while not meta.exists() and p.poll() is None and time.monotonic() < end:
@@ -134,8 +137,8 @@ def _run_killed(sc: Scenario, out: Path, timeout_s: float) -> dict[str, Any]:
     os.killpg(p.pid, signal.SIGKILL)  # the host, its edges, simulated cameras and trigger: all at once
     t_kill = hostclock.now()
     p.wait()
-    r = subprocess.run([sys.executable, "-m", "flytrack_host.cli", "recording", "recover", str(meta.parent)],
-                       capture_output=True, text=True, timeout=120)
+    r = children.run([sys.executable, "-m", "flytrack_host.cli", "recording", "recover", str(meta.parent)],
+                     capture_output=True, text=True, timeout=120)
     said = (r.stdout + r.stderr).strip().splitlines()
     d = load_recording(meta.parent).table("data2d_distorted")
     d = d[d["camera_frame"] >= PREROLL_FRAMES]
@@ -157,15 +160,17 @@ def _run_killed(sc: Scenario, out: Path, timeout_s: float) -> dict[str, Any]:
     return row
 
 
-def _run_child(name: str, root: Path, timeout_s: float) -> dict[str, Any]:
+def _run_child(name: str, root: Path, timeout_s: float, seconds: float | None = None) -> dict[str, Any]:
     out = root / name
     out.mkdir(parents=True, exist_ok=True)
+    more = [] if seconds is None else ["--seconds", repr(float(seconds))]
     if BY_NAME[name].kill_host_after_s is not None:
-        return _run_killed(BY_NAME[name], out, timeout_s)
-    cmd = [sys.executable, "-m", "flytrack_host.sim.faults", "one", name, "--out", str(out)]
+        return _run_killed(BY_NAME[name], out, timeout_s, more)
+    cmd = [sys.executable, "-m", "flytrack_host.sim.faults", "one", name, "--out", str(out), *more]
     t0 = time.monotonic()
     try:
-        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        # util.children: the scenario's process (and so its edges, cameras, trigger) ends with this one.
+        p = children.run(cmd, capture_output=True, text=True, timeout=timeout_s)
     except subprocess.TimeoutExpired:
         return {"name": name, "fault": BY_NAME[name].label, "error": f"timed out after {timeout_s:.0f} s"}
     for line in p.stdout.splitlines()[::-1]:
@@ -178,8 +183,11 @@ def _run_child(name: str, root: Path, timeout_s: float) -> dict[str, Any]:
 
 
 def run_suite(names: list[str] | None = None, jobs: int = 3, root: Path | None = None,
-              timeout_s: float = 150.0) -> list[dict[str, Any]]:
-    """Every scenario (or `names`) in its own process, `jobs` at a time; rows in scenario order."""
+              timeout_s: float = 150.0, seconds: float | None = None) -> list[dict[str, Any]]:
+    """Every scenario (or `names`) in its own process, `jobs` at a time; rows in scenario order.
+    `seconds`: every run this long instead of its scenario's length (each then may take 4 s a second)."""
+    if seconds is not None:
+        timeout_s = max(timeout_s, 4 * seconds + 60)
     names = names or [s.name for s in SCENARIOS]
     root = Path(root or tempfile.mkdtemp(prefix="flytrack-faults-"))
     rows: dict[str, dict[str, Any]] = {}
@@ -192,7 +200,7 @@ def run_suite(names: list[str] | None = None, jobs: int = 3, root: Path | None =
                 if not todo:
                     return
                 n = todo.pop(0)
-            r = _run_child(n, root, timeout_s)
+            r = _run_child(n, root, timeout_s, seconds)
             with lock:
                 rows[n] = r
 
@@ -234,17 +242,19 @@ def main(argv: list[str] | None = None) -> int:
     one = sub.add_parser("one", help="run one scenario in this process")
     one.add_argument("name", choices=list(BY_NAME))
     one.add_argument("--out", type=Path, required=True)
+    one.add_argument("--seconds", type=float, help="the run this long (default: the scenario's own)")
     ap.add_argument("--jobs", type=int, default=3, help="scenarios run at the same time")
     ap.add_argument("--json", type=Path, help="write every row as JSON here")
     ap.add_argument("--only", nargs="*", help="scenario names (default: all)")
+    ap.add_argument("--seconds", type=float, help="every run this long (default: each scenario's own, 3-6 s)")
     a = ap.parse_args(argv)
     if a.cmd == "one":
-        row = run_one(a.name, a.out)
+        row = run_one(a.name, a.out, a.seconds)
         print(RESULT_TAG + json.dumps(row, default=str), flush=True)
         return 0
     t0 = time.monotonic()
     root = Path(tempfile.mkdtemp(prefix="flytrack-faults-"))
-    rows = run_suite(a.only, jobs=a.jobs, root=root)
+    rows = run_suite(a.only, jobs=a.jobs, root=root, seconds=a.seconds)
     print(format_table(rows))
     print(f"\n{len(rows)} scenarios in {time.monotonic() - t0:.0f} s; each run's rig, logs and recording in {root}")
     if a.json:
