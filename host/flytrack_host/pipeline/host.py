@@ -144,6 +144,8 @@ class HostPipeline(DvsIntake, PipelineReport):
         self.sink_errors = 0
         self.last_synced: SyncedBundle | None = None  # the last bundle tracked (read by the live page)
         self.recording_error: str | None = None  # finalising the recording failed (raw files kept)
+        # Seconds stop() took to write what was queued and turn the raw files into HDF5 (None: not done).
+        self.recording_finalize_s: float | None = None
         self.range_errors = 0  # camera frames with a value the recording's column cannot hold
         self.warn = RateLimitedLog(lambda m: self.log(m, "sync"))
         self.stalls = 0  # turns of the tracking thread that came STALL_S late or more
@@ -245,8 +247,10 @@ class HostPipeline(DvsIntake, PipelineReport):
                 self.log(f"closing output {type(sink).__name__} failed: {exc!r}")
         h5 = None
         if self.recorder is not None:
+            t0 = time.monotonic()
             try:
                 h5 = self.recorder.stop(finalize=True)
+                self.recording_finalize_s = time.monotonic() - t0
             except Exception as exc:  # e.g. a full disk: the raw files stay, `recording recover` later
                 self.recording_error = f"{exc!r}"
                 log.error("finalising the recording failed: %r; the raw files in %s are kept",

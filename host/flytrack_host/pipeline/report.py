@@ -92,6 +92,7 @@ class PipelineReport:
             "latency_text": self.latency.format(),
             "recording": str(recording_h5) if recording_h5 else (str(self.recording_path) if self.record else None),
             "recording_error": self.recording_error,
+            "recording_finalize_s": self.recording_finalize_s,
             "cpu_wake_latency": self.cpu_wake.summary() if self.cpu_wake is not None else None,
         }
         if rs is not None:

@@ -32,6 +32,7 @@ class DemoContext:
     fps: float
     edge_bin: Path
     out: Path
+    lab: Any = None  # the closed loop's lab devices (sim/closed_loop.py ClosedLoopLab), with --rules
 
 
 class DemoError(RuntimeError):
@@ -67,6 +68,12 @@ class DemoConfig:
     host_fixed_clock: bool = False
     dvs: int = 0  # simulated DVS (event) cameras beside the frame cameras (sim/dvs.py)
     dvs_sensor: str = "davis346"  # dvs128 (128 x 128) or davis346 (346 x 260)
+    # False for a long run (the soak, sim/soak.py): of each 3D result only the time it came is kept, in an
+    # array sized for the run and filled up front, so the process's memory does not grow with the run;
+    # no scores against the ground truth (`scores` is None), no tracks figure, no .braidz export.
+    score: bool = True
+    # Called with the running demo's parts once the trigger has started (the soak's sampler watches them).
+    on_running: list[Callable[[DemoContext], object]] = field(default_factory=list)
 
     def check(self) -> None:
         if not 2 <= self.cameras <= 64:

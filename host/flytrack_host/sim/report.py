@@ -33,7 +33,7 @@ class DemoReport:
     config: dict[str, Any]
     trigger: str
     trigger_note: str
-    scores: TrackingScores
+    scores: TrackingScores | None  # None when the run was not scored (DemoConfig.score False: the soak)
     latency: dict[str, float]  # hand-over to 3D estimate (exposure and transfer are simulated)
     latency_parts_p50_ms: dict[str, float]
     trigger_time_bias_ms: float  # host's trigger time (clock model) minus when the pulse happened
@@ -72,7 +72,7 @@ class DemoReport:
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d["scores"] = self.scores.as_dict()
+        d["scores"] = self.scores.as_dict() if self.scores is not None else None
         return d
 
 def _scored_mask(gt: GroundTruth, cams: list[Camera]) -> np.ndarray:
@@ -87,14 +87,18 @@ def _scored_mask(gt: GroundTruth, cams: list[Camera]) -> np.ndarray:
 def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path | None, trig: Any, fs: Any,
             results: list[HostResult], host_summary: dict[str, Any], live_frames: int, out: Path,
             notes: list[str], wall0: float, cams: list[Camera], warmup: int,
-            trigger_summary: dict[str, Any], preroll: int) -> DemoReport:
+            trigger_summary: dict[str, Any], preroll: int, result_times: np.ndarray | None = None) -> DemoReport:
+    """`result_times` (per trigger frame, when its 3D result came; NaN: none) instead of `results` for a run
+    that is not scored (DemoConfig.score False)."""
     from flytrack_host.sim.plot import plot_tracks
 
     hyps = [FrameTracks(r.frame, r.ids, r.pos) for r in results if 0 <= r.frame < gt.n_frames]
-    scored = _scored_mask(gt, cams)
-    scored[:warmup] = False  # animals not drawn yet: the edges were taking their background
-    scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
-                          match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
+    scores = None
+    if result_times is None:
+        scored = _scored_mask(gt, cams)
+        scored[:warmup] = False  # animals not drawn yet: the edges were taking their background
+        scores = score_tracks(gt.pos, hyps, scored=scored, close=gt.close_frames(cfg.close_distance_m),
+                              match_threshold_m=cfg.match_threshold_m, close_window=int(round(0.1 * cfg.fps)))
     recording = host_summary.get("recording")
     # The clock model's bias is judged against when each pulse happened (paced simavr states it);
     # with the software trigger, against when the cameras read it.
@@ -109,19 +113,26 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     # Latency from the hand-over of the frames a bundle was made of to its estimate: independent of
     # the numbering, so a misnumbered frame still gets its true processing time.
     lat = []
-    for r in results:
-        t0 = numbering["bundle_handoff"].get(r.frame, math.nan)
-        if math.isfinite(t0):
-            lat.append(r.t_result - t0)
+    if result_times is None:
+        for r in results:
+            t0 = numbering["bundle_handoff"].get(r.frame, math.nan)
+            if math.isfinite(t0):
+                lat.append(r.t_result - t0)
+        res_t = np.full(gt.n_frames, np.nan)
+        for r in results:
+            if 0 <= r.frame < gt.n_frames:
+                res_t[r.frame] = r.t_result
+    else:
+        res_t = result_times
+        for f, t0 in numbering["bundle_handoff"].items():
+            if 0 <= f < res_t.size and math.isfinite(t0) and math.isfinite(res_t[f]):
+                lat.append(res_t[f] - t0)
     lat_a = np.asarray(lat)
-    res_t = np.full(gt.n_frames, np.nan)
-    for r in results:
-        if 0 <= r.frame < gt.n_frames:
-            res_t[r.frame] = r.t_result
     # Per-frame timing and the ground truth, for whoever wants to look closer than the summary.
     np.savez(out / "frame_timing.npz", trigger_edge=fs.edge_time, handoff=fs.handoff_time, estimate=res_t)
-    np.savez(out / "ground_truth.npz", t=gt.t, pos=gt.pos, vel=gt.vel, axis=gt.axis, landed=gt.landed,
-             fps=gt.fps, warmup_frames=warmup)
+    if scores is not None:
+        np.savez(out / "ground_truth.npz", t=gt.t, pos=gt.pos, vel=gt.vel, axis=gt.axis, landed=gt.landed,
+                 fps=gt.fps, warmup_frames=warmup)
     period = 1.0 / cfg.fps
     in_time = int(np.sum(lat_a < period)) if lat_a.size else 0
     recv = host_summary.get("receiver", {}).get("cameras", {})
@@ -133,15 +144,17 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
     rendered_s = fs.frames_rendered / cfg.fps
     busy = fs.render_s + fs.write_s
     rt = rendered_s / busy if busy > 0 else float("inf")
-    braidz = _export_braidz(recording, out, notes)
-    title = (f"{cfg.cameras} cameras, {cfg.animals} animals\n{cfg.fps:g} fps, {cfg.seconds:g} s, seed {cfg.seed}\n\n"
-             f"RMSE {scores.rmse_mm:.2f} mm\nMOTA {scores.mota:.3f}\nIDF1 {scores.idf1:.3f}\n"
-             f"ID switches {scores.id_switches}\ntracks {scores.tracks_found}")
-    dvs_obs = host_summary.get("dvs", {})
-    if dvs_obs:  # which observations came from event cameras
-        title += "\n\nDVS points used\n" + "\n".join(
-            f"cam {i}: {v.get('points_used', 0)} in {v.get('frames_given', 0)} fr." for i, v in dvs_obs.items())
-    fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
+    braidz = fig = None
+    if scores is not None:
+        braidz = _export_braidz(recording, out, notes)
+        title = (f"{cfg.cameras} cameras, {cfg.animals} animals\n{cfg.fps:g} fps, {cfg.seconds:g} s, "
+                 f"seed {cfg.seed}\n\nRMSE {scores.rmse_mm:.2f} mm\nMOTA {scores.mota:.3f}\n"
+                 f"IDF1 {scores.idf1:.3f}\nID switches {scores.id_switches}\ntracks {scores.tracks_found}")
+        dvs_obs = host_summary.get("dvs", {})
+        if dvs_obs:  # which observations came from event cameras
+            title += "\n\nDVS points used\n" + "\n".join(
+                f"cam {i}: {v.get('points_used', 0)} in {v.get('frames_given', 0)} fr." for i, v in dvs_obs.items())
+        fig = plot_tracks(gt, hyps, out / "tracks.png", title=title, latencies_ms=lat_a * 1e3)
     frames_triggered = max(fs.edges, fs.frames_rendered)
     return DemoReport(
         config={f.name: (str(v) if isinstance(v, Path) else v) for f in fields(cfg)
@@ -155,7 +168,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         latency_host=latency_host,
         frames_triggered=min(frames_triggered, gt.n_frames),
         frames_rendered=fs.frames_rendered,
-        frames_tracked=len(hyps),
+        frames_tracked=len(hyps) if scores is not None else int(np.isfinite(res_t).sum()),
         frames_in_time=in_time,
         packets_lost=lost,
         packets_late=late,
@@ -171,7 +184,7 @@ def _report(cfg: DemoConfig, gt: GroundTruth, rig_path: Path, calib_path: Path |
         host_kept_up=bool(in_time >= 0.99 * min(frames_triggered, gt.n_frames)),
         recording=recording,
         braidz=braidz,
-        figure=str(fig),
+        figure=str(fig) if fig is not None else None,
         rig_file=str(rig_path),
         calibration=str(calib_path) if calib_path else None,
         wall_s=time.monotonic() - wall0,

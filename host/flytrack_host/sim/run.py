@@ -120,6 +120,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
     edges = dvs_edges = feeder = host = live = session = lab = engine = None
     trigger_summary: dict[str, Any] = {}
     results: list[HostResult] = []
+    result_times: np.ndarray | None = None  # cfg.score False: each frame's result time only
     live_frames = [0]
     rig_path = out / "rig.toml"
     try:
@@ -187,7 +188,15 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             session = None
             raise DemoError(f"the trigger ({trig.kind_label}) did not open: {exc}") from None
 
+        if not cfg.score:  # filled now: every page is touched up front, none later
+            result_times = np.full(gt.n_frames, np.nan)
+
         def on_result(r: Any) -> None:
+            if result_times is not None:
+                f = int(r.trigger_frame)
+                if 0 <= f < result_times.size:
+                    result_times[f] = time.time()  # noqa: TID251 - as HostResult.t_result below
+                return
             ids = np.fromiter((e.obj_id for e in r.estimates), dtype=np.int64, count=len(r.estimates))
             pos = np.array([e.state[:3] for e in r.estimates], dtype=np.float64).reshape(-1, 3)
             # compared with the simulated cameras' stamps (sim/frames.py), made in other processes
@@ -222,8 +231,12 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             time.sleep(0.01)
         cpu.mark_start()
         session.start(host)  # waits until the cameras are quiet, arms the frame-0 tie, STARTs
-        if cfg.fault is not None:
-            cfg.fault.start(DemoContext(host, session, edges, feeder, trig, cams, port, fps, edge_bin, out))
+        if cfg.fault is not None or cfg.on_running:
+            ctx = DemoContext(host, session, edges, feeder, trig, cams, port, fps, edge_bin, out, lab=lab)
+            if cfg.fault is not None:
+                cfg.fault.start(ctx)
+            for fn in cfg.on_running:
+                fn(ctx)
 
         # 4. Run until every frame was rendered, with a progress bar.
         budget = cfg.seconds * 4 + 30
@@ -281,7 +294,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
 
     fs = feeder.stats()
     report = _report(cfg, gt, rig_path, calib_path, trig, fs, results, host_summary, live_frames[0], out,
-                     notes, wall0, cams, warmup, trigger_summary, preroll)
+                     notes, wall0, cams, warmup, trigger_summary, preroll, result_times=result_times)
     report.cpu_seconds = cpu.totals()
     report.cpu_placement = placement.describe()
     report.dvs = _dvs_counts(dvs_cams, len(cams), fs, host_summary, cfg.dvs_sensor)
