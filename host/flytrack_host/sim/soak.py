@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from flytrack_host.sim.demo_config import ROOT, DemoConfig, DemoContext, DemoError
+from flytrack_host.util import children
 
 MB = 1e6
 DEFAULT_RULES = ROOT / "examples" / "closed_loop.toml"
@@ -219,8 +220,9 @@ class Clients:
 
     def __init__(self, status: Path):
         self.status = status
-        self.proc = subprocess.Popen([sys.executable, "-m", "flytrack_host.sim.soak_clients", str(status)],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, close_fds=True)
+        # Ends with the soak whatever ends it (util.children).
+        self.proc = children.popen([sys.executable, "-m", "flytrack_host.sim.soak_clients", str(status)],
+                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, close_fds=True)
         line = self.proc.stdout.readline() if self.proc.stdout else ""
         if not line.startswith("pose_port "):
             self.close()

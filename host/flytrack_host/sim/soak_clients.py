@@ -16,11 +16,10 @@ import os
 import sys
 import threading
 import time
-import urllib.request
 from pathlib import Path
 from typing import Any
 
-from flytrack_host.live.braid import iter_sse
+from flytrack_host.live.braid import iter_sse, open_event_stream
 from flytrack_host.live.pose import PoseClient
 
 WRITE_EVERY_S = 0.5
@@ -50,7 +49,7 @@ def follow_events(url: str, counts: Counts, stop: threading.Event) -> None:
     """Braid's /events: count each message by kind; reconnect when the stream ends before `stop`."""
     while not stop.is_set():
         try:
-            with urllib.request.urlopen(url + "events", timeout=30) as resp:
+            with open_event_stream(url + "events", timeout=30) as resp:
                 counts.add(sse_connects=1)
                 for ev in iter_sse(resp):
                     msg = ev.json().get("msg", {})
