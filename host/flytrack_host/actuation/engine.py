@@ -46,7 +46,10 @@ from flytrack_host.util.ratelog import RateLimitedLog
 
 log = logging.getLogger("flytrack.actuation")
 SWITCH_INTERVAL_S = 0.0002
-MAX_KEPT_FIRES = 100_000
+# Firings kept in memory (the recording keeps every one): the latest RECENT_FIRES for a live run's
+# summary, so hours of firings cost no memory; ALL_FIRES when a caller scores every firing (the demo).
+RECENT_FIRES = 1024
+ALL_FIRES = 100_000
 
 
 def estimates_arrays(result: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -58,7 +61,8 @@ def estimates_arrays(result: Any) -> tuple[np.ndarray, np.ndarray]:
 
 class ActuationEngine:
     def __init__(self, rules: RuleSet, actuators: list[ActuatorConfig], fps: float,
-                 context: dict[str, Any] | None = None, rules_path: Path | str = "<rules>"):
+                 context: dict[str, Any] | None = None, rules_path: Path | str = "<rules>",
+                 keep: int = RECENT_FIRES):
         bind_rules(rules, actuators, rules_path)
         self.rules = rules
         self.rules_path = Path(rules_path)
@@ -73,19 +77,18 @@ class ActuationEngine:
         self.rule_outputs = [[self.outputs[a.output] for a in r.actions] for r in rules.rules]
         self.step_vel = StepVelocities(self.period_s)  # the velocities to predict with, per frame
         self._predicting = any(r.predict for r in rules.rules)
-        self.firings = FiringLog(record=self._record)
-        # The latest firings (the recording keeps them all), and counts per rule.
-        self.shadow_fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
-        self.fires: deque[Fire] = deque(maxlen=MAX_KEPT_FIRES)
+        self.firings = FiringLog(record=self._record, keep=keep)
+        # The latest `keep` firings (the recording keeps them all), and counts per rule.
+        self.shadow_fires: deque[Fire] = deque(maxlen=keep)
+        self.fires: deque[Fire] = deque(maxlen=keep)
         self.fired: dict[str, int] = {r.name: 0 for r in rules.rules}
         # Per action, the host times of each stage (trigger, estimate, queued, taken by the worker, sent,
         # acknowledged): where the time from a frame's trigger to the device's acknowledgement goes.
-        self.stages: deque[tuple[str, str, int, float, float, float, float, float, float]] = deque(
-            maxlen=MAX_KEPT_FIRES)
+        self.stages: deque[tuple[str, str, int, float, float, float, float, float, float]] = deque(maxlen=keep)
         # Per action of a device that says when its command left the host (`Output.written`): rule,
         # output, sent (the device thread began the command), written (the write returned), acknowledged:
         # the client library's own work apart from the device's answer.
-        self.sends: deque[tuple[str, str, float, float, float]] = deque(maxlen=MAX_KEPT_FIRES)
+        self.sends: deque[tuple[str, str, float, float, float]] = deque(maxlen=keep)
         self.frames = 0
         self.eval_s_total = 0.0
         self.eval_s_max = 0.0
@@ -106,9 +109,9 @@ class ActuationEngine:
 
     @classmethod
     def from_files(cls, rig: RigConfig, rules_path: Path | str, fps: float,
-                   context: dict[str, Any] | None = None) -> ActuationEngine:
+                   context: dict[str, Any] | None = None, keep: int = RECENT_FIRES) -> ActuationEngine:
         ctx = {"base_dir": rig.base_dir, **(context or {})}
-        return cls(load_rules(rules_path), rig.actuators, fps, ctx, rules_path)
+        return cls(load_rules(rules_path), rig.actuators, fps, ctx, rules_path, keep=keep)
 
     # --- wiring -----------------------------------------------------------------------------
     def attach(self, pipe: Any) -> None:
@@ -313,7 +316,8 @@ class ActuationEngine:
             "outputs": {n: {**w.stats.__dict__, "connected": w.output.connected, "kind": w.output.kind,
                             "acknowledged_means": w.output.ack_means,
                             "lead_ms": w.output.lead_s * 1e3} for n, w in self.workers.items()},
-            "firing_rows": int(len(rows)),
+            "firing_rows": int(len(rows)),  # the latest (`keep`); the recording has all of them
+            "firings_total": int(self.firings.count),
             "rule_problems": list(self.rule_problems),
         }
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -19,8 +20,6 @@ from flytrack_host.recording.schema import (
     FIRING_PREDICTED,
     FIRINGS,
 )
-
-MAX_KEPT = 100_000  # rows kept in memory for the summary (the recording keeps them all)
 
 
 def outcome_row(o: Outcome, dry_run: bool = False) -> np.ndarray:
@@ -59,9 +58,9 @@ def percentiles_ms(v: list[float] | np.ndarray) -> dict[str, float]:
 class FiringLog:
     """Thread-safe: the output workers add outcomes; `record` appends each row to the recording."""
 
-    def __init__(self, record: Callable[[np.ndarray], None] | None = None):
+    def __init__(self, record: Callable[[np.ndarray], None] | None = None, keep: int = 100_000):
         self.record = record
-        self.rows: list[np.ndarray] = []
+        self.rows: deque[np.ndarray] = deque(maxlen=keep)  # the latest rows (the recording keeps them all)
         self.count = 0
         self.failed = 0
         self.last: str = ""
@@ -73,8 +72,7 @@ class FiringLog:
             self.count += 1
             if row["flags"][0] & FIRING_FAILED:
                 self.failed += 1
-            if len(self.rows) < MAX_KEPT:
-                self.rows.append(row)
+            self.rows.append(row)
             self.last = f"{o.job.rule} obj {o.job.obj_id} -> {o.output} frame {int(row['scheduled_frame'][0])}"
         if self.record is not None:
             self.record(row)

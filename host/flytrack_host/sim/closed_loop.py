@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.actuation.engine import ActuationEngine
+from flytrack_host.actuation.engine import ALL_FIRES, RECENT_FIRES, ActuationEngine
 from flytrack_host.actuation.firings import percentiles_ms, send_split, stage_latencies
 from flytrack_host.actuation.history import RuleEvaluator
 from flytrack_host.actuation.peers import CanListener, ModbusPeerProcess
@@ -125,10 +125,12 @@ class ClosedLoopLab:
     def rig(self, rig: RigConfig) -> RigConfig:
         return rig.model_copy(update={"actuators": self.actuators, "rules": self.rules_copy.name})
 
-    def engine(self, rig: RigConfig, fps: float, session: Any) -> ActuationEngine:
+    def engine(self, rig: RigConfig, fps: float, session: Any, score: bool = True) -> ActuationEngine:
+        """The rig's engine; `score` keeps every firing in memory for `report` (a soak keeps the latest)."""
         assert rig.rules_path is not None
         ctx = {"trigger": lambda: session.device, "clock": session.clock}
-        return ActuationEngine.from_files(rig, rig.rules_path, fps, context=ctx)
+        return ActuationEngine.from_files(rig, rig.rules_path, fps, context=ctx,
+                                          keep=ALL_FIRES if score else RECENT_FIRES)
 
     def report(self, engine: ActuationEngine, gt: Any, pulse_frames: np.ndarray | None) -> dict[str, Any]:
         rows = engine.firings.table()

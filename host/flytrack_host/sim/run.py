@@ -210,7 +210,7 @@ def run_demo(cfg: DemoConfig, console: Any = None) -> DemoReport:
             host.dvs_bundles = collections.deque(maxlen=gt.n_frames + 16)
         if lab is not None:
             try:
-                engine = lab.engine(rig, fps, session)
+                engine = lab.engine(rig, fps, session, score=cfg.score)
             except RulesError as exc:
                 raise DemoError(str(exc)) from None
         for fn in cfg.attach:

@@ -1,0 +1,28 @@
+"""A live run's firings cost no memory over hours: the engine and its firing log keep the latest few in
+memory (the recording keeps them all), counting every one; a demo that scores every firing keeps all."""
+
+from __future__ import annotations
+
+from flytrack_host.actuation.devices.base import Job, Outcome
+from flytrack_host.actuation.engine import ALL_FIRES, RECENT_FIRES
+from flytrack_host.actuation.firings import FiringLog
+from flytrack_host.actuation.rules import Action
+
+
+def _outcome(n: int) -> Outcome:
+    job = Job("r", n, n, n + 1, 0.0, 0.0, (0.0, 0.0, 0.0), Action(output="valve"), False)
+    return Outcome(job, "valve", "modbus", time_sent=1.0, time_ack=1.001, scheduled_frame=n + 1)
+
+
+def test_the_firing_log_keeps_the_latest_and_counts_all() -> None:
+    recorded: list[int] = []
+    log = FiringLog(record=lambda row: recorded.append(int(row["obj_id"][0])), keep=5)
+    for n in range(12):
+        log.add(_outcome(n))
+    assert log.count == 12 and recorded == list(range(12))  # every row reaches the recording
+    assert log.table()["obj_id"].tolist() == list(range(7, 12))  # the memory holds the latest 5
+
+
+def test_a_live_run_keeps_a_bounded_history() -> None:
+    # A day at 4 firings a second is ~350 000: a live run must stay far below, a demo's runs well within.
+    assert RECENT_FIRES <= 4096 < ALL_FIRES
