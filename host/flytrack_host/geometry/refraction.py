@@ -34,6 +34,10 @@ from numpy.typing import ArrayLike, NDArray
 
 F64 = NDArray[np.float64]
 WATER_INDEX = 1.333  # Braid's and flydra's default for <water>
+# The index of air flydra and Braid use for the camera side of <water> (flydra-mvg AIR_REFRACTION): with
+# 1.0 instead, a point 3 cm under the surface projects up to 5 mpx off their pixels and triangulates
+# from them 10 um off.
+AIR_INDEX = 1.0003
 
 
 @dataclass(frozen=True)
@@ -61,13 +65,14 @@ class FlatInterface:
 
     @classmethod
     def water_surface(cls, n_water: float = WATER_INDEX, z: float = 0.0) -> FlatInterface:
-        """Braid's `<water>`: the surface z = 0 (or z), cameras in air above, points in water below."""
-        return cls(point=(0.0, 0.0, float(z)), normal=(0.0, 0.0, 1.0), n_far=float(n_water))
+        """Braid's `<water>`: the surface z = 0 (or z), cameras in air above (index AIR_INDEX, as flydra
+        and Braid take it), points in water below."""
+        return cls(point=(0.0, 0.0, float(z)), normal=(0.0, 0.0, 1.0), n_far=float(n_water), n_near=AIR_INDEX)
 
     @property
     def is_braid_water(self) -> bool:
         """Whether this is exactly what a flydra/Braid XML `<water>` element describes."""
-        return self.point[2] == 0.0 and self.normal == (0.0, 0.0, 1.0) and self.n_near == 1.0
+        return self.point[2] == 0.0 and self.normal == (0.0, 0.0, 1.0) and self.n_near == AIR_INDEX
 
     def p(self) -> F64:
         return np.asarray(self.point)
