@@ -182,6 +182,9 @@ def _model_entries(page: str, root: type, shared: dict[str, str]) -> tuple[set[t
         if sec:
             title = sec.group(1)
             key = "" if title == "Top level" else title.strip("[]")
+            if not (title == "Top level" or title.startswith("[") or key in shared.values()):
+                section_model = None  # a section of prose or tables (output kinds), not of fields
+                continue
             section_model = _resolve(root, key, shared)
             if section_model is None:
                 stale.append(f"section {title}")
@@ -349,3 +352,68 @@ def test_every_flytrack_command_in_the_docs_exists_with_its_options():
                 if opt.startswith("--") and opt != "--help" and opt not in code[cmd]:
                     problems.append(f"{path.relative_to(REPO)}: {line!r}: flytrack {' '.join(cmd)} has no {opt}")
     assert not problems, "\n".join(problems)
+
+
+# ------------------------------------------------------------------------------------------------
+# The recording's tables
+
+
+def test_every_recording_table_and_column_has_an_entry_and_every_note_names_a_column():
+    from flytrack_host.recording.schema import TABLES
+
+    page = gen.recording_page()
+    problems = []
+    for name, dt in TABLES.items():
+        if name not in gen.TABLE_NOTES or not gen.TABLE_NOTES[name][0]:
+            problems.append(f"table {name}: no description in TABLE_NOTES")
+        if f"## `{name}`" not in page:
+            problems.append(f"table {name}: no section")
+        problems += [f"{name}.{c}: no row" for c in dt.names if f"| `{c}` |" not in page]
+    for name, (_, notes) in gen.TABLE_NOTES.items():
+        if name not in TABLES:
+            problems.append(f"TABLE_NOTES names a table that does not exist: {name}")
+            continue
+        problems += [f"TABLE_NOTES {name}.{c}: no such column" for c in notes if c not in TABLES[name].names]
+    assert not problems, "\n".join(problems)
+
+
+def test_every_output_kind_has_a_row_with_its_keys_address_and_acknowledgement():
+    from flytrack_host.actuation.rules import KIND_FIELDS
+    from flytrack_host.rig import ActuatorKind
+
+    rows = {k: (keys, addr, ack) for k, keys, addr, ack in gen.output_kinds()}
+    assert set(rows) == set(typing.get_args(ActuatorKind)) == set(KIND_FIELDS)
+    for kind, (keys, addr, ack) in rows.items():
+        assert keys and addr and ack and ack != "?", (kind, keys, addr, ack)
+
+
+# ------------------------------------------------------------------------------------------------
+# Make targets
+
+
+def _make_targets() -> set[str]:
+    """Every target `make help` names, the per-part ones included."""
+    out = subprocess.run(["make", "--no-print-directory", "help"], cwd=REPO, capture_output=True, text=True,
+                         timeout=60).stdout
+    names = set(re.findall(r"^\s+make ([a-z][a-z0-9-]*)", out, re.M))
+    part = re.search(r"per part:\s*(.*)", out)
+    return names | set(part.group(1).split() if part else [])
+
+
+def test_every_make_target_has_an_entry_and_every_make_command_in_the_docs_exists():
+    targets = _make_targets()
+    page = (REPO / "docs" / "reference" / "make.md").read_text()
+    documented = set(re.findall(r"`(?:make )?([a-z][a-z0-9-]*)(?: [A-Z_]+=[^`]*)?`", page))
+    assert targets - {"help"} <= documented, f"make targets without an entry: {sorted(targets - documented)}"
+    known = targets | {"help", "clean", "format", "docs", "docs-serve", "test-python", "test-c", "cbuild",
+                       "setup", "firmware-avr"}
+    problems = []
+    for path in _doc_files():
+        text = path.read_text()
+        blocks = re.findall(r"```.*?```", text, re.S)
+        code = blocks + re.findall(r"`[^`\n]+`", re.sub(r"```.*?```", "", text, flags=re.S))
+        for m in re.finditer(r"(?:^|[\s`(])make ([a-z][a-z0-9-]*)", "\n".join(code)):
+            if m.group(1) not in known:
+                problems.append(f"{path.relative_to(REPO)}: make {m.group(1)}")
+    assert not problems, "make targets that do not exist: " + ", ".join(sorted(set(problems)))
+
