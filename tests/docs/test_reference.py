@@ -417,3 +417,14 @@ def test_every_make_target_has_an_entry_and_every_make_command_in_the_docs_exist
                 problems.append(f"{path.relative_to(REPO)}: make {m.group(1)}")
     assert not problems, "make targets that do not exist: " + ", ".join(sorted(set(problems)))
 
+
+# ------------------------------------------------------------------------------------------------
+# The README
+
+
+def test_the_readme_is_short_and_its_links_lead_somewhere():
+    text = (REPO / "README.md").read_text()
+    assert len(text.splitlines()) <= 200, "the README is the front page: at most 200 lines; the rest goes in docs/"
+    missing = [t for t in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text)
+               if not t.startswith(("http://", "https://")) and not (REPO / t).exists()]
+    assert not missing, f"README links to files that do not exist: {missing}"
