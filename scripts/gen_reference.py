@@ -110,7 +110,13 @@ def _param(p, ctx) -> CliParam:
     shown = shown.strip("<>")
     m = re.fullmatch(r"list\[(.*)\]", shown)
     shown = m.group(1) if m else shown
-    shown = {"str": "text", "float": "number", "int": "integer", "bool": "true|false"}.get(shown, shown)
+    bounds = []
+    if shown.endswith(" range"):  # typer's IntRange / FloatRange: the bounds are on the parameter
+        shown = shown.removesuffix(" range")
+        lo, hi = getattr(p, "min", None), getattr(p, "max", None)
+        bounds = ([f"≥ {_num(lo)}"] if lo is not None else []) + ([f"≤ {_num(hi)}"] if hi is not None else [])
+    shown = {"str": "text", "float": "number", "int": "integer", "bool": "true|false", "Path": "path"}.get(shown, shown)
+    shown = ", ".join([shown, *bounds])
     if is_option and getattr(p, "is_flag", False):
         shown = "flag"
     default = ""
@@ -260,8 +266,8 @@ def _constraints(metadata: list) -> str:
 def _num(v: Any) -> str:
     if isinstance(v, float) and v.is_integer() and abs(v) < 1e15:
         v = int(v)
-    if isinstance(v, int) and v >= 0xFFFF and (v + 1) & v == 0:
-        return f"0x{v:X}"              # an all-ones limit: 0xFFFF, 0x1FFFFFFF
+    if isinstance(v, int) and v > 0xFFFF and (v + 1) & v == 0:
+        return f"0x{v:X}"              # an all-ones limit wider than 16 bits: 0x1FFFFFFF
     if isinstance(v, int) and v >= 10_000:
         return f"{v:,}".replace(",", " ")
     return str(v)
@@ -581,7 +587,9 @@ def model_page(docs: ModelDocs, title: str, intro: str, example_note: str) -> st
 
 
 RIG_INTROS = {
-    "": "Keys at the top of the file, before any table.",
+    "": "Keys at the top of the file, before the first `[table]` header: TOML puts a key written below a "
+        "header in that table (`rules = ...` under the last `[[cameras]]` would be read as that camera's key, "
+        "and refused).",
     "cameras": "One table per camera. Every camera needs its own `name` and `index`.",
     "trigger": "The trigger box that clocks the cameras (`flytrack run` opens it before anything is recorded).",
     "host": "What the host listens on and sends to, and how it times frames.",
