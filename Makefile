@@ -18,7 +18,7 @@ CMAKE_FLAGS :=
 TEST_C_TARGETS :=
 BENCH_TARGETS :=
 
-.PHONY: help setup build cbuild firmware test test-python test-c test-other-blas test-portability test-load lint format bench demo clean
+.PHONY: help setup build cbuild firmware test test-python test-c test-other-blas test-portability test-load lint format bench demo clean docs docs-serve
 
 help:
 	@echo "FlyTrack make targets:"
@@ -27,6 +27,7 @@ help:
 	@echo "  make bench     run every benchmark (BENCH_JSON=PATH writes figures as JSON)"
 	@echo "  make test-portability  numerical tests under every OpenBLAS kernel x 1, 2 threads; suite in random order"
 	@echo "  make test-load the suite 3 times under a CPU load of twice the cores (stress-ng)"
+	@echo "  make docs      build the manual into build/site (docs-serve: serve it on 127.0.0.1:8000)"
 	@echo "  make build     build the C parts and the firmware"
 	@echo "  make firmware  build the AVR trigger firmware"
 	@echo "  make lint      ruff and clang-format checks"
@@ -46,6 +47,7 @@ build: cbuild firmware
 test: build
 	@$(MAKE) --no-print-directory test-c
 	@$(MAKE) --no-print-directory test-python
+	@$(MAKE) --no-print-directory docs
 	@$(MAKE) --no-print-directory test-other-blas
 	@$(MAKE) --no-print-directory lint
 
@@ -54,6 +56,17 @@ test-c: cbuild
 
 test-python: setup
 	@$(PYTEST) -q
+
+# The manual (mkdocs.yml, docs/): strict, so a warning, a broken link or anchor fails the build
+# (not --quiet: mkdocs 1.6 then drops the warnings before strict mode counts them).
+export NO_MKDOCS_2_WARNING := 1
+DOCS_ADDR ?= 127.0.0.1:8000
+docs: setup
+	@set -o pipefail; $(VENV)/bin/mkdocs build --strict 2>&1 | { grep -v '^INFO ' || true; }
+	@echo "docs: built build/site/index.html"
+
+docs-serve: setup
+	@$(VENV)/bin/mkdocs serve --strict -a $(DOCS_ADDR)
 
 # The numerical tests again under an OpenBLAS kernel other than this machine's own, so a test whose
 # property holds on one kernel only fails here and not on a lab's PC.

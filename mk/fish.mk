@@ -6,7 +6,7 @@ BENCH_TARGETS += bench-fish
 test-fish: build
 	@$(PYTEST) -q host/tests/fish
 
-# The README's figures and plots: 4 fish, 200 frames at 250 fps (a few minutes on this machine).
+# The figures and plots of docs/explanation/performance.md and docs/fish/: 4 fish, 200 frames at 250 fps (a few minutes on this machine).
 demo-fish: build
 	@$(PY) -m flytrack_host.cli fish demo --fish 4 --frames 200 --out docs/fish --json $(BUILD)/fish-demo.json
 

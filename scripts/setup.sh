@@ -24,10 +24,10 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 
 PY=${PYTHON:-python3}
-reqs="host/requirements.txt"
+reqs=(host/requirements.txt host/requirements-docs.txt)  # runtime and tests; the docs site
 extra="${FLYTRACK_EXTRA_REQS:-}"
 stamp=".venv/.flytrack-reqs"
-sum=$(cat "$reqs" $extra host/pyproject.toml | sha256sum | cut -d' ' -f1)
+sum=$(cat "${reqs[@]}" $extra host/pyproject.toml | sha256sum | cut -d' ' -f1)
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv"
   "$PY" -m venv .venv
@@ -35,7 +35,7 @@ fi
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$sum" ]; then
   echo "setup: installing pinned Python packages into .venv"
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -r "$reqs" ${extra:+-r $extra}
+  .venv/bin/python -m pip install -q $(printf -- '-r %s ' "${reqs[@]}") ${extra:+-r $extra}
   if ! .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e host > .venv/install-host.log 2>&1; then
     cat .venv/install-host.log >&2; echo "setup: installing the host package failed" >&2; exit 1
   fi

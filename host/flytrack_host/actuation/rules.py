@@ -61,8 +61,8 @@ def _range_input(v: Any) -> Any:
 
 
 class _Range(_Strict):
-    min: Finite = -math.inf
-    max: Finite = math.inf
+    min: Finite = Field(-math.inf, description="lowest value that holds, in the unit of the quantity")
+    max: Finite = Field(math.inf, description="highest value that holds, in the unit of the quantity")
 
     @model_validator(mode="after")
     def _order(self) -> _Range:
@@ -87,25 +87,25 @@ class Box(_Strict):
 
 class Cylinder(_Strict):
     center: Vec2 = Field(description="axis position (x, y); the axis is vertical")
-    radius: float = Field(gt=0)
-    z: Range = Field(default_factory=_Range)
+    radius: float = Field(gt=0, description="radius about the axis, metres")
+    z: Range = Field(default_factory=_Range, description="height range of the cylinder (z), metres; none: all heights")
 
 
 class Sphere(_Strict):
     center: Vec3
-    radius: float = Field(gt=0)
+    radius: float = Field(gt=0, description="radius, metres")
 
 
 class Polygon(_Strict):
     points: list[Vec2] = Field(min_length=3, description="corners (x, y) of the floor plan, in order")
-    z: Range = Field(default_factory=_Range)
+    z: Range = Field(default_factory=_Range, description="height range of the prism (z), metres; none: all heights")
 
 
 class Region(_Strict):
-    box: Box | None = None
-    cylinder: Cylinder | None = None
-    sphere: Sphere | None = None
-    polygon: Polygon | None = None
+    box: Box | None = Field(None, description="an axis-aligned box between two corners")
+    cylinder: Cylinder | None = Field(None, description="a vertical cylinder")
+    sphere: Sphere | None = Field(None, description="a ball about a centre")
+    polygon: Polygon | None = Field(None, description="a floor plan (x, y) extruded over a height range")
 
     @model_validator(mode="after")
     def _one(self) -> Region:
@@ -118,10 +118,10 @@ class Region(_Strict):
 class Target(_Strict):
     """A point, or a vertical post (a line through (x, y)), with the range a quantity must be in."""
 
-    point: Vec3 | None = None
-    post: Vec2 | None = None
-    min: Finite = -math.inf
-    max: Finite = math.inf
+    point: Vec3 | None = Field(None, description="a point (x, y, z), metres")
+    post: Vec2 | None = Field(None, description="a vertical post through (x, y), metres: distances are horizontal")
+    min: Finite = Field(-math.inf, description="lowest value that holds (m for distance_m, m/s for closing_speed_m_s)")
+    max: Finite = Field(math.inf, description="highest value that holds (m for distance_m, m/s for closing_speed_m_s)")
 
     @model_validator(mode="after")
     def _one(self) -> Target:
@@ -135,13 +135,16 @@ class Target(_Strict):
 class Condition(_Strict):
     """All given parts must hold (AND)."""
 
-    inside: Region | None = None
-    outside: Region | None = None
-    speed_m_s: Range | None = None
-    altitude_m: Range | None = None
-    distance_m: Target | None = None
-    closing_speed_m_s: Target | None = None  # speed towards the point/post (negative: moving away)
-    turn_rate_deg_s: Range | None = None
+    inside: Region | None = Field(None, description="the object is inside this region")
+    outside: Region | None = Field(None, description="the object is outside this region")
+    speed_m_s: Range | None = Field(None, description="the object's speed is in this range, m/s")
+    altitude_m: Range | None = Field(None, description="the object's height z is in this range, metres")
+    distance_m: Target | None = Field(None, description="the object's distance to a point or post is in the "
+                                      "target's range, metres")
+    closing_speed_m_s: Target | None = Field(None, description="the object's speed towards a point or post is in "
+                                             "the target's range, m/s (negative: moving away)")
+    turn_rate_deg_s: Range | None = Field(None, description="the angle between the object's successive velocities, "
+                                          "per second, is in this range, deg/s")
     hold_ms: float = Field(0.0, ge=0, description="the condition holds this long before the rule fires")
     after_false_ms: float = Field(0.0, ge=0, description="... after it was false at least this long")
 
@@ -185,9 +188,10 @@ class Action(_Strict):
 
 
 class Rule(_Strict):
-    name: str = Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.\-]+$")
-    when: Condition
-    actions: list[Action] = Field(default_factory=list)
+    name: str = Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.\-]+$",
+                      description="the rule's name (letters, digits, _ . -; at most 32), in logs and recordings")
+    when: Condition = Field(description="what must hold on an object for the rule to fire")
+    actions: list[Action] = Field(default_factory=list, description="what to drive when the rule fires")
     objects: str | int = Field("any", description="any object, the oldest track (first), or a track id")
     cooldown_s: float = Field(0.0, ge=0, description="no firing within this long of the last one")
     max_per_minute: float | None = Field(None, gt=0, description="at most this many firings in any 60 s")
@@ -216,7 +220,7 @@ class Rule(_Strict):
 
 
 class RuleSet(_Strict):
-    rules: list[Rule] = Field(min_length=1)
+    rules: list[Rule] = Field(min_length=1, description="the rules, each evaluated on every tracked frame")
 
     @model_validator(mode="after")
     def _unique(self) -> RuleSet:

@@ -139,7 +139,7 @@ _ADDRESS_NEEDED = {"modbus": "HOST:PORT (TCP) or a serial port (RTU)", "can": "t
 class ActuatorConfig(_Strict):
     """A device the closed-loop rules drive (flytrack_host.actuation); rules name it by `name`."""
 
-    name: str = Field(min_length=1)
+    name: str = Field(min_length=1, description="The name rules use for this device (their `output`).")
     kind: ActuatorKind = Field(description="How the actuator is driven.")
     address: str = Field("", description="HOST:PORT, serial port, CAN channel, HID path or module:function, by kind.")
     channel: int = Field(0, ge=0, description="trigger_pulse: the firmware's output channel (0 = exact pulses).")
@@ -170,12 +170,14 @@ class RigConfig(_Strict):
     calibration: str | None = Field(
         None, description="Calibration file (flydra XML or pymvg JSON), relative to the rig file."
     )
-    cameras: list[CameraConfig] = Field(min_length=1)
-    trigger: TriggerConfig = Field(default_factory=TriggerConfig)
-    host: HostConfig = Field(default_factory=HostConfig)
-    tracking: TrackingParams = Field(default_factory=TrackingParams)
-    recording: RecordingConfig = Field(default_factory=RecordingConfig)
-    actuators: list[ActuatorConfig] = Field(default_factory=list)
+    cameras: list[CameraConfig] = Field(min_length=1, description="The cameras, one [[cameras]] table each.")
+    trigger: TriggerConfig = Field(default_factory=TriggerConfig, description="The trigger box.")
+    host: HostConfig = Field(default_factory=HostConfig, description="The host's network and timing settings.")
+    tracking: TrackingParams = Field(default_factory=TrackingParams, description="Tracking parameters.")
+    recording: RecordingConfig = Field(default_factory=RecordingConfig, description="Where and how to record.")
+    actuators: list[ActuatorConfig] = Field(
+        default_factory=list, description="Devices the closed-loop rules drive, one [[actuators]] table each."
+    )
     rules: str | None = Field(None, description="Closed-loop rules file (TOML), relative to the rig file.")
 
     # Filled by load_rig: the folder relative paths are resolved against.

@@ -21,7 +21,7 @@ def _f(x: float, fmt: str = ".2f") -> str:
 
 
 def summary_table(r: DemoReport) -> Table:
-    """The summary, kept within 80 columns: figure, value, a short note (the README explains more)."""
+    """The summary, kept within 80 columns: figure, value, a short note (the manual's demo tutorial explains more)."""
     s = r.scores
     lat = r.latency
     t = Table(title="FlyTrack simulated rig: summary", show_header=True, header_style="bold")

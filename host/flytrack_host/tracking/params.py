@@ -30,7 +30,7 @@ class TrackingParams(BaseModel):
         "with R = this x that covariance. The frame cameras' R (measurement_noise_px^2) is far above their "
         "points' real error (0.06 px median in the simulated rig), so an event point at its true covariance "
         "would outweigh better frame points; 16 keeps the simulated rig's RMSE with event cameras within 2 % "
-        "of that without (README, DVS cameras in the rig).",
+        "of that without (the manual: Event cameras).",
     )
     gate_px: float = Field(
         20.0, gt=0, description="Image-distance gate from the predicted projection to a candidate point, px."

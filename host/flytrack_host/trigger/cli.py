@@ -125,7 +125,8 @@ def watch(
 def pulse(
     frame: int = typer.Option(-1, "--frame", min=-1, help="Frame to pulse in (-1: the earliest reachable)."),
     width_ms: float = typer.Option(1.0, "--width-ms", help="Pulse width, ms."),
-    channel: int = typer.Option(0, "--channel", min=0),
+    channel: int = typer.Option(0, "--channel", min=0,
+                                help="Output channel: 0 is the exact pulse output (D10, hardware/README.md)."),
     port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
     fps: float = typer.Option(100.0, "--fps", help="Frame rate the device runs at (to convert the width)."),
 ) -> None:

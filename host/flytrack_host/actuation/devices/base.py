@@ -127,7 +127,7 @@ class Output:
     """One device. Subclasses implement `_connect`, `_perform` and `_close`."""
 
     kind = "?"
-    ack_means = "?"  # what `time_ack` is for this device (said in the demo JSON and the README)
+    ack_means = "?"  # what `time_ack` is for this device (said in the demo JSON and the manual's rules-file reference)
     arm_frames = 0  # frames ahead the device must have the command (the trigger firmware: 1)
 
     initial_lead_s = 0.0  # until measured: time from queueing a command to its acknowledgement
