@@ -198,6 +198,49 @@ static void test_aedat2(void) {
     ft_ev_close(r);
 }
 
+/* DAVIS240C (jAER's DAVIS layout): DVS x mirrored over 240, polarity bit 11, APS and IMU words
+ * skipped, an external input event a trigger; a chip whose layout is not known refused. */
+static void test_aedat2_davis(void) {
+    bytes s = {.n = 0};
+    add_str(&s, "#!AER-DAT2.0\r\n# AEChip: eu.seebetter.ini.chips.davis.DAVIS240C\r\n");
+    be32(&s, (170u << 22) | (10u << 12) | (1u << 11)); /* ON at field x 10, y 170 */
+    be32(&s, 100);
+    be32(&s, 0x80000000u | (5u << 22) | (6u << 12) | 512u); /* APS sample */
+    be32(&s, 110);
+    be32(&s, 0x80000C00u | (3u << 28)); /* IMU word */
+    be32(&s, 120);
+    be32(&s, 0x400u); /* external input */
+    be32(&s, 130);
+    be32(&s, (2u << 22) | (239u << 12)); /* OFF at field x 239 */
+    be32(&s, 140);
+    be32(&s, (2u << 22) | (240u << 12)); /* x field past the 240 columns: skipped */
+    be32(&s, 150);
+    ft_ev_reader *r = open_mem(&s, FT_EV_AUTO, "davis.aedat");
+    CHECK(r);
+    if (!r)
+        return;
+    ft_ev_keep_triggers(r, 1);
+    ft_event ev[64];
+    long long rc;
+    size_t n = read_all(r, ev, 64, 16, &rc);
+    ft_ev_info info;
+    ft_ev_get_info(r, &info);
+    CHECK(info.width == 240 && info.height == 180 && rc == 0 && n == 2);
+    CHECK(info.n_triggers == 1 && info.n_skipped == 3);
+    CHECK(ev[0].t == 100 && ev[0].x == 229 && ev[0].y == 170 && ev[0].p == 1);
+    CHECK(ev[1].t == 140 && ev[1].x == 0 && ev[1].y == 2 && ev[1].p == 0);
+    ft_ev_trigger trig[4];
+    CHECK(ft_ev_triggers(r, trig, 4) == 1 && trig[0].t == 130);
+    ft_ev_close(r);
+    s.n = 0;
+    add_str(&s, "#!AER-DAT2.0\r\n# AEChip: eu.seebetter.ini.chips.davis.DavisRGBW640\r\n");
+    be32(&s, 1);
+    be32(&s, 1);
+    char err[300];
+    CHECK(ft_ev_open_mem(s.b, s.n, FT_EV_AUTO, "rgbw.aedat", err, sizeof err) == NULL);
+    CHECK(strstr(err, "DavisRGBW640") != NULL && strstr(err, "not known") != NULL);
+}
+
 static void a3_packet(bytes *s, int16_t type, int32_t size, int32_t overflow, int32_t number) {
     le16(s, (uint16_t)type);
     le16(s, 1);
@@ -355,6 +398,7 @@ int main(void) {
     test_evt3();
     test_dat();
     test_aedat2();
+    test_aedat2_davis();
     test_aedat3();
     test_writers();
     test_bad_open();

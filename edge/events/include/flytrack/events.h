@@ -1,9 +1,10 @@
 /* libflytrack_events: event-camera files, read in bounded chunks and written.
  *
- * Reads AEDAT 2.0 (jAER, DVS128 address layout), AEDAT 3.1 (polarity packets), AEDAT 4.0 (event
- * packets, uncompressed, LZ4 frame or Zstd), Prophesee EVT 2.0, EVT 3.0 and DAT. Writes AEDAT 4.0
- * (readable by dv-processing) and EVT 3.0. Every reader turns its format into one layout,
- * ft_event, and streams: memory stays bounded by the largest packet of the file, whatever its size.
+ * Reads AEDAT 2.0 (jAER: the DVS128 and DAVIS address layouts, by the header's AEChip), AEDAT 3.1
+ * (polarity packets), AEDAT 4.0 (event packets, uncompressed, LZ4 frame or Zstd), Prophesee
+ * EVT 2.0, EVT 3.0 and DAT. Writes AEDAT 4.0 (readable by dv-processing) and EVT 3.0. Every reader
+ * turns its format into one layout, ft_event, and streams: memory stays bounded by the largest
+ * packet of the file, whatever its size.
  *
  * Damage: a reader that meets a truncated or corrupt unit (word, packet, header) first returns
  * every event before it, then fails with a message that names the byte offset of the damaged unit
