@@ -22,8 +22,10 @@ struct ft_ev_writer {
     int format, compression, failed;
     char err[420];
     int64_t last_t;
-    /* EVT 3.0 state: the last TIME_HIGH (full count of 4096-us steps), y */
+    /* EVT 3.0 state: the last TIME_HIGH (full count of 4096-us steps), whether one is out yet,
+     * the row of the last ADDR_Y (-1: none yet) */
     int64_t th_full;
+    int th_out;
     int y;
     /* scratch */
     uint8_t *pkt, *comp;
@@ -189,8 +191,12 @@ static int a4_packet(ft_ev_writer *w, const ft_event *ev, size_t n) {
     return put(w, h, 8) < 0 || put(w, out, out_len) < 0 ? -1 : 0;
 }
 
-/* EVT 3.0: a TIME_HIGH step forward of at most 2048 x 4096 us at a time, so that a reader sees
- * every 24-bit wrap as a decrease of the 12-bit field. TIME_LOW follows every TIME_HIGH. */
+/* EVT 3.0 keeps 24 bits of time, so a reader counts the 2^24 us wraps itself, and Prophesee's
+ * reference decoding counts one only when a TIME_HIGH falls from near the top of its range
+ * (within 10 steps of 4095) to near the bottom, as a camera's stream does: one that falls less is
+ * taken for a word out of order. So each wrap is written as a camera marks it, TIME_HIGH 4095 then
+ * TIME_HIGH 0, however long the gap; any reader that counts a fall of half the range, or any
+ * fall, counts these too. TIME_LOW follows every TIME_HIGH of an event. */
 static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
     /* worst case per event: TIME_HIGH steps are amortised; bound the scratch per call */
     size_t cap_words = 4 * n + 64, k = 0;
@@ -199,23 +205,28 @@ static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
     uint8_t *b = w->pkt;
     for (size_t i = 0; i < n; i++) {
         int64_t t = ev[i].t, th = t >> 12;
-        if (th != w->th_full || w->y < 0) {
-            while (th - w->th_full > 2048) {
-                w->th_full += 2048;
-                if (k + 1 > cap_words) { /* long gap: flush what is built */
+        if (th != w->th_full || !w->th_out) {
+            while ((th >> 12) > (w->th_full >> 12)) { /* a wrap between the last time and t */
+                if (k + 2 > cap_words) {              /* long gap: flush what is built */
                     if (put(w, b, 2 * k) < 0)
                         return -1;
                     k = 0;
                 }
-                st16(b + 2 * k++, (uint16_t)(0x8000u | (w->th_full & 0xFFF)));
+                if ((w->th_full & 0xFFF) != 0xFFF || !w->th_out)
+                    st16(b + 2 * k++, 0x8FFFu);
+                st16(b + 2 * k++, 0x8000u);
+                w->th_full = ((w->th_full >> 12) + 1) << 12;
+                w->th_out = 1;
             }
             if (k + 4 > cap_words) {
                 if (put(w, b, 2 * k) < 0)
                     return -1;
                 k = 0;
             }
+            if (th != w->th_full || !w->th_out)
+                st16(b + 2 * k++, (uint16_t)(0x8000u | (th & 0xFFF)));
             w->th_full = th;
-            st16(b + 2 * k++, (uint16_t)(0x8000u | (th & 0xFFF)));
+            w->th_out = 1;
             st16(b + 2 * k++, (uint16_t)(0x6000u | (t & 0xFFF)));
         } else if ((t & 0xFFF) != (w->last_t & 0xFFF)) {
             st16(b + 2 * k++, (uint16_t)(0x6000u | (t & 0xFFF)));
