@@ -179,6 +179,17 @@ static int header_prophesee(ft_ev_reader *r, int asked) {
             return -1;
         }
         prophesee_geometry(r, line);
+        if (strncmp(line, "% time_offset_us ", 17) == 0) {
+            /* what the EVT 3.0 writer took off every time (see ev_writer.c): added back; a value
+             * out of range (past 2^62 us, where the decoders' sums could overflow) is ignored */
+            char *end;
+            errno = 0;
+            long long off = strtoll(line + 17, &end, 10);
+            if (errno == 0 && end != line + 17 && off > 0 && off < (1ll << 62)) {
+                r->info.time_offset = off;
+                r->t_base = off;
+            }
+        }
         if (strstr(line, "evt 3.0") || strstr(line, "EVT3") || strstr(line, "evt3"))
             named = FT_EV_EVT3;
         else if (strstr(line, "evt 2.0") || strstr(line, "EVT2") || strstr(line, "evt2"))

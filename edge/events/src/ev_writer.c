@@ -27,6 +27,9 @@ struct ft_ev_writer {
     int64_t th_full;
     int th_out;
     int y;
+    /* EVT 3.0 header: written with the first event (or at close), which decides time_offset */
+    int width, height, header_out;
+    int64_t time_offset;
     /* scratch */
     uint8_t *pkt, *comp;
     size_t pkt_cap, comp_cap;
@@ -204,7 +207,7 @@ static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
         return -1;
     uint8_t *b = w->pkt;
     for (size_t i = 0; i < n; i++) {
-        int64_t t = ev[i].t, th = t >> 12;
+        int64_t t = ev[i].t - w->time_offset, th = t >> 12;
         if (th != w->th_full || !w->th_out) {
             while ((th >> 12) > (w->th_full >> 12)) { /* a wrap between the last time and t */
                 if (k + 2 > cap_words) {              /* long gap: flush what is built */
@@ -228,7 +231,7 @@ static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
             w->th_full = th;
             w->th_out = 1;
             st16(b + 2 * k++, (uint16_t)(0x6000u | (t & 0xFFF)));
-        } else if ((t & 0xFFF) != (w->last_t & 0xFFF)) {
+        } else if (t != w->last_t - w->time_offset) { /* a TIME_HIGH is out: last_t is set */
             st16(b + 2 * k++, (uint16_t)(0x6000u | (t & 0xFFF)));
         }
         if (ev[i].y != w->y) {
@@ -252,7 +255,7 @@ static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
         } else {
             st16(b + 2 * k++, (uint16_t)(0x2000u | (ev[i].p ? 0x800u : 0) | (ev[i].x & 0x7FFu)));
         }
-        w->last_t = t;
+        w->last_t = ev[i].t;
         if (k + 8 > cap_words) {
             if (put(w, b, 2 * k) < 0)
                 return -1;
@@ -260,6 +263,27 @@ static int evt3_events(ft_ev_writer *w, const ft_event *ev, size_t n) {
         }
     }
     return put(w, b, 2 * k);
+}
+
+/* The EVT 3.0 header, written once the first event's time is known. EVT 3.0 counts time from 0 in
+ * 2^24 us ranges that a reader must see wrap one by one, so a recording whose clock is far from 0
+ * (DV stamps its events in Unix-epoch microseconds) would need two TIME_HIGH words for each of the
+ * ~10^8 ranges before its first event: hundreds of MB of nothing. Such times are written less the
+ * whole ranges before the first event, and that offset is kept in the header line
+ * "% time_offset_us N", which ft_ev_open adds back; a reader that does not know the line sees
+ * times counted from the start of the first event's range, as Prophesee's own time shifting does.
+ */
+static int evt3_header(ft_ev_writer *w, int64_t first_t) {
+    w->time_offset = first_t - (first_t & ((INT64_C(1) << 24) - 1));
+    char h[320], off[48] = "";
+    if (w->time_offset)
+        snprintf(off, sizeof off, "%% time_offset_us %lld\n", (long long)w->time_offset);
+    int hl = snprintf(h, sizeof h,
+                      "%% evt 3.0\n%% format EVT3;height=%d;width=%d\n%% geometry %dx%d\n"
+                      "%% integrator_name FlyTrack\n%s%% end\n",
+                      w->height, w->width, w->width, w->height, off);
+    w->header_out = 1;
+    return put(w, h, (size_t)hl);
 }
 
 ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int height,
@@ -293,17 +317,9 @@ ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int hei
         free(w);
         return NULL;
     }
-    int rc;
-    if (format == FT_EV_AEDAT4) {
-        rc = a4_header(w, width, height);
-    } else {
-        char h[256];
-        int hl = snprintf(h, sizeof h,
-                          "%% evt 3.0\n%% format EVT3;height=%d;width=%d\n%% geometry %dx%d\n"
-                          "%% integrator_name FlyTrack\n%% end\n",
-                          height, width, width, height);
-        rc = put(w, h, (size_t)hl);
-    }
+    w->width = width;
+    w->height = height;
+    int rc = format == FT_EV_AEDAT4 ? a4_header(w, width, height) : 0; /* EVT 3.0: evt3_header */
     if (rc < 0) {
         snprintf(err, err_len, "%s", w->err);
         fclose(w->f);
@@ -333,8 +349,11 @@ int ft_ev_write(ft_ev_writer *w, const ft_event *ev, size_t n) {
         }
         last = ev[i].t;
     }
-    if (w->format == FT_EV_EVT3)
+    if (w->format == FT_EV_EVT3) {
+        if (n && !w->header_out && evt3_header(w, ev[0].t) < 0)
+            return -1;
         return evt3_events(w, ev, n);
+    }
     for (size_t i = 0; i < n; i += A4_MAX_PACKET) {
         size_t m = n - i < A4_MAX_PACKET ? n - i : A4_MAX_PACKET;
         if (a4_packet(w, ev + i, m) < 0)
@@ -348,9 +367,15 @@ const char *ft_ev_writer_error(const ft_ev_writer *w) {
     return w->err;
 }
 
+int64_t ft_ev_writer_time_offset(const ft_ev_writer *w) {
+    return w->time_offset;
+}
+
 int ft_ev_writer_close(ft_ev_writer *w, char *err, size_t err_len) {
     if (!w)
         return 0;
+    if (w->format == FT_EV_EVT3 && !w->header_out && !w->failed)
+        evt3_header(w, 0); /* no event: the header alone */
     int rc = w->failed ? -1 : 0;
     if (fclose(w->f) != 0 && rc == 0) {
         wfail(w, "close error: %s", strerror(errno));

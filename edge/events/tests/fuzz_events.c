@@ -154,7 +154,7 @@ static void build_seeds(void) {
     s = &seeds[n_seeds++];
     s->fmt = FT_EV_EVT3;
     s->name = "k.raw";
-    const char *h4 = "% evt 3.0\n";
+    const char *h4 = "% evt 3.0\n% time_offset_us 1712345678901234\n";
     put(s, h4, strlen(h4));
     for (uint16_t i = 0; i < 500; i++)
         p16(s, (uint16_t)((i % 11) << 12 | (i * 37 & 0xFFF)));

@@ -378,6 +378,46 @@ static void test_writers(void) {
     free(back);
 }
 
+/* EVT 3.0 of Unix-epoch times: rebased by whole 2^24 us ranges (the header keeps the offset), so
+ * the file is a few words, not two TIME_HIGH words per range since 1970; read back unchanged. */
+static void test_evt3_epoch_times(void) {
+    ft_event ev[3], back[32];
+    memset(ev, 0, sizeof ev);
+    for (int i = 0; i < 3; i++) {
+        ev[i].t = 1712345678901234ll + 30000000ll * i; /* 30 s apart: wraps between them too */
+        ev[i].x = (uint16_t)(10 + i);
+        ev[i].y = (uint16_t)(20 + i);
+        ev[i].p = (uint8_t)(i & 1);
+    }
+    char path[] = "/tmp/ft_events_epochXXXXXX", err[300];
+    int fd = mkstemp(path);
+    close(fd);
+    ft_ev_writer *w = ft_ev_writer_open(path, FT_EV_EVT3, 640, 480, 0, err, sizeof err);
+    CHECK(w && ft_ev_write(w, ev, 3) == 0);
+    int64_t off = w ? ft_ev_writer_time_offset(w) : -1;
+    CHECK(off > 0 && off % (1ll << 24) == 0 && ev[0].t - off < (1ll << 24));
+    CHECK(ft_ev_writer_close(w, err, sizeof err) == 0);
+    FILE *f = fopen(path, "rb");
+    long size = -1;
+    if (f && fseek(f, 0, SEEK_END) == 0)
+        size = ftell(f);
+    if (f)
+        fclose(f);
+    CHECK(size > 0 && size < 400);
+    ft_ev_reader *r = ft_ev_open(path, FT_EV_AUTO, err, sizeof err);
+    CHECK(r);
+    if (r) {
+        long long rc;
+        size_t n = read_all(r, back, 32, 16, &rc);
+        ft_ev_info info;
+        ft_ev_get_info(r, &info);
+        CHECK(rc == 0 && n == 3 && info.time_offset == off);
+        CHECK(memcmp(back, ev, sizeof ev) == 0);
+        ft_ev_close(r);
+    }
+    unlink(path);
+}
+
 static void test_bad_open(void) {
     char err[256];
     CHECK(ft_ev_open("/nonexistent/x.aedat4", FT_EV_AUTO, err, sizeof err) == NULL);
@@ -401,6 +441,7 @@ int main(void) {
     test_aedat2_davis();
     test_aedat3();
     test_writers();
+    test_evt3_epoch_times();
     test_bad_open();
     if (ft_test_failures) {
         fprintf(stderr, "test_events: %d checks failed\n", ft_test_failures);

@@ -66,6 +66,7 @@ typedef struct {
     uint64_t n_triggers; /* external trigger / sync events seen so far (not returned as events) */
     uint64_t n_skipped;  /* units of other kinds skipped (other AEDAT packet types, EVT OTHERS) */
     uint64_t offset;     /* bytes of the file consumed so far */
+    int64_t time_offset; /* Prophesee header "% time_offset_us" (added to every time), else 0 */
 } ft_ev_info;
 
 typedef struct ft_ev_reader ft_ev_reader;
@@ -116,6 +117,10 @@ typedef struct ft_ev_writer ft_ev_writer;
 ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int height,
                                 int compression, char *err, size_t err_len);
 int ft_ev_write(ft_ev_writer *w, const ft_event *ev, size_t n);
+/* EVT 3.0: the whole 2^24 us ranges before the first event, taken off every time written and kept
+ * in the header as "% time_offset_us" (ft_ev_open adds it back); 0 for AEDAT 4.0, and until the
+ * first event is written. */
+int64_t ft_ev_writer_time_offset(const ft_ev_writer *w);
 const char *ft_ev_writer_error(const ft_ev_writer *w);
 int ft_ev_writer_close(ft_ev_writer *w, char *err, size_t err_len);
 

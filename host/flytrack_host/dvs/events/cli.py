@@ -50,6 +50,8 @@ def info(
     console.print(f"  sensor {i.width}x{i.height}" if i.width else "  sensor size not in the header")
     console.print(f"  {n:,} events, {on:,} ON / {n - on:,} OFF; time {span}", highlight=False)
     console.print(f"  {i.n_triggers:,} trigger/sync events; {i.n_skipped:,} other units skipped")
+    if i.time_offset:
+        console.print(f"  times include the header's time_offset_us {i.time_offset:,}", highlight=False)
     if err is not None:
         raise _fail(f"{err} (the {n:,} events before it are counted above)")
 
@@ -96,5 +98,9 @@ def convert(
                 raise _fail(f"{dst}: {exc}") from None
         console.print(f"[green]wrote[/green] {dst}: {writer.n_written:,} events ({out}"
                       + (f", {compression}" if out == "aedat4" else "") + ")", highlight=False)
+        if writer.time_offset:
+            console.print(f"  times rebased: {writer.time_offset:,} us (the whole 2^24 us ranges before the first "
+                          f"event) taken off every time and kept in the header as % time_offset_us "
+                          f"{writer.time_offset}; `flytrack events` adds it back", highlight=False)
         if damage is not None:
             raise _fail(f"{damage} (the {writer.n_written:,} events before it were converted)")

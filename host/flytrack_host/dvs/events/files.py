@@ -60,6 +60,7 @@ class EventFileInfo:
     n_triggers: int   # external trigger / sync events seen so far
     n_skipped: int    # units of other kinds skipped
     offset: int       # bytes consumed so far
+    time_offset: int = 0  # us added to every time: the header's "% time_offset_us" (EVT 3.0 written here)
 
 
 def _format_code(fmt: str | None) -> int:
@@ -103,7 +104,7 @@ class EventReader:
         self._so.ft_ev_get_info(self._r, ctypes.byref(i))
         comp = COMPRESSIONS[i.compression] if 0 <= i.compression < len(COMPRESSIONS) else str(i.compression)
         return EventFileInfo(FORMATS[i.format - 1], i.width, i.height, comp, i.n_events, i.n_triggers,
-                             i.n_skipped, i.offset)
+                             i.n_skipped, i.offset, i.time_offset)
 
     def _check_open(self) -> None:
         if not self._r:
@@ -259,6 +260,7 @@ class EventWriter:
         if not self._w:
             raise EventFileError(err.value.decode(errors="replace"))
         self.n_written = 0
+        self._time_offset = 0
 
     def write(self, events: np.ndarray) -> None:
         """Appends events (any array as_events() accepts). A step back in time raises ValueError and
@@ -270,8 +272,15 @@ class EventWriter:
             raise ValueError(self._so.ft_ev_writer_error(self._w).decode(errors="replace"))
         self.n_written += len(ev)
 
+    @property
+    def time_offset(self) -> int:
+        """EVT 3.0: the whole 2^24 us ranges before the first event, taken off every time written and
+        kept in the header line "% time_offset_us" (the readers here add it back); 0 otherwise."""
+        return int(self._so.ft_ev_writer_time_offset(self._w)) if self._w else self._time_offset
+
     def close(self) -> None:
         if self._w:
+            self._time_offset = int(self._so.ft_ev_writer_time_offset(self._w))
             err = ctypes.create_string_buffer(512)
             rc = self._so.ft_ev_writer_close(self._w, err, len(err))
             self._w = None
