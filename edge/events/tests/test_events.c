@@ -418,6 +418,78 @@ static void test_evt3_epoch_times(void) {
     unlink(path);
 }
 
+/* Triggers through both writers and back: EVT 3.0 places them among the events by time (one
+ * before the first event, one between, one after the last, held until close); what a format cannot
+ * hold (channel 16 in EVT 3.0, a time already passed) is left out and counted; AEDAT 4.0 writes a
+ * trigger stream only when opened with FT_EV_W_TRIGGERS. */
+static void test_writer_triggers(void) {
+    ft_event ev[4];
+    memset(ev, 0, sizeof ev);
+    int64_t et[4] = {1000, 2000, 2000, 40000000}; /* the last past a 2^24 us wrap */
+    for (int i = 0; i < 4; i++) {
+        ev[i].t = et[i];
+        ev[i].x = (uint16_t)(5 + i);
+        ev[i].y = 7;
+        ev[i].p = 1;
+    }
+    ft_ev_trigger tr[5];
+    memset(tr, 0, sizeof tr);
+    int64_t tt[5] = {500, 1500, 1500, 50000000, 60000000};
+    uint8_t tv[5] = {1, 0, 1, 1, 0}, tc[5] = {2, 2, 16, 0, 15};
+    for (int i = 0; i < 5; i++) {
+        tr[i].t = tt[i];
+        tr[i].value = tv[i];
+        tr[i].channel = tc[i];
+    }
+    char path[] = "/tmp/ft_events_trigXXXXXX", err[300];
+    int fd = mkstemp(path);
+    close(fd);
+    for (int fmt = FT_EV_AEDAT4; fmt <= FT_EV_EVT3; fmt += FT_EV_EVT3 - FT_EV_AEDAT4) {
+        ft_ev_writer *w = ft_ev_writer_open(path, fmt, 64, 64, 0, err, sizeof err);
+        if (fmt == FT_EV_AEDAT4) { /* no trigger stream declared: refused, nothing written */
+            CHECK(w && ft_ev_write_triggers(w, tr, 1) == -1);
+            CHECK(w && strstr(ft_ev_writer_error(w), "FT_EV_W_TRIGGERS") != NULL);
+            CHECK(ft_ev_writer_close(w, err, sizeof err) == 0);
+            w = ft_ev_writer_open_ex(path, fmt, 64, 64, 0, FT_EV_W_TRIGGERS, err, sizeof err);
+        }
+        CHECK(w);
+        if (!w)
+            continue;
+        long long dropped = ft_ev_write_triggers(w, tr, 3); /* 500, 1500, 1500 (channel 16) */
+        CHECK(dropped == (fmt == FT_EV_EVT3 ? 1 : 0));
+        CHECK(ft_ev_write(w, ev, 4) == 0);
+        CHECK(ft_ev_write_triggers(w, tr, 1) == 1);     /* 500 again: before what is written */
+        CHECK(ft_ev_write_triggers(w, tr + 3, 2) == 0); /* after the last event: held to close */
+        CHECK(ft_ev_writer_close(w, err, sizeof err) == 0);
+        ft_ev_reader *r = ft_ev_open(path, FT_EV_AUTO, err, sizeof err);
+        CHECK(r);
+        if (!r)
+            continue;
+        ft_ev_keep_triggers(r, 1);
+        ft_event back[32];
+        long long rc;
+        size_t n = read_all(r, back, 32, 16, &rc);
+        CHECK(rc == 0 && n == 4 && memcmp(back, ev, sizeof ev) == 0);
+        ft_ev_trigger got[16];
+        size_t m = ft_ev_triggers(r, got, 16);
+        int64_t want_t[5] = {500, 1500, 1500, 50000000, 60000000};
+        int want[5] = {1, 1, fmt == FT_EV_AEDAT4, 1, 1}; /* EVT 3.0 left channel 16 out */
+        size_t k = 0, ok = 1;
+        for (int i = 0; i < 5; i++) {
+            if (!want[i])
+                continue;
+            ok &= k < m && got[k].t == want_t[i] && got[k].value == tv[i] &&
+                  got[k].channel == (fmt == FT_EV_EVT3 ? tc[i] : 0);
+            k++;
+        }
+        CHECK(ok && m == k);
+        if (!ok || m != k)
+            fprintf(stderr, "format %d: %zu triggers read back\n", fmt, m);
+        ft_ev_close(r);
+    }
+    unlink(path);
+}
+
 static void test_bad_open(void) {
     char err[256];
     CHECK(ft_ev_open("/nonexistent/x.aedat4", FT_EV_AUTO, err, sizeof err) == NULL);
@@ -442,6 +514,7 @@ int main(void) {
     test_aedat3();
     test_writers();
     test_evt3_epoch_times();
+    test_writer_triggers();
     test_bad_open();
     if (ft_test_failures) {
         fprintf(stderr, "test_events: %d checks failed\n", ft_test_failures);

@@ -116,7 +116,21 @@ int ft_ev_format_from_name(const char *name); /* the reverse, -1 if unknown */
 typedef struct ft_ev_writer ft_ev_writer;
 ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int height,
                                 int compression, char *err, size_t err_len);
+/* The same with flags: FT_EV_W_TRIGGERS declares an AEDAT 4.0 trigger stream (stream 1, dv's
+ * TriggerPacket "TRIG") for ft_ev_write_triggers; EVT 3.0 takes triggers without it. */
+enum { FT_EV_W_TRIGGERS = 1 };
+ft_ev_writer *ft_ev_writer_open_ex(const char *path, int format, int width, int height,
+                                   int compression, unsigned flags, char *err, size_t err_len);
 int ft_ev_write(ft_ev_writer *w, const ft_event *ev, size_t n);
+/* External triggers, in non-decreasing time as the readers return them (ft_ev_triggers). EVT 3.0:
+ * EXT_TRIGGER words (channel, edge) placed among the events by time: held until an event at or
+ * after their time is written, or the writer is closed. AEDAT 4.0: a TriggerPacket of external
+ * signal rising (value 1) and falling (0) edges; it has no channel id, which is not kept. Returns
+ * how many triggers the format cannot hold and were left out (a negative time, one before what is
+ * already written: EVT 3.0 the last event or trigger, AEDAT 4.0 the last trigger; EVT 3.0 a channel
+ * over 15), or -1 with the reason in ft_ev_writer_error (AEDAT 4.0 opened without
+ * FT_EV_W_TRIGGERS, nothing written; an I/O error fails the writer for good). */
+long long ft_ev_write_triggers(ft_ev_writer *w, const ft_ev_trigger *tr, size_t n);
 /* EVT 3.0: the whole 2^24 us ranges before the first event, taken off every time written and kept
  * in the header as "% time_offset_us" (ft_ev_open adds it back); 0 for AEDAT 4.0, and until the
  * first event is written. */

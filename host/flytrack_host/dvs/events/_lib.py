@@ -58,6 +58,11 @@ def lib() -> ctypes.CDLL:
     so.ft_ev_triggers.restype = sz
     so.ft_ev_writer_open.argtypes = [cp, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, cp, sz]
     so.ft_ev_writer_open.restype = vp
+    so.ft_ev_writer_open_ex.argtypes = [cp, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                        ctypes.c_uint, cp, sz]
+    so.ft_ev_writer_open_ex.restype = vp
+    so.ft_ev_write_triggers.argtypes = [vp, vp, sz]
+    so.ft_ev_write_triggers.restype = ctypes.c_longlong
     so.ft_ev_write.argtypes = [vp, vp, sz]
     so.ft_ev_write.restype = ctypes.c_int
     so.ft_ev_writer_time_offset.argtypes = [vp]
