@@ -1,7 +1,8 @@
 /* AEDAT decoders (iniVation / jAER formats):
- * - 2.0: big-endian u32 address + u32 timestamp (us); DVS128 addresses decoded as jAER does:
- *   x = 127 - bits 7..1 (jAER mirrors x), y = bits 14..8, raw bit 0 = 1 is OFF; bit 15 is an
- *   external sync event and bit 31 a special event (counted as triggers, not returned).
+ * - 2.0: big-endian u32 address + u32 timestamp (us), the address laid out as the header's AEChip
+ *   class has it. DVS128: x = 127 - bits 7..1 (jAER mirrors x), y = bits 14..8, raw bit 0 = 1 is
+ *   OFF; bit 15 is an external sync event and bit 31 a special event (counted as triggers, not
+ *   returned). DAVIS: see decode_davis.
  * - 3.1: packets of a 28-byte header (type, source, size, ts offset, ts overflow, capacity,
  *   number, valid) and capacity x size bytes; polarity events (type 1, 8 bytes): u32 data
  *   (bit 0 valid, bit 1 polarity, y bits 16..2, x bits 31..17) + i32 timestamp, whose high bits
@@ -17,7 +18,51 @@
 
 #include "ev_internal.h"
 
+/* DAVIS layout (jAER's DavisChip constants and DavisBaseCamera's extractor): bit 31 clear is a DVS
+ * word (bits 11..10 = 01: an external input event; else y bits 30..22, x bits 21..12 mirrored as
+ * jAER shows it, polarity bit 11 = ON); bit 31 set is an APS (frame) sample, or an IMU sample word
+ * when bits 11 and 10 are set too. Frames and IMU samples are not events here: they are counted as
+ * skipped, like an address outside the chip's sensor. */
+#define DAVIS_APS 0x80000000u
+#define DAVIS_TYPE 0x00000C00u
+#define DAVIS_EXTERNAL 0x00000400u
+
+static size_t decode_davis(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
+    const uint8_t *p = r->data + r->start;
+    size_t recs = (r->end - r->start) / 8, room = cap - n, i = 0;
+    int64_t base = r->t_base;
+    uint32_t last = r->t_last;
+    uint32_t w = (uint32_t)r->info.width, h = (uint32_t)r->info.height;
+    for (; i < recs && room > 0; i++) {
+        uint32_t a = ev_be32(p + 8 * i), ts = ev_be32(p + 8 * i + 4);
+        if (__builtin_expect(ts < last && last - ts > 0x80000000u, 0)) /* 32-bit us wrapped */
+            base += (int64_t)1 << 32;
+        last = ts;
+        if (a & DAVIS_APS) { /* APS sample, or an IMU word (0x80000C00 all set) */
+            r->info.n_skipped++;
+            continue;
+        }
+        if ((a & DAVIS_TYPE) == DAVIS_EXTERNAL) {
+            ev_trigger(r, base + ts, 1u, 0u);
+            continue;
+        }
+        uint32_t xf = (a >> 12) & 0x3FFu, y = (a >> 22) & 0x1FFu;
+        if (xf >= w || y >= h) { /* not a pixel of this chip: damage, or another chip's file */
+            r->info.n_skipped++;
+            continue;
+        }
+        ev_put(&out[n++], base + ts, w - 1u - xf, y, (a >> 11) & 1u);
+        room--;
+    }
+    r->t_base = base;
+    r->t_last = last;
+    r->start += 8 * i;
+    return n;
+}
+
 size_t ev_decode_aedat2(ft_ev_reader *r, ft_event *out, size_t n, size_t cap) {
+    if (r->a2_layout == FT_A2_DAVIS)
+        return decode_davis(r, out, n, cap);
     const uint8_t *p = r->data + r->start;
     size_t recs = (r->end - r->start) / 8, room = cap - n, i = 0;
     int64_t base = r->t_base; /* locals: stores to out could alias *r */

@@ -9,6 +9,9 @@
 
 #include "flytrack/events.h"
 
+/* AEDAT 2.0 address layouts (jAER's chip classes decode their addresses differently). */
+enum { FT_A2_DVS128 = 0, FT_A2_DAVIS = 1 };
+
 /* A packet (AEDAT 3/4) larger than this is taken as corruption, not allocated. */
 #define FT_EV_MAX_UNIT (256u << 20)
 #define FT_EV_READ_CHUNK (1u << 20)
@@ -38,6 +41,7 @@ struct ft_ev_reader {
     int have_t_high;
     uint16_t y, x_base; /* EVT3 */
     uint8_t pol;
+    uint8_t a2_layout; /* AEDAT 2.0 address layout: FT_A2_DVS128 or FT_A2_DAVIS (from # AEChip:) */
 
     /* AEDAT 4.0 */
     int64_t table_pos; /* -1: read packets to the end of the file */

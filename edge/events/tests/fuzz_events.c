@@ -116,6 +116,21 @@ static void build_seeds(void) {
         p32(s, i % 40 == 0 ? 0x8000u : (i & 0x7FFFu), 1);
         p32(s, i * 5, 1);
     }
+    s = &seeds[n_seeds++]; /* DAVIS: DVS, external input, APS and IMU words, x past the sensor */
+    s->fmt = FT_EV_AEDAT2;
+    s->name = "m.aedat";
+    const char *hv = "#!AER-DAT2.0\r\n# AEChip: eu.seebetter.ini.chips.davis.DAVIS240C\r\n";
+    put(s, hv, strlen(hv));
+    for (uint32_t i = 0; i < 300; i++) {
+        uint32_t kind = i % 7;
+        p32(s,
+            kind == 0   ? 0x80000C00u | (i << 12)
+            : kind == 1 ? 0x80000000u | (i % 180) << 22 | (i % 240) << 12 | (i & 0x3FFu)
+            : kind == 2 ? 0x400u
+                        : ((i % 200) << 22) | ((i * 3 % 260) << 12) | ((i & 1) << 11),
+            1);
+        p32(s, i * 7, 1);
+    }
     s = &seeds[n_seeds++];
     s->fmt = FT_EV_AEDAT3;
     s->name = "j.aedat";
@@ -139,7 +154,7 @@ static void build_seeds(void) {
     s = &seeds[n_seeds++];
     s->fmt = FT_EV_EVT3;
     s->name = "k.raw";
-    const char *h4 = "% evt 3.0\n";
+    const char *h4 = "% evt 3.0\n% time_offset_us 1712345678901234\n";
     put(s, h4, strlen(h4));
     for (uint16_t i = 0; i < 500; i++)
         p16(s, (uint16_t)((i % 11) << 12 | (i * 37 & 0xFFF)));

@@ -1,9 +1,10 @@
 /* libflytrack_events: event-camera files, read in bounded chunks and written.
  *
- * Reads AEDAT 2.0 (jAER, DVS128 address layout), AEDAT 3.1 (polarity packets), AEDAT 4.0 (event
- * packets, uncompressed, LZ4 frame or Zstd), Prophesee EVT 2.0, EVT 3.0 and DAT. Writes AEDAT 4.0
- * (readable by dv-processing) and EVT 3.0. Every reader turns its format into one layout,
- * ft_event, and streams: memory stays bounded by the largest packet of the file, whatever its size.
+ * Reads AEDAT 2.0 (jAER: the DVS128 and DAVIS address layouts, by the header's AEChip), AEDAT 3.1
+ * (polarity packets), AEDAT 4.0 (event packets, uncompressed, LZ4 frame or Zstd), Prophesee
+ * EVT 2.0, EVT 3.0 and DAT. Writes AEDAT 4.0 (readable by dv-processing) and EVT 3.0. Every reader
+ * turns its format into one layout, ft_event, and streams: memory stays bounded by the largest
+ * packet of the file, whatever its size.
  *
  * Damage: a reader that meets a truncated or corrupt unit (word, packet, header) first returns
  * every event before it, then fails with a message that names the byte offset of the damaged unit
@@ -65,6 +66,7 @@ typedef struct {
     uint64_t n_triggers; /* external trigger / sync events seen so far (not returned as events) */
     uint64_t n_skipped;  /* units of other kinds skipped (other AEDAT packet types, EVT OTHERS) */
     uint64_t offset;     /* bytes of the file consumed so far */
+    int64_t time_offset; /* Prophesee header "% time_offset_us" (added to every time), else 0 */
 } ft_ev_info;
 
 typedef struct ft_ev_reader ft_ev_reader;
@@ -114,7 +116,25 @@ int ft_ev_format_from_name(const char *name); /* the reverse, -1 if unknown */
 typedef struct ft_ev_writer ft_ev_writer;
 ft_ev_writer *ft_ev_writer_open(const char *path, int format, int width, int height,
                                 int compression, char *err, size_t err_len);
+/* The same with flags: FT_EV_W_TRIGGERS declares an AEDAT 4.0 trigger stream (stream 1, dv's
+ * TriggerPacket "TRIG") for ft_ev_write_triggers; EVT 3.0 takes triggers without it. */
+enum { FT_EV_W_TRIGGERS = 1 };
+ft_ev_writer *ft_ev_writer_open_ex(const char *path, int format, int width, int height,
+                                   int compression, unsigned flags, char *err, size_t err_len);
 int ft_ev_write(ft_ev_writer *w, const ft_event *ev, size_t n);
+/* External triggers, in non-decreasing time as the readers return them (ft_ev_triggers). EVT 3.0:
+ * EXT_TRIGGER words (channel, edge) placed among the events by time: held until an event at or
+ * after their time is written, or the writer is closed. AEDAT 4.0: a TriggerPacket of external
+ * signal rising (value 1) and falling (0) edges; it has no channel id, which is not kept. Returns
+ * how many triggers the format cannot hold and were left out (a negative time, one before what is
+ * already written: EVT 3.0 the last event or trigger, AEDAT 4.0 the last trigger; EVT 3.0 a channel
+ * over 15), or -1 with the reason in ft_ev_writer_error (AEDAT 4.0 opened without
+ * FT_EV_W_TRIGGERS, nothing written; an I/O error fails the writer for good). */
+long long ft_ev_write_triggers(ft_ev_writer *w, const ft_ev_trigger *tr, size_t n);
+/* EVT 3.0: the whole 2^24 us ranges before the first event, taken off every time written and kept
+ * in the header as "% time_offset_us" (ft_ev_open adds it back); 0 for AEDAT 4.0, and until the
+ * first event is written. */
+int64_t ft_ev_writer_time_offset(const ft_ev_writer *w);
 const char *ft_ev_writer_error(const ft_ev_writer *w);
 int ft_ev_writer_close(ft_ev_writer *w, char *err, size_t err_len);
 

@@ -29,6 +29,7 @@ class Info(ctypes.Structure):
         ("n_triggers", ctypes.c_uint64),
         ("n_skipped", ctypes.c_uint64),
         ("offset", ctypes.c_uint64),
+        ("time_offset", ctypes.c_int64),
     ]
 
 
@@ -57,8 +58,15 @@ def lib() -> ctypes.CDLL:
     so.ft_ev_triggers.restype = sz
     so.ft_ev_writer_open.argtypes = [cp, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, cp, sz]
     so.ft_ev_writer_open.restype = vp
+    so.ft_ev_writer_open_ex.argtypes = [cp, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                        ctypes.c_uint, cp, sz]
+    so.ft_ev_writer_open_ex.restype = vp
+    so.ft_ev_write_triggers.argtypes = [vp, vp, sz]
+    so.ft_ev_write_triggers.restype = ctypes.c_longlong
     so.ft_ev_write.argtypes = [vp, vp, sz]
     so.ft_ev_write.restype = ctypes.c_int
+    so.ft_ev_writer_time_offset.argtypes = [vp]
+    so.ft_ev_writer_time_offset.restype = ctypes.c_int64
     so.ft_ev_writer_error.argtypes = [vp]
     so.ft_ev_writer_error.restype = cp
     so.ft_ev_writer_close.argtypes = [vp, cp, sz]

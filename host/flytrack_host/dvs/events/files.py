@@ -60,6 +60,7 @@ class EventFileInfo:
     n_triggers: int   # external trigger / sync events seen so far
     n_skipped: int    # units of other kinds skipped
     offset: int       # bytes consumed so far
+    time_offset: int = 0  # us added to every time: the header's "% time_offset_us" (EVT 3.0 written here)
 
 
 def _format_code(fmt: str | None) -> int:
@@ -103,7 +104,7 @@ class EventReader:
         self._so.ft_ev_get_info(self._r, ctypes.byref(i))
         comp = COMPRESSIONS[i.compression] if 0 <= i.compression < len(COMPRESSIONS) else str(i.compression)
         return EventFileInfo(FORMATS[i.format - 1], i.width, i.height, comp, i.n_events, i.n_triggers,
-                             i.n_skipped, i.offset)
+                             i.n_skipped, i.offset, i.time_offset)
 
     def _check_open(self) -> None:
         if not self._r:
@@ -241,10 +242,12 @@ def as_events(arr: np.ndarray) -> np.ndarray:
 
 class EventWriter:
     """Writes AEDAT 4.0 (`.aedat4`, readable by dv-processing; compression none, lz4, lz4_high,
-    zstd or zstd_high) or EVT 3.0 (`.raw`). Events must come in non-decreasing time."""
+    zstd or zstd_high) or EVT 3.0 (`.raw`). Events must come in non-decreasing time. External
+    triggers (TRIGGER_DTYPE) go in with write_triggers(): EVT 3.0 always, AEDAT 4.0 when opened with
+    `triggers=True` (a trigger stream, as dv-processing writes one)."""
 
     def __init__(self, path: str | os.PathLike[str], width: int, height: int, fmt: str | None = None,
-                 compression: str = "lz4") -> None:
+                 compression: str = "lz4", triggers: bool = False) -> None:
         self.path = str(path)
         if fmt is None:
             fmt = "evt3" if Path(self.path).suffix == ".raw" else "aedat4"
@@ -254,11 +257,15 @@ class EventWriter:
             raise ValueError(f"unknown compression {compression!r}; one of {', '.join(COMPRESSIONS)}")
         self._so = lib()
         err = ctypes.create_string_buffer(512)
-        self._w = self._so.ft_ev_writer_open(os.fsencode(self.path), _format_code(fmt), int(width),
-                                             int(height), COMPRESSIONS.index(compression), err, len(err))
+        self.format = fmt
+        self._w = self._so.ft_ev_writer_open_ex(os.fsencode(self.path), _format_code(fmt), int(width),
+                                                int(height), COMPRESSIONS.index(compression),
+                                                1 if triggers else 0, err, len(err))
         if not self._w:
             raise EventFileError(err.value.decode(errors="replace"))
         self.n_written = 0
+        self.n_triggers = 0  # triggers written
+        self._time_offset = 0
 
     def write(self, events: np.ndarray) -> None:
         """Appends events (any array as_events() accepts). A step back in time raises ValueError and
@@ -270,8 +277,32 @@ class EventWriter:
             raise ValueError(self._so.ft_ev_writer_error(self._w).decode(errors="replace"))
         self.n_written += len(ev)
 
+    def write_triggers(self, triggers: np.ndarray) -> int:
+        """Appends external triggers (TRIGGER_DTYPE, in time order, as EventReader.read_triggers
+        returns them). EVT 3.0 places them among the events by time (held until an event at or after
+        their time, or close); AEDAT 4.0 writes a trigger packet (rising edge for value 1, falling
+        for 0; it has no channel id). Returns how many the format cannot hold and were left out: a
+        time before what is already written, an EVT 3.0 channel over 15."""
+        if not self._w:
+            raise ValueError(f"{self.path}: the writer is closed")
+        tr = np.zeros(len(triggers), TRIGGER_DTYPE)
+        for k in ("t", "value", "channel"):
+            tr[k] = triggers[k]
+        dropped = int(self._so.ft_ev_write_triggers(self._w, tr.ctypes.data, len(tr)))
+        if dropped < 0:
+            raise ValueError(self._so.ft_ev_writer_error(self._w).decode(errors="replace"))
+        self.n_triggers += len(tr) - dropped
+        return dropped
+
+    @property
+    def time_offset(self) -> int:
+        """EVT 3.0: the whole 2^24 us ranges before the first event, taken off every time written and
+        kept in the header line "% time_offset_us" (the readers here add it back); 0 otherwise."""
+        return int(self._so.ft_ev_writer_time_offset(self._w)) if self._w else self._time_offset
+
     def close(self) -> None:
         if self._w:
+            self._time_offset = int(self._so.ft_ev_writer_time_offset(self._w))
             err = ctypes.create_string_buffer(512)
             rc = self._so.ft_ev_writer_close(self._w, err, len(err))
             self._w = None

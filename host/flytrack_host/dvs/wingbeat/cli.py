@@ -45,13 +45,18 @@ def wingbeat_command(
                                          "(default: the build's)."),
     simulate: float | None = typer.Option(None, "--simulate", help="First write FILE with this many seconds of a "
                                           "simulated 200 Hz fly (a 10 % frequency rise, 20 % noise events)."),
+    min_quality: float = typer.Option(0.5, "--min-quality", min=0.0, max=1.0, help="Refuse to report beats whose "
+                                      "fit quality is below this (the share of the events' angle spread a wing stroke "
+                                      "at the reported beats explains: a tethered fly about 0.98, noise about 0); 0 "
+                                      "reports them anyway, with a warning."),
 ) -> None:
     """Wing-beat frequency and amplitude of a tethered fly from an event file (seed 002, part II).
 
     The fly is found in the first 0.1 s (2-means on the events, body between the wings, heading across
     them), then each wing's leading (OFF) and trailing (ON) edges are tracked by an EKF on a Fourier series
-    and/or the weighted running average. Prints frequency and amplitude per wing over time; `--plot` draws
-    the seed's figures.
+    and/or the weighted running average. Prints frequency and amplitude per wing over time and the fit
+    quality (how much of the events' angle spread a wing stroke at the reported beats explains); below
+    --min-quality nothing is reported (the events are not a beating wing); `--plot` draws the seed's figures.
 
     Live: `--live` listens for the edge's DVS_WINGBEAT (the same tracker in C at the edge, one datagram every
     5 ms of event time) and shows both wings on a status line; on exit it prints the table and writes
@@ -98,6 +103,17 @@ def wingbeat_command(
         msg = msg if msg.startswith(f"{file}:") else f"{file}: {msg}"
         err.print(f"[red]error[/red] {msg}", highlight=False, soft_wrap=True)
         raise typer.Exit(code=2) from None
+    from flytrack_host.dvs.wingbeat.analysis import MIN_QUALITY
+
+    low = [r for r in results if r.quality < max(min_quality, MIN_QUALITY)]
+    figures = ", ".join(f"{r.method.upper()} {r.quality:.2f} (wings {r.wings[0].quality:.2f} / "
+                        f"{r.wings[1].quality:.2f})" for r in low)
+    if min_quality > 0 and any(r.quality < min_quality for r in results):
+        err.print(f"[red]error[/red] {file}: the events do not follow a wing beat: fit quality {figures} is below "
+                  f"--min-quality {min_quality:g} (the share of the events' angle spread that a wing stroke at the "
+                  f"reported beats explains; a tethered fly gives about 0.98). Nothing reported; --min-quality 0 "
+                  f"shows the estimates anyway.", highlight=False, soft_wrap=True)
+        raise typer.Exit(code=2)
     g = results[0].geometry
     console.print(f"{len(events)} events, {results[0].events_in_roi} near the fly; body at ({g.body[0]:.1f}, "
                   f"{g.body[1]:.1f}) px, heading {np.degrees(g.heading_rad):.1f} deg, size {g.size_px:.1f} px; "
@@ -120,7 +136,8 @@ def wingbeat_command(
         table.add_row(*row)
     console.print(table)
     for r in results:
-        console.print(f"{r.method.upper()}: {sum(len(w.beats.t_us) for w in r.wings)} beats, "
+        console.print(f"{r.method.upper()}: {sum(len(w.beats.t_us) for w in r.wings)} beats, fit quality "
+                      f"{r.quality:.2f} (wing 0 {r.wings[0].quality:.2f}, wing 1 {r.wings[1].quality:.2f}), "
                       f"{r.seconds:.2f} s CPU ({r.events_in_roi / max(r.seconds, 1e-9) / 1e6:.2f} M events/s)",
                       highlight=False, soft_wrap=True)
         if truth is not None:
@@ -128,12 +145,15 @@ def wingbeat_command(
                 console.print(f"  wing {s.wing} against the simulation: frequency error {s.freq_err_pct_mean:.2f} % "
                               f"(jitter {s.freq_jitter_pct:.2f} %), amplitude error {s.amp_err_pct_mean:.2f} %",
                               highlight=False, soft_wrap=True)
+    if low:
+        err.print(f"[yellow]warning[/yellow] fit quality {figures} is below {MIN_QUALITY:g}: these are not the "
+                  "wing beats of a tethered fly", highlight=False, soft_wrap=True)
     if plot is not None:
         plot_wingbeats(results, plot, truth=truth)
         console.print(f"wrote {plot}", highlight=False, soft_wrap=True)
     if json_path is not None:
-        out = {r.method: {"geometry": asdict(r.geometry), "wings": [
-            {"wing": w.wing, "t_us": w.beats.t_us.tolist(), "freq_hz": w.beats.freq_hz.tolist(),
+        out = {r.method: {"geometry": asdict(r.geometry), "quality": r.quality, "wings": [
+            {"wing": w.wing, "quality": w.quality, "t_us": w.beats.t_us.tolist(), "freq_hz": w.beats.freq_hz.tolist(),
              "amplitude_rad": w.beats.amplitude.tolist()} for w in r.wings]} for r in results}
         json_path.write_text(json.dumps(out))
     if csv_path is not None:

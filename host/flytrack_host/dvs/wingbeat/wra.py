@@ -43,6 +43,7 @@ class EdgeTrack:
     beats: BeatSeries
     used: int  # events used
     gated: int  # events left out as noise
+    quality: float = 0.0  # analysis.beat_fit_quality of its events against its beats
 
 
 def wra_track(t_us: NDArray, z: NDArray, centre: float, amplitude: float,
