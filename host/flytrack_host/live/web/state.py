@@ -231,7 +231,11 @@ def _actuation_firings(p: Any) -> list[str]:
     for sink in list(getattr(p, "sinks", [])):
         log = getattr(sink, "firings", None)
         rows = getattr(log, "rows", None)
-        if not isinstance(rows, list):
+        if not isinstance(rows, list | deque):
+            continue
+        try:
+            rows = list(rows)  # one C-level copy under the GIL: the workers append to it meanwhile
+        except RuntimeError:  # mutated during the copy: next tick
             continue
         lines.append(f"{getattr(log, 'count', len(rows))} actions fired, {getattr(log, 'failed', 0)} failed")
         for r in rows[-RULE_LINES:]:
