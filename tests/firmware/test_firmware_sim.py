@@ -163,6 +163,30 @@ def test_clock_model_recovers_a_crystal_off_by_37_ppm_and_drifting(built, figure
     assert abs(f["edge_mean_us"]) < 80.0 and f["edge_sd_us"] < 25.0
 
 
+def test_stop_never_cuts_a_pulse_short(built, figures) -> None:
+    """STOP at any moment of the frame: every trigger pulse keeps its full width. At /1 (one tick a
+    cycle) a STOP checked a few dozen ticks before TOP froze the timer just after the next pulse began:
+    the firmware before this check left 70 runts of 42-56 cycles in 400 STOPs. 400 STOPs after 0-3
+    clock queries each land all over the frame."""
+    harness, elf = built
+    with SimulatedTrigger(elf=elf, harness=harness) as sim:
+        dev = TriggerDevice(sim.pty, reset_wait_s=0)
+        dev.set_rate(4000.0)  # /1, TOP 3999
+        assert dev.rate is not None and dev.rate.divisor == 1
+        for i in range(400):
+            dev.start()
+            for _ in range(i % 4):
+                dev.query_clock()
+            dev.stop()
+        dev.close()
+    _, edges = sim.edges()
+    rises = np.array(rising(edges, "trigger"), dtype=np.int64)
+    falls = np.array(_falling(edges, "trigger"), dtype=np.int64)
+    widths = falls[: len(rises)] - rises[: len(falls)]
+    figures["pulse widths over 400 STOPs at /1"] = f"{sorted(set(widths.tolist()))} cycles, {len(widths)} pulses"
+    assert len(widths) > 400 and len(set(widths.tolist())) == 1, np.unique(widths, return_counts=True)
+
+
 def test_pulse_at_frame_has_its_width(built, figures) -> None:
     harness, elf = built
     widths_asked = [37, 5, 200]

@@ -47,6 +47,10 @@ static volatile uint8_t s_trig_on; /* OC1A connected (first OCR1A match after ST
 static uint8_t s_cs = 2;           /* prescaler code == CS12:0 value */
 static uint16_t s_top = 19999;     /* 100 Hz at 16 MHz, /8 */
 static uint16_t s_trig_ocr;        /* trigger width - 1, in ticks */
+/* STOP does not freeze the timer in the last STOP_GUARD_CYCLES before TOP: more than the cycles
+ * from its check of TCNT1 to the write that stops the clock (interrupts off), so a new pulse cannot
+ * begin at BOTTOM in between and be cut to a runt. */
+#define STOP_GUARD_CYCLES 64u
 
 static volatile uint8_t s_pulse_state;
 static volatile uint32_t s_pulse_frame;
@@ -173,7 +177,11 @@ void ft_timer_start(void) {
 }
 
 void ft_timer_stop(void) {
+    static const uint16_t div[6] = {1, 1, 8, 64, 256, 1024};
     uint8_t sreg = SREG;
+    uint16_t guard = (uint16_t)((STOP_GUARD_CYCLES + div[s_cs] - 1) / div[s_cs]);
+    if ((uint32_t)s_trig_ocr + guard >= s_top)
+        guard = 0; /* a pulse over nearly the whole frame leaves no room for the guard */
     /* Never cut a trigger pulse short: a runt pulse can start a half exposure on some cameras and
      * would not have the width the cameras were set up for. In fast PWM the pin is high while
      * TCNT1 <= OCR1A (set at BOTTOM, cleared at the match), so wait, interrupts on, until the
@@ -181,8 +189,14 @@ void ft_timer_stop(void) {
      * rising edge is then at least half a frame away. The counter, not the pin, is read: it is the
      * same on the chip and in the simulator (simavr does not mirror OC1A into PINB). */
     for (;;) {
+        uint16_t now;
         cli();
-        if (!s_running || !s_trig_on || TCNT1 > s_trig_ocr)
+        if (!s_running || !s_trig_on)
+            break;
+        now = TCNT1;
+        /* Past the match, and not so near TOP that BOTTOM (a new pulse) comes before the clock
+         * stops below: at /1 that is a few dozen ticks, enough for a 42-cycle runt. */
+        if (now > s_trig_ocr && now < (uint16_t)(s_top - guard))
             break;
         SREG = sreg;
     }
