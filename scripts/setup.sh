@@ -27,7 +27,8 @@ PY=${PYTHON:-python3}
 reqs=(host/requirements.txt host/requirements-docs.txt)  # runtime and tests; the docs site
 extra="${FLYTRACK_EXTRA_REQS:-}"
 stamp=".venv/.flytrack-reqs"
-sum=$(cat "${reqs[@]}" $extra host/pyproject.toml | sha256sum | cut -d' ' -f1)
+nodeps=host/requirements-nodeps.txt  # test oracles whose own dependencies FlyTrack never calls
+sum=$(cat "${reqs[@]}" "$nodeps" $extra host/pyproject.toml | sha256sum | cut -d' ' -f1)
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv"
   "$PY" -m venv .venv
@@ -36,6 +37,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$sum" ]; then
   echo "setup: installing pinned Python packages into .venv"
   .venv/bin/python -m pip install -q --upgrade pip
   .venv/bin/python -m pip install -q $(printf -- '-r %s ' "${reqs[@]}") ${extra:+-r $extra}
+  .venv/bin/python -m pip install -q --no-deps -r "$nodeps"
   if ! .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e host > .venv/install-host.log 2>&1; then
     cat .venv/install-host.log >&2; echo "setup: installing the host package failed" >&2; exit 1
   fi

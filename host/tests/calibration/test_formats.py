@@ -221,5 +221,5 @@ def test_pymvg_writer_keys(tmp_path: Path) -> None:
     save_pymvg_json(_rig(), p)
     doc = json.loads(p.read_text())
     assert doc["__pymvg_file_version__"] == "1.0"
-    assert set(doc["camera_system"][0]) == {"name", "width", "height", "P", "K", "D", "R", "rotation",
+    assert set(doc["camera_system"][0]) == {"name", "width", "height", "P", "K", "D", "R", "Q",
                                             "translation"}

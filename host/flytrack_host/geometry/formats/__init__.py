@@ -155,7 +155,8 @@ def save_calibration(cameras: Mapping[str, Camera], path: str | Path, fmt: str |
         raise CalibrationFormatError(
             f"{path}: {fmt} holds rotations, but the world of camera(s) {', '.join(mirrored)} is mirrored (as "
             "MultiCamSelfCal can give: an improper rotation); write flydra XML (.xml), which keeps it.")
-    if fmt != "flydra-xml" and any(c.K_dist is not None for c in cameras.values()):
+    if fmt != "flydra-xml" and any(c.K_dist is not None and not (fmt == "pymvg-json" and _pymvg_keeps(c))
+                                   for c in cameras.values()):
         raise CalibrationFormatError(
             f"{path}: {fmt} has one K per camera, but these cameras' distortion is about another K than their "
             "projection's (flydra's model); write flydra XML (.xml), which keeps it exactly, or convert with "
@@ -184,3 +185,12 @@ def compare_projections(a: Mapping[str, Camera], b: Mapping[str, Camera]) -> dic
         diff = np.linalg.norm(pa[good] - pb[good], axis=1)
         out[name] = float(np.nan_to_num(diff, nan=np.inf).max()) if diff.size else 0.0
     return out
+
+
+def _pymvg_keeps(cam: Camera) -> bool:
+    """pymvg distorts about K's focal lengths and centre without skew (formats/pymvg.py): a camera whose
+    K_dist is exactly that is a pymvg camera."""
+    K, Kd = cam.K, cam.K_dist
+    assert Kd is not None
+    return bool(Kd[0, 1] == 0.0 and Kd[0, 0] == K[0, 0] and Kd[1, 1] == K[1, 1] and Kd[0, 2] == K[0, 2]
+                and Kd[1, 2] == K[1, 2] and Kd[1, 0] == Kd[2, 0] == Kd[2, 1] == 0.0 and Kd[2, 2] == 1.0)
