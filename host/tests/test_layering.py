@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from flytrack_host.util.testing import strongly_connected
+
 PKG = Path(__file__).resolve().parents[1] / "flytrack_host"
 
 # subsystem -> the subsystems it may import, lowest first. Data flows one way: edges -> intake ->
@@ -116,64 +118,17 @@ def test_no_subsystem_imports_one_it_may_not() -> None:
     assert not bad, "\n".join(bad)
 
 
-def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """Strongly connected components of more than one module (Tarjan, iterative)."""
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    out: list[list[str]] = []
-    counter = 0
-    for root in sorted(graph):
-        if root in index:
-            continue
-        work = [(root, iter(sorted(graph[root])))]
-        index[root] = low[root] = counter
-        counter += 1
-        stack.append(root)
-        on_stack.add(root)
-        while work:
-            node, it = work[-1]
-            nxt = next(it, None)
-            if nxt is not None:
-                if nxt not in graph:
-                    continue
-                if nxt not in index:
-                    index[nxt] = low[nxt] = counter
-                    counter += 1
-                    stack.append(nxt)
-                    on_stack.add(nxt)
-                    work.append((nxt, iter(sorted(graph[nxt]))))
-                elif nxt in on_stack:
-                    low[node] = min(low[node], index[nxt])
-                continue
-            work.pop()
-            if work:
-                low[work[-1][0]] = min(low[work[-1][0]], low[node])
-            if low[node] == index[node]:
-                comp = []
-                while True:
-                    m = stack.pop()
-                    on_stack.discard(m)
-                    comp.append(m)
-                    if m == node:
-                        break
-                if len(comp) > 1:
-                    out.append(sorted(comp))
-    return out
-
-
 def test_no_import_circle_between_modules() -> None:
     modules = _modules()
     graph = {name: _imports(path, name, modules) for name, path in modules.items()}
-    cycles = _cycles(graph)
+    cycles = strongly_connected(graph)
     assert not cycles, "import circles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
 
 
 def test_the_cycle_finder_finds_a_circle() -> None:
     """The check above is only as good as this: a circle of three and a self-contained chain."""
-    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
-    assert _cycles({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+    assert strongly_connected({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert strongly_connected({"a": {"b"}, "b": {"c"}, "c": set()}) == []
 
 
 def test_the_architecture_page_shows_the_same_boxes() -> None:

@@ -5,7 +5,8 @@ targets it links (read from CMake's DependInfo.cmake, so stale objects of remove
 left out) are read with `nm`: an object that leaves a symbol undefined depends on the object that defines
 it. Any cycle in that graph (ev_reader.c calling ev_aedat.c calling ev_reader.c, say) fails the test, named with
 the symbols along it. A cycle means the two files are one module in two pieces: neither can be read,
-tested or replaced alone. Needs `make cbuild` first; imports nothing from flytrack_host.
+tested or replaced alone. Needs `make cbuild` first. The components are found by the same
+`strongly_connected` as the Python layering test's (flytrack_host.util.testing).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
+
+from flytrack_host.util.testing import strongly_connected
 
 REPO = Path(__file__).resolve().parents[2]
 BUILD = Path(os.environ.get("FLYTRACK_BUILD_DIR", REPO / "build"))
@@ -69,49 +72,7 @@ def graph(objects: list[Path]) -> dict[Path, dict[Path, set[str]]]:
 def cycles(g: dict[Path, dict[Path, set[str]]]) -> list[tuple[list[Path], list[Path]]]:
     """Per strongly connected component of more than one object (objects that all reach each other):
     one cycle through it (a closed path of objects) and all its objects."""
-    index: dict[Path, int] = {}
-    low: dict[Path, int] = {}
-    on_stack: set[Path] = set()
-    stack: list[Path] = []
-    sccs: list[list[Path]] = []
-
-    def strongconnect(v: Path) -> None:  # Tarjan's algorithm, iteratively (no recursion limit)
-        work = [(v, iter(sorted(g[v])))]
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on_stack.add(v)
-        while work:
-            node, it = work[-1]
-            advanced = False
-            for w in it:
-                if w not in index:
-                    index[w] = low[w] = len(index)
-                    stack.append(w)
-                    on_stack.add(w)
-                    work.append((w, iter(sorted(g[w]))))
-                    advanced = True
-                    break
-                if w in on_stack:
-                    low[node] = min(low[node], index[w])
-            if advanced:
-                continue
-            work.pop()
-            if work:
-                low[work[-1][0]] = min(low[work[-1][0]], low[node])
-            if low[node] == index[node]:
-                comp = []
-                while True:
-                    w = stack.pop()
-                    on_stack.discard(w)
-                    comp.append(w)
-                    if w == node:
-                        break
-                if len(comp) > 1:
-                    sccs.append(comp)
-
-    for v in sorted(g):
-        if v not in index:
-            strongconnect(v)
+    sccs = strongly_connected({v: set(ws) for v, ws in g.items()})
     out = []
     for comp in sccs:  # the shortest way round from the first object back to it, inside the component
         members, start = set(comp), min(comp)

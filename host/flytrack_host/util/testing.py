@@ -1,5 +1,5 @@
 """Test helpers shared by tests/ and host/tests/: a part that should have been built is missing; a small
-real file system to fill.
+real file system to fill; the circles of a dependency graph (the layering tests, Python and C).
 
 `make test` builds the C libraries, the tracker kernel, the firmware and the simavr harness, and
 installs the AVR tools, before pytest runs; the Makefile exports FLYTRACK_BUILD_DIR. Under make a
@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import os
 import subprocess
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import NoReturn
+from typing import NoReturn, TypeVar
 
 import pytest
 
@@ -49,3 +49,55 @@ def small_tmpfs(mountpoint: Path, size: str) -> Iterator[Path]:
         yield mountpoint
     finally:
         subprocess.run(["umount", "-l", str(mountpoint)], check=False)
+
+
+T = TypeVar("T")
+
+
+def strongly_connected(graph: Mapping[T, Iterable[T]]) -> list[list[T]]:
+    """The strongly connected components of more than one node (nodes that all reach each other: an
+    import or call circle), each sorted; Tarjan's algorithm, iterative (no recursion limit). Nodes only
+    pointed at are not in the graph's keys and count as leaves."""
+    index: dict[T, int] = {}
+    low: dict[T, int] = {}
+    stack: list[T] = []
+    on_stack: set[T] = set()
+    out: list[list[T]] = []
+    counter = 0
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, it = work[-1]
+            nxt = next(it, None)
+            if nxt is not None:
+                if nxt not in graph:
+                    continue
+                if nxt not in index:
+                    index[nxt] = low[nxt] = counter
+                    counter += 1
+                    stack.append(nxt)
+                    on_stack.add(nxt)
+                    work.append((nxt, iter(sorted(graph[nxt]))))
+                elif nxt in on_stack:
+                    low[node] = min(low[node], index[nxt])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                comp: list[T] = []
+                while True:
+                    m = stack.pop()
+                    on_stack.discard(m)
+                    comp.append(m)
+                    if m == node:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out

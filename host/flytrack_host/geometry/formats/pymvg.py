@@ -1,6 +1,6 @@
 """pymvg JSON: `{"__pymvg_file_version__": "1.0", "camera_system": [{name, width, height, P, K, D, R,
-Q, translation}]}` where Q (the rotation; "rotation" is read too) and translation are world -> camera, K and D the distortion model,
-R the rectification (identity for us) and P the rectified projection.
+Q, translation}]}` where Q (the rotation; "rotation" is read too) and translation are world -> camera,
+K and D the distortion model, R the rectification (identity for us) and P the rectified projection.
 
 pymvg's projection (its CameraModel.project_3d_to_pixel, ROS's pinhole model): the undistorted pixel is
 P [R | t] X, skew P[0, 1] included; it is brought back to the plane the distortion acts on with P's
