@@ -284,10 +284,11 @@ def test_a_constant_clock_count_offset_is_detected(tmp_path: Path) -> None:
 
 
 def test_h5_refractive_interface_is_the_water_surface(tmp_path: Path) -> None:
-    """flydra's calibration/refractive_interfaces row (n1, n2, plane z = 0) becomes Camera.interface."""
+    """flydra's calibration/refractive_interfaces row (n1, n2, plane z = 0) becomes Camera.interface; with
+    n1 = 1.0003, the air flydra's WaterInterface writes, it is what a flydra XML's <water> means."""
     path = tmp_path / "w.h5"
     write_flydra_h5(path, seed=3)
-    ri = np.array([(b"water1", 1.0, 1.333, 0.0, 0.0, 1.0, 0.0)],
+    ri = np.array([(b"water1", 1.0003, 1.333, 0.0, 0.0, 1.0, 0.0)],
                   dtype=[("name", "S20"), ("n1", "<f8"), ("n2", "<f8"), ("plane_normal_x", "<f8"),
                          ("plane_normal_y", "<f8"), ("plane_normal_z", "<f8"), ("plane_dist_from_origin", "<f8")])
     with h5py.File(path, "a") as h5:
