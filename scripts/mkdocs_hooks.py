@@ -3,16 +3,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 from pathlib import Path
 
 from mkdocs.structure.files import File
 
-_spec = importlib.util.spec_from_file_location("gen_reference", Path(__file__).with_name("gen_reference.py"))
-gen_reference = importlib.util.module_from_spec(_spec)
-sys.modules["gen_reference"] = gen_reference  # dataclasses look their module up there
-_spec.loader.exec_module(gen_reference)
+sys.path.insert(0, str(Path(__file__).parent))  # gen_reference.py and its package scripts/reference/
+import gen_reference  # noqa: E402
 
 
 def on_files(files, config):

@@ -34,8 +34,14 @@ MODULES: dict[str, tuple[str, list[str]]] = {
     # The synchroniser's code: every module of the flytrack_host.intake.sync package but its re-exports.
     "sync": (",".join(f"host/flytrack_host/intake/sync/{m}.py" for m in
                       ("synchronizer", "restart", "drift", "windows", "state", "clock", "types")),
-             ["host/tests/host/test_sync.py", "host/tests/host/test_sync_bursty.py",
-              "host/tests/host/test_sync_behaviour.py", "host/tests/host/test_sync_window.py",
+             ["host/tests/host/test_sync_bundles.py", "host/tests/host/test_sync_rejected.py",
+              "host/tests/host/test_sync_start.py", "host/tests/host/test_sync_jumps.py",
+              "host/tests/host/test_sync_edge_restarts.py", "host/tests/host/test_sync_clock.py",
+              "host/tests/host/test_sync_drift.py", "host/tests/host/test_sync_bursty.py",
+              "host/tests/host/test_sync_behaviour_bundles.py", "host/tests/host/test_sync_behaviour_start.py",
+              "host/tests/host/test_sync_behaviour_numbering.py", "host/tests/host/test_sync_behaviour_ahead.py",
+              "host/tests/host/test_sync_behaviour_remap.py", "host/tests/host/test_sync_behaviour_clock.py",
+              "host/tests/host/test_sync_behaviour_drift.py", "host/tests/host/test_sync_window.py",
               "host/tests/host/test_sync_mapping_edges.py",
               "host/tests/host/test_sync_restart.py", "host/tests/host/test_sync_restart_drift.py",
               "host/tests/host/test_faults_units.py", "-k",

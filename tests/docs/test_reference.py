@@ -8,7 +8,6 @@ and options that exist."""
 from __future__ import annotations
 
 import copy
-import importlib.util
 import re
 import shlex
 import subprocess
@@ -29,16 +28,11 @@ REPO = Path(__file__).resolve().parents[2]
 FLYTRACK = [sys.executable, "-m", "flytrack_host.cli"]
 
 
-def _load_generator():
-    spec = importlib.util.spec_from_file_location("gen_reference", REPO / "scripts" / "gen_reference.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["gen_reference"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-gen = _load_generator()
-
+sys.path.insert(0, str(REPO / "scripts"))  # the generator's package, scripts/reference/
+from reference import cli as ref_cli  # noqa: E402
+from reference import models as ref_models  # noqa: E402
+from reference import recording as ref_recording  # noqa: E402
+from reference import rig_rules as ref_rig_rules  # noqa: E402
 
 # ------------------------------------------------------------------------------------------------
 # The command line
@@ -87,7 +81,7 @@ def _cli_entries(page: str) -> dict[tuple[str, ...], set[str]]:
 
 
 def test_every_command_and_option_has_an_entry_and_every_entry_exists():
-    code, page = _cli_params(), _cli_entries(gen.cli_page())
+    code, page = _cli_params(), _cli_entries(ref_cli.cli_page())
     assert set(code) == set(page), (
         f"commands without a section: {sorted(set(code) - set(page))}; "
         f"sections of commands that do not exist: {sorted(set(page) - set(code))}")
@@ -102,7 +96,7 @@ def test_every_command_and_option_has_an_entry_and_every_entry_exists():
 
 def test_every_option_has_help_text():
     """An entry without a description tells the reader nothing: the option's help= is missing."""
-    bare = [f"flytrack {' '.join(c.path)} {p.name}" for c in gen.walk_cli() for p in c.params if not p.help]
+    bare = [f"flytrack {' '.join(c.path)} {p.name}" for c in ref_cli.walk_cli() for p in c.params if not p.help]
     assert not bare, f"options and arguments without help text: {bare}"
 
 
@@ -204,8 +198,8 @@ def _model_entries(page: str, root: type, shared: dict[str, str]) -> tuple[set[t
 
 @pytest.mark.parametrize("which", ["rig", "rules"])
 def test_every_field_has_an_entry_and_every_entry_exists(which):
-    root, page, shared = (RigConfig, gen.rig_page(), {}) if which == "rig" else (RuleSet, gen.rules_page(),
-                                                                               gen.RULES_SHARED)
+    root, page, shared = ((RigConfig, ref_rig_rules.rig_page(), {}) if which == "rig" else
+                          (RuleSet, ref_rig_rules.rules_page(), ref_rig_rules.RULES_SHARED))
     entries, stale = _model_entries(page, root, shared)
     missing = _fields(root) - entries
     assert not missing, f"{which} fields without an entry: {sorted(missing)}"
@@ -214,7 +208,7 @@ def test_every_field_has_an_entry_and_every_entry_exists(which):
 
 @pytest.mark.parametrize("which", ["rig", "rules"])
 def test_every_field_is_described_typed_and_has_an_example(which):
-    docs = gen.rig_docs() if which == "rig" else gen.rules_docs()
+    docs = ref_rig_rules.rig_docs() if which == "rig" else ref_rig_rules.rules_docs()
     problems = []
     for sec in docs.sections:
         for f in [sec.table_field] * (sec.table_field is not None) + sec.fields:
@@ -225,7 +219,7 @@ def test_every_field_is_described_typed_and_has_an_example(which):
                 problems.append(f"{where}: no type")
             if f is not sec.table_field and not f.example and "](#" not in f.type:
                 problems.append(f"{where}: no example")
-            suffix = next((u for s, u in gen._UNIT_SUFFIXES if f.name.endswith(s)), "")
+            suffix = next((u for s, u in ref_models._UNIT_SUFFIXES if f.name.endswith(s)), "")
             if suffix and f.unit != suffix:
                 problems.append(f"{where}: its name says {suffix}, the page says {f.unit!r}")
     assert not problems, "\n".join(problems)
@@ -250,7 +244,7 @@ def _place(doc: dict, example: str) -> dict:
 def test_every_example_is_accepted_by_the_validator(which):
     """Each field's example, put into the example file, still validates: no example shows a value
     the file would refuse."""
-    docs = gen.rig_docs() if which == "rig" else gen.rules_docs()
+    docs = ref_rig_rules.rig_docs() if which == "rig" else ref_rig_rules.rules_docs()
     path = REPO / "examples" / ("rig.toml" if which == "rig" else "closed_loop.toml")
     base = tomllib.loads(path.read_text())
     problems = []
@@ -284,7 +278,7 @@ def test_the_example_rig_file_shows_every_table_and_its_rules_line_works_as_writ
     where TOML makes it a key of the last camera: `cameras[3].rules: Extra inputs are not permitted`)."""
     text = (REPO / "examples" / "rig.toml").read_text()
     data = tomllib.loads(text)
-    tables = {n for n, fi in RigConfig.model_fields.items() if not fi.exclude and gen._models_in(fi.annotation)}
+    tables = {n for n, fi in RigConfig.model_fields.items() if not fi.exclude and ref_models._models_in(fi.annotation)}
     assert tables <= set(data), f"examples/rig.toml has no {sorted(tables - set(data))}"
     assert text.count('# rules = "closed_loop.toml"') == 1
     (tmp_path / "rig.toml").write_text(text.replace('# rules = "closed_loop.toml"', 'rules = "closed_loop.toml"'))
@@ -361,15 +355,15 @@ def test_every_flytrack_command_in_the_docs_exists_with_its_options():
 def test_every_recording_table_and_column_has_an_entry_and_every_note_names_a_column():
     from flytrack_host.recording.schema import TABLES
 
-    page = gen.recording_page()
+    page = ref_recording.recording_page()
     problems = []
     for name, dt in TABLES.items():
-        if name not in gen.TABLE_NOTES or not gen.TABLE_NOTES[name][0]:
+        if name not in ref_recording.TABLE_NOTES or not ref_recording.TABLE_NOTES[name][0]:
             problems.append(f"table {name}: no description in TABLE_NOTES")
         if f"## `{name}`" not in page:
             problems.append(f"table {name}: no section")
         problems += [f"{name}.{c}: no row" for c in dt.names if f"| `{c}` |" not in page]
-    for name, (_, notes) in gen.TABLE_NOTES.items():
+    for name, (_, notes) in ref_recording.TABLE_NOTES.items():
         if name not in TABLES:
             problems.append(f"TABLE_NOTES names a table that does not exist: {name}")
             continue
@@ -381,7 +375,7 @@ def test_every_output_kind_has_a_row_with_its_keys_address_and_acknowledgement()
     from flytrack_host.actuation.rules import KIND_FIELDS
     from flytrack_host.rig import ActuatorKind
 
-    rows = {k: (keys, addr, ack) for k, keys, addr, ack in gen.output_kinds()}
+    rows = {k: (keys, addr, ack) for k, keys, addr, ack in ref_rig_rules.output_kinds()}
     assert set(rows) == set(typing.get_args(ActuatorKind)) == set(KIND_FIELDS)
     for kind, (keys, addr, ack) in rows.items():
         assert keys and addr and ack and ack != "?", (kind, keys, addr, ack)

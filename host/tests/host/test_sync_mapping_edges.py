@@ -4,7 +4,7 @@ restarting, early and future-dated frames, the mapped-ahead check after a restar
 the fixed-rate clock's anchor at exactly two periods, the lag a restarted edge is placed by.
 
 Each test feeds real frames through `FrameSynchronizer` with explicit times (nothing sleeps, nothing
-is timed), reusing the frame builders of test_sync_behaviour.py: at 64 fps from 1024 s most times are
+is timed), reusing the frame builders of sync_builders.py: at 64 fps from 1024 s most times are
 exact binary fractions, so a boundary ("within", "more than") is tested exactly.
 """
 
@@ -15,8 +15,8 @@ from pathlib import Path
 
 from flytrack_host.intake.sync import FixedRateClock, FrameSynchronizer
 
-sys.path.insert(0, str(Path(__file__).parent))  # the builders of test_sync_behaviour.py
-from test_sync_behaviour import (  # noqa: E402
+sys.path.insert(0, str(Path(__file__).parent))  # the frame builders (sync_builders.py)
+from sync_builders import (  # noqa: E402
     FPS,
     T0,
     L,

@@ -4,7 +4,7 @@ estimate, the pulses it missed; when a run of arrivals a period off is a drift a
 burst; when the drift baseline is learnt; the lag estimate that places late joiners. Also the
 contracts of the output types and the windows the checks read.
 
-Frames are fed with explicit times (nothing timed, nothing slept), built as in test_sync_behaviour.py:
+Frames are fed with explicit times (nothing timed, nothing slept), built by sync_builders.py:
 64 fps from T0 = 1024 s, so most times are exact binary fractions and a boundary is tested exactly.
 """
 
@@ -18,7 +18,7 @@ import pytest
 from flytrack_host.intake.sync import FixedRateClock, FrameSynchronizer, SyncOutput, _LagWindow
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_sync_behaviour import FPS, LAG8, T0, L, NotReadyClock, P, Run, cam_frames, frame, make, stream  # noqa: E402
+from sync_builders import FPS, LAG8, T0, L, NotReadyClock, P, Run, cam_frames, frame, make, stream  # noqa: E402
 
 # --- a restarted edge: when it counts as caught up --------------------------------------------------
 

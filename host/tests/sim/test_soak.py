@@ -1,7 +1,8 @@
-"""The soak's machinery (sim/soak.py) on a tiny rig: a few sampling periods of 2 cameras, 1 animal, with the
-recording, the live page in Chromium, the Braid and pose clients and the closed loop; soak.json holds every
-series, the fits and the windows, and soak.png is written. The figures themselves are not judged here (they
-are this machine's); the run's length is the simulated rig's own, no test code waits on a clock."""
+"""The soak's machinery (sim/soak.py, soak_sampling.py, soak_report.py) on a tiny rig: a few sampling periods
+of 2 cameras, 1 animal, with the recording, the live page in Chromium, the Braid and pose clients and the
+closed loop; soak.json holds every series, the fits and the windows, and soak.png is written. The figures
+themselves are not judged here (they are this machine's); the run's length is the simulated rig's own, no
+test code waits on a clock."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import pytest
 from flytrack_host.live.web import browser as browser_mod
 from flytrack_host.recording.latency import BIN_MS, LatencyStats
 from flytrack_host.sim import soak as soak_mod
+from flytrack_host.sim import soak_report, soak_sampling
 from flytrack_host.sim.run import find_edge_binary
 
 SAMPLE_S = 1.0
@@ -111,7 +113,7 @@ def test_png_is_written(result) -> None:  # noqa: ANN001
 def test_window_percentiles_match_the_hosts_histogram() -> None:
     """A sample's latency window (the growth of the host's histogram) gives the host's own percentiles."""
     st = LatencyStats()
-    win = soak_mod.LatencyWindow(st)
+    win = soak_sampling.LatencyWindow(st)
     for i in range(1000):
         st.row(i, 0.0, 0.0, 0.0, (0.5 + (i % 97) * 0.13) / 1e3, 2, 0)
     st.row(1000, 0.0, 0.0, 0.0, 1.7, 2, 0)  # past the histogram's end: kept exactly
@@ -119,7 +121,7 @@ def test_window_percentiles_match_the_hosts_histogram() -> None:
     assert w["n"] == 1001 and w["over_ms"] == [pytest.approx(1700.0)]
     assert w["p50_ms"] == pytest.approx(st.percentile("total", 50))
     assert w["p99_ms"] == pytest.approx(st.percentile("total", 99))
-    assert soak_mod.hist_percentile(w["bins"], w["counts"], w["over_ms"], 100, BIN_MS) == pytest.approx(1700.0)
+    assert soak_sampling.hist_percentile(w["bins"], w["counts"], w["over_ms"], 100, BIN_MS) == pytest.approx(1700.0)
     assert win.take()["n"] == 0  # the next window starts empty
 
 
@@ -127,9 +129,9 @@ def test_linear_fit_and_rate_ladder() -> None:
     import numpy as np
 
     t = np.linspace(0, 1, 13)
-    fit = soak_mod.linear_fit(t, 100 + 0.5 * t)
+    fit = soak_report.linear_fit(t, 100 + 0.5 * t)
     assert fit["slope_per_h"] == pytest.approx(0.5) and fit["stderr_per_h"] < 1e-9 and fit["points"] == 13
-    assert soak_mod.linear_fit(t[:2], t[:2]) is None
+    assert soak_report.linear_fit(t[:2], t[:2]) is None
     ladder = soak_mod.rate_ladder(soak_mod.SoakConfig(cameras=11, animals=10, fps=100, min_fps=5))
     assert ladder[0] == (11, 10, 100) and ladder[1] == (11, 10, 70)
     fps = [f for c, _, f in ladder if c == 11]
