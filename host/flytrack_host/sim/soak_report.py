@@ -112,16 +112,21 @@ def memory_growth(sr: dict[str, Any], duration_s: float, expected: dict[str, tup
 
 
 def latency_windows(samples: list[dict[str, Any]], duration_s: float) -> dict[str, Any]:
-    """Latency P99 of the first and the last window (10 minutes; a sixth of a run under an hour), each the
-    merged histograms of the samples whose interval lies in it."""
+    """Latency P99 of the first and the last window (10 minutes; a sixth of a run under an hour, and at
+    least two sample periods), each the merged histograms of the samples whose interval's middle lies in
+    it."""
     from flytrack_host.recording.latency import BIN_MS
 
     scaled = duration_s < 6 * LATENCY_WINDOW_S
     w = duration_s * LATENCY_WINDOW_FRACTION if scaled else LATENCY_WINDOW_S
     lat = [(s["t_s"] - s["window_s"], s["t_s"], s["latency"]) for s in samples
            if isinstance(s.get("latency"), dict) and "bins" in s["latency"]]
-    first = [(a, b, x) for a, b, x in lat if b <= w + 1e-6 and b > 0]
-    last = [(a, b, x) for a, b, x in lat if a >= duration_s - w - 1e-6]
+    # At least two sample periods a window, and a sample belongs to the window its interval's middle is in:
+    # on a loaded machine a sample comes late, and its interval then starts before the window's edge.
+    period = float(np.median([b - a for a, b, _ in lat])) if lat else 0.0
+    w = max(w, 2.0 * period)
+    first = [(a, b, x) for a, b, x in lat if 0.0 < 0.5 * (a + b) <= w + 1e-6]
+    last = [(a, b, x) for a, b, x in lat if duration_s - w - 1e-6 <= 0.5 * (a + b) <= duration_s + 1e-6]
     out: dict[str, Any] = {"window_s": w, "scaled": scaled,
                            "rule": (f"a sixth of the run each ({w:.0f} s): the run is under an hour" if scaled
                                     else "the first and the last 10 minutes"),

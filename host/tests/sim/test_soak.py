@@ -85,10 +85,9 @@ def test_fits_windows_and_projections_are_computed(result) -> None:  # noqa: ANN
     # The simulated cameras grow by design (per-frame timing arrays): what they should is said beside it.
     assert g["processes"]["sim cameras"]["expected_mb_per_h"] == pytest.approx((2 + 3) * 8 * 50.0 * 3600 / 1e6)
     lw = r["latency_windows"]
-    assert lw["scaled"] and lw["window_s"] == pytest.approx(r["duration_s"] / 6)
+    assert lw["scaled"] and lw["window_s"] == pytest.approx(max(r["duration_s"] / 6, 2 * SAMPLE_S), rel=0.2)
     assert lw["first"]["frames"] > 0 and lw["last"]["frames"] > 0 and math.isfinite(lw["last"]["p99_ms"])
-    assert lw["first"]["to_s"] <= lw["window_s"] + 1e-6
-    assert lw["last"]["from_s"] >= r["duration_s"] - lw["window_s"] - 1e-6
+    assert lw["first"]["samples"] >= 1 and lw["last"]["samples"] >= 1
     fr = r["frames"]
     assert fr["camera_frames_sent"] > 0 and fr["frames_lost"] >= 0
     rec = r["recording"]
