@@ -266,3 +266,22 @@ def test_unplugged_box_is_a_trigger_error_not_a_traceback() -> None:
         tb.close()
     finally:
         box.close()
+
+
+def test_a_run_waits_7_s_after_opening_a_strawlab_board(monkeypatch) -> None:
+    """TriggerSession on a serial port (opening it resets the Nano): the driver is told to wait 7 s
+    (its name handshake), then probes; on a pty (a simulated box, not reset by opening) it probes at
+    once."""
+    from flytrack_host.rig import TriggerConfig
+    from flytrack_host.trigger import session, strawlab
+
+    waits: dict[str, float] = {}
+
+    class Box:
+        def __init__(self, port: str, baud: int, reset_wait_s: float, model: object) -> None:
+            waits[port] = reset_wait_s
+
+    monkeypatch.setattr(strawlab, "StrawlabTriggerbox", Box)
+    session.open_device(TriggerConfig(kind="strawlab", port="/dev/ttyUSB0"))
+    session.open_device(TriggerConfig(kind="strawlab", port="/dev/pts/7"))
+    assert waits == {"/dev/ttyUSB0": 7.0, "/dev/pts/7": 0.0}
