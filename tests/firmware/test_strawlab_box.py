@@ -147,9 +147,17 @@ def test_trigger_info_reads_the_name_and_its_crc(box) -> None:
     """`flytrack trigger info` shows the name; the reply to N? is the 8 bytes and their CRC-8/Maxim in
     hex without a leading zero: one character for a CRC below 16."""
     assert crc8_maxim(b"123456789") == 0xA1
-    r = CliRunner().invoke(app, ["trigger", "info", "--kind", "strawlab", "--port", box.pty, "--reset-wait", "0"])
-    assert r.exit_code == 0, r.output
-    assert "'name': 'tbox-sim'" in r.output and "'version': 14" in r.output, r.output
+    def info() -> str:
+        r = CliRunner().invoke(app, ["trigger", "info", "--kind", "strawlab", "--port", box.pty, "--reset-wait", "0"])
+        assert r.exit_code == 0, r.output
+        return r.output
+
+    out = info()
+    if "'name': ''" in out:  # a box never named (erased EEPROM, e.g. the original firmware in simavr)
+        with open_box(box) as tb:
+            tb.set_name("tbox-sim")
+        out = info()
+    assert "'name': 'tbox-sim'" in out and "'version': 14" in out, out
     short = next(f"cam{i:05d}" for i in range(100000) if crc8_maxim(f"cam{i:05d}".encode()) < 16)
     with open_box(box) as tb:
         tb.set_name(short)
