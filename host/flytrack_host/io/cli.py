@@ -72,8 +72,8 @@ def retrack_command(
         console.print(f"[red]error[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
     for w in [*data.notes, *warns]:
-        if w.startswith("braid tracking_params"):
-            continue  # information kept in the output's text log, not a problem
+        if w.startswith(("braid tracking_params", "trigger clock")):
+            continue  # information kept in the output's text log (the clock's is printed below)
         console.print(f"[yellow]warning[/yellow] {w}", highlight=False)
     data.notes = [*data.notes, *warns]
     rate = fps or data.fps

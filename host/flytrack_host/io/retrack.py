@@ -119,12 +119,11 @@ def clock_from_samples(data: Data2D, fps: float) -> tuple[np.ndarray | None, lis
     t1 = np.asarray(c["stop_timestamp"], dtype=np.float64)
     frac = (np.asarray(c["fraction"], dtype=np.float64) if "fraction" in names
             else np.asarray(c["tcnt"], dtype=np.float64) / 255.0)
-    corr = correct_clock_counts(np.asarray(c["framecount"], dtype=np.float64), frac, 0.5 * (t0 + t1))
+    corr = correct_clock_counts(np.asarray(c["framecount"], dtype=np.float64), frac, 0.5 * (t0 + t1), rtt=t1 - t0)
 
     def fit(frames: np.ndarray) -> ClockModel:
         m = ClockModel(frame_period_s=1.0 / fps, window=max(len(c), 2), max_rtt_s=0.02)
-        for a, b, f in zip(t0, t1, frames, strict=True):
-            m.add_sample(float(a), float(b), float(f) / fps)
+        m.fit_batch(t0, t1, frames / fps)  # once over the recording (refitting per sample is O(n^2))
         return m
 
     model = fit(corr.frames)
@@ -148,8 +147,12 @@ def clock_from_samples(data: Data2D, fps: float) -> tuple[np.ndarray | None, lis
     out["start_timestamp"], out["stop_timestamp"] = t0, t1
     out["framecount"] = np.floor(corr.frames).astype(np.int64)
     out["fraction"] = corr.frames - np.floor(corr.frames)
+    mark = (f", the count stepping {100 * corr.mark:.1f} % into the frame (found from the samples)"
+            if corr.early_fixed and np.isfinite(corr.mark) else "")
     lines = [f"trigger clock: {len(c)} samples, {corr.early_fixed} taken early in a frame (count not yet "
-             f"incremented) corrected by one frame{offset_line}"]
+             f"incremented{mark}) corrected by one frame{offset_line}"]
+    if corr.note:
+        lines.append(f"trigger clock: {corr.note}")
     if model.fitted:
         lines[0] += (f"; fit residual {model.residual_s * 1e6:.0f} us, gain {model.gain:.8f}")
         rows = data.rows

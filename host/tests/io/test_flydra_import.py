@@ -329,3 +329,51 @@ def test_truncated_h5_files_are_one_error_line_naming_the_file(tmp_path: Path) -
         out = _flat(r.output)
         assert r.exit_code == 2, (args, out)
         assert out.startswith("error") and "_cut.h5" in out and "Traceback" not in out, (args, out)
+
+
+def _flydra_04_clock(path: Path, seed: int, top: int = 10000, step_ticks: int = 1050) -> dict:
+    """Rewrites the file's clock as flydra 0.4 wrote it (sample_datafile-v0.4.28.h5): the textlog says
+    "(top 10000, ...)" and "using flydra version 0.4.28", tcnt is the timer's raw count (u2, 0..top), and
+    every sample taken before the timer passed `step_ticks` has the frame count not yet incremented."""
+    rng = np.random.default_rng(seed)
+    fpos = np.sort(rng.uniform(1, N_FRAMES - 1, 600))
+    count = np.floor(fpos)
+    tcnt = np.floor((fpos - count) * top)
+    early = tcnt < step_ticks
+    rtt = rng.uniform(0.001, 0.003, len(fpos))
+    sampled = 1.7e9 + (count + tcnt / top) / FPS  # when the device read its clock
+    start = sampled - rng.uniform(0, 1, len(fpos)) * rtt
+    clock = np.zeros(len(fpos), dtype=[("start_timestamp", "<f8"), ("framecount", "<i8"), ("tcnt", "<u2"),
+                                       ("stop_timestamp", "<f8")])
+    clock["start_timestamp"], clock["stop_timestamp"] = start, start + rtt
+    clock["framecount"], clock["tcnt"] = count - early, tcnt
+    textlog = np.array([(1.7e9, b"mainbrain", 1.7e9, f"MainBrain running at {FPS:.1f} fps, (top {top}, "
+                         "hypothesis_test_max_error 20.0)".encode()),
+                        (1.7e9, b"mainbrain", 1.7e9, b"using flydra version 0.4.28")],
+                       dtype=[("mainbrain_timestamp", "<f8"), ("cam_id", "S255"), ("host_timestamp", "<f8"),
+                              ("message", "S255")])
+    with h5py.File(path, "a") as h5:
+        del h5["trigger_clock_info"], h5["textlog"]
+        h5["trigger_clock_info"] = clock
+        h5["textlog"] = textlog
+    return {"early": int(early.sum()), "frames": count + tcnt / top}
+
+
+def test_flydra_04_clock_samples_with_the_count_not_yet_incremented_are_found(tmp_path: Path) -> None:
+    """flydra 0.4's clock samples (sample_datafile-v0.4.28.h5): tcnt counts to the textlog's top (10000),
+    and 1 sample in 10 is taken before the count steps 1050 ticks into the frame, the frame count then
+    one short. The count step is found from the samples; every such sample is corrected."""
+    path = tmp_path / "sample_datafile-v0.4.28.h5"
+    write_flydra_h5(path, seed=4)
+    truth = _flydra_04_clock(path, seed=4)
+    r = CliRunner().invoke(app, ["retrack", str(path), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    text = _flat(r.output)
+    assert f"{truth['early']} taken early in a frame" in text and truth["early"] > 40, text
+    step = re.search(r"stepping ([0-9.]+) % into the frame", text)
+    assert step and abs(float(step.group(1)) - 10.5) < 1.0, text  # where the samples leave it: 1050 of 10000
+    out = next(tmp_path.glob("*.retrack.flytrack"))
+    clock = load_recording(out).table("trigger_clock_info")
+    frames = clock["framecount"] + clock["fraction"]
+    assert np.abs(frames - truth["frames"]).max() < 1e-6
+
