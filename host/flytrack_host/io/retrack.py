@@ -31,6 +31,22 @@ class RetrackError(Exception):
     pass
 
 
+SOURCE_SUFFIXES = (".h5", ".hdf5", ".braidz", ".braid", ".flytrack")
+
+
+def default_output(source: Path | str) -> Path:
+    """Where `flytrack retrack SOURCE` writes without --out: beside SOURCE, its name without the
+    suffix of its kind (only that one: "sample_datafile-v0.4.28.h5" -> "sample_datafile-v0.4.28"), plus
+    ".retrack.flytrack"."""
+    source = Path(source)
+    name = source.name
+    for suffix in SOURCE_SUFFIXES:
+        if name.lower().endswith(suffix) and len(name) > len(suffix):
+            name = name[: -len(suffix)]
+            break
+    return source.with_name(name + ".retrack.flytrack")
+
+
 def data2d_from_recording(path: Path) -> Data2D:
     rec = load_recording(path)
     names = {}

@@ -362,7 +362,8 @@ def _flydra_04_clock(path: Path, seed: int, top: int = 10000, step_ticks: int = 
 def test_flydra_04_clock_samples_with_the_count_not_yet_incremented_are_found(tmp_path: Path) -> None:
     """flydra 0.4's clock samples (sample_datafile-v0.4.28.h5): tcnt counts to the textlog's top (10000),
     and 1 sample in 10 is taken before the count steps 1050 ticks into the frame, the frame count then
-    one short. The count step is found from the samples; every such sample is corrected."""
+    one short. The count step is found from the samples; every such sample is corrected, and the
+    default output keeps the dots of the file's name."""
     path = tmp_path / "sample_datafile-v0.4.28.h5"
     write_flydra_h5(path, seed=4)
     truth = _flydra_04_clock(path, seed=4)
@@ -372,8 +373,17 @@ def test_flydra_04_clock_samples_with_the_count_not_yet_incremented_are_found(tm
     assert f"{truth['early']} taken early in a frame" in text and truth["early"] > 40, text
     step = re.search(r"stepping ([0-9.]+) % into the frame", text)
     assert step and abs(float(step.group(1)) - 10.5) < 1.0, text  # where the samples leave it: 1050 of 10000
-    out = next(tmp_path.glob("*.retrack.flytrack"))
+    out = tmp_path / "sample_datafile-v0.4.28.retrack.flytrack"
+    assert out.is_dir(), sorted(p.name for p in tmp_path.iterdir())
     clock = load_recording(out).table("trigger_clock_info")
     frames = clock["framecount"] + clock["fraction"]
     assert np.abs(frames - truth["frames"]).max() < 1e-6
 
+def test_retrack_output_is_named_without_the_suffix_only() -> None:
+    from flytrack_host.io.retrack import default_output
+
+    assert default_output(Path("/d/sample_datafile-v0.4.28.h5")) == Path("/d/sample_datafile-v0.4.28.retrack.flytrack")
+    assert default_output(Path("run.2024-05-01.braidz")) == Path("run.2024-05-01.retrack.flytrack")
+    assert default_output(Path("/d/run.v2.flytrack")) == Path("/d/run.v2.retrack.flytrack")
+    assert default_output(Path("/d/exp.braid")) == Path("/d/exp.retrack.flytrack")
+    assert default_output(Path("/d/old.H5")) == Path("/d/old.retrack.flytrack")
