@@ -40,19 +40,16 @@ def strawlab_built() -> tuple:
     return simulator.build_strawlab_box()
 
 
-def raw_version(port: str, timeout_s: float = 20.0) -> tuple[int, int]:
+def raw_version(port: str, timeout_s: float = 30.0) -> tuple[int, int]:
     """(pulse count, TCNT1) of the box's reply to V?, asked with pyserial alone (no driver): every
-    0.5 s until it answers, every other time with a leading '?' that puts a box one byte out of step
-    back in step."""
+    second until it answers (V? only: a probe never shifts the box's two-byte commands)."""
     with serial.Serial(port, 115200, timeout=0.02) as s:
         deadline = time.monotonic() + timeout_s
-        k = 0
         while time.monotonic() < deadline:
             s.reset_input_buffer()
-            s.write(b"?V?" if k % 2 else b"V?")
-            k += 1
+            s.write(b"V?")
             buf, t0 = b"", time.monotonic()
-            while time.monotonic() - t0 < 0.5:
+            while time.monotonic() - t0 < 1.0:
                 buf += s.read(64)
                 m = re.search(rb"V\x07(.{7})(.)", buf, re.S)
                 if m and sum(m.group(1)) & 0xFF == m.group(2)[0]:

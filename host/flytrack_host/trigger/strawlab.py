@@ -48,6 +48,7 @@ import select
 import struct
 import threading
 import time
+from collections import deque
 
 import serial
 
@@ -64,6 +65,8 @@ NAME_LEN = 8
 RESET_WAIT_S = 7.0  # after opening a port that resets the Nano: its name handshake lasts ~5.5 s
 CONNECT_TIMEOUT_S = 20.0  # from opening the port to the first answer to V?
 PROBE_EVERY_S = 1.0  # V? again this often until the box answers
+PLAIN_PROBES_S = 8.0  # and without a realigning '?' for this long (the handshake of a box reset just before)
+LATE_LOOK_S = 0.2  # before realigning, how long to look for late replies that would show the box in step
 CONTROL_TIMEOUT_S = 2.0  # V?, O=, N?: the box waits for the bytes after O= in steps of 10 ms
 # How late the OCR1A match interrupt may increment the count after the match: the chip enters it
 # after the instruction under way and after a running interrupt (the Arduino core's Timer0 and
@@ -145,7 +148,9 @@ class StrawlabTriggerbox(SerialTrigger):
                       "realigned": 0, "near_mark_resolved": 0, "near_mark_skipped": 0}
         self._token = 0
         self._misses = 0  # queries in a row that got no reply (the box may be one byte out of step)
-        self._last_token: int | None = None
+        self._recent: deque[int] = deque(maxlen=8)  # tokens of the last queries (a late reply is one of them)
+        self._in_step = False  # a reply since the last miss or realigned query shows the box in step
+        self._plain_probes_until = math.inf  # _connect: V? without a realigning '?' until then
         self._rx = bytearray()
         self._running = False
         self._levels = [0, 0]  # analog outputs 0 and 1, as last set (O= sets both at once)
@@ -232,8 +237,8 @@ class StrawlabTriggerbox(SerialTrigger):
 
     def _note_stray(self, packet: tuple[int, bytes]) -> None:
         self.stats["stray_replies"] += 1
-        if packet[0] == ord("P") and packet[1][0] == self._last_token:
-            self._misses = 0  # the last query was answered, late: the box is in step
+        if packet[0] == ord("P") and packet[1][0] in self._recent:
+            self._misses = 0  # an earlier query was answered, late: the box was in step
 
     def _next_byte(self, reserved: frozenset[int] = _COMMAND_BYTES) -> int:
         while True:
@@ -248,10 +253,20 @@ class StrawlabTriggerbox(SerialTrigger):
         with self._lock:
             self._drain()
             # After one miss the reply was more likely late than the box out of step: the same again;
-            # from the second miss on, every other query is sent realigned.
-            realign = self._misses >= 2 and self._misses % 2 == 0
+            # from the second on, every other query is sent realigned, after a last look for late replies
+            # (one to a recent query shows the box in step: then not). V? probes while the box may still
+            # be in its handshake are never realigned.
+            realign = (self._misses >= 2 and self._misses % 2 == 0
+                       and time.monotonic() >= self._plain_probes_until)
+            if realign:
+                self._read_some(time.monotonic() + LATE_LOOK_S)
+                self._drain()
+                realign = self._misses >= 2
             if realign:
                 self.stats["realigned"] += 1
+                self._in_step = False
+            if cmd[:1] == b"P":
+                self._recent.append(cmd[1])
             t0 = hostclock.now()
             self._write(b"?" + cmd if realign else cmd)
             deadline = time.monotonic() + timeout_s
@@ -260,16 +275,36 @@ class StrawlabTriggerbox(SerialTrigger):
                 if p is None:
                     if not self._read_some(deadline):
                         self._misses += 1
+                        self._in_step = False
                         self.stats["unanswered"] += 1
                         raise TriggerError(f"no {header!r} reply to {cmd[:2]!r} from {self.port} within {timeout_s} s")
                     continue
                 if p[0] == header[0] and (value is None or p[1][0] == value):
                     t1 = hostclock.now()
                     self._misses = 0
+                    # A V reply may be a late one to an earlier probe: only a token proves the box in step.
+                    self._in_step = value is not None
                     return p[1], t0, t1
                 self._note_stray(p)
 
+    def _in_step_now(self) -> None:
+        """Makes sure the box takes the next two bytes as one command: unless the last query was answered,
+        clock queries (realigned as in _request) until one is. For the commands the box does not answer
+        (S, T=, N=): sent out of step they would be taken apart and lost without a word."""
+        for _ in range(4):
+            if self._in_step:
+                return
+            token = self._next_byte()
+            try:
+                self._request(b"P" + bytes([token]), b"P", token, CONTROL_TIMEOUT_S)
+            except TriggerError as exc:
+                if "cannot" in str(exc):
+                    raise
+        if not self._in_step:
+            raise TriggerError(f"the strawlab box on {self.port} does not answer clock queries")
+
     def _send(self, cmd: bytes) -> None:
+        self._in_step_now()
         with self._lock:
             self._write(cmd)
 
@@ -277,11 +312,14 @@ class StrawlabTriggerbox(SerialTrigger):
         """V? every PROBE_EVERY_S until the box answers (at most until `deadline`, monotonic) ->
         (firmware version, seconds from the first probe to the answer)."""
         t_first = time.monotonic()
+        # Plain V? (never shifting the box) for as long as a box just reset may still be in its handshake.
+        self._plain_probes_until = t_first + PLAIN_PROBES_S
         bad = 0
         while True:
             try:
                 payload, _, _ = self._request(b"V?", b"V", None,
                                               min(PROBE_EVERY_S, max(0.05, deadline - time.monotonic())))
+                self._plain_probes_until = 0.0
                 return payload[0], time.monotonic() - t_first
             except TriggerError as exc:
                 if "cannot" in str(exc):
@@ -302,6 +340,17 @@ class StrawlabTriggerbox(SerialTrigger):
         return {"kind": "strawlab triggerbox", "version": self.version, "name": self.name(), "f_cpu": F_CPU,
                 "uart_baud": round(uart_baud(self._ser.baudrate), 1)}
 
+    def _strip_replies(self) -> bool:
+        """Drops a whole reply (late, unasked) at the start of the buffer, where the name is expected (it
+        has no header); True when one was dropped."""
+        buf = self._rx
+        if (len(buf) >= REPLY_LEN + 3 and buf[0] in b"PVO" and buf[1] == REPLY_LEN
+                and checksum(bytes(buf[2:2 + REPLY_LEN])) == buf[2 + REPLY_LEN]):
+            del buf[:REPLY_LEN + 3]
+            self.stats["stray_replies"] += 1
+            return True
+        return False
+
     def name(self) -> str:
         """The name in the box's EEPROM (N?); "" for a box never named (its EEPROM erased, 0xFF)."""
         raw = self._read_name()
@@ -310,11 +359,18 @@ class StrawlabTriggerbox(SerialTrigger):
         return raw.rstrip(b"\0").decode("ascii", "replace")
 
     def _read_name(self) -> bytes:
+        self._in_step_now()
         with self._lock:
             self._drain()
             self._write(b"N?")
             deadline = time.monotonic() + CONTROL_TIMEOUT_S
-            while len(self._rx) < NAME_LEN + 1:
+            while True:
+                if self._strip_replies():
+                    continue
+                buf = self._rx
+                maybe_reply = len(buf) >= 2 and buf[0] in b"PVO" and buf[1] == REPLY_LEN and len(buf) < REPLY_LEN + 3
+                if len(buf) >= NAME_LEN + 1 and not maybe_reply:
+                    break
                 if not self._read_some(deadline):
                     got = bytes(self._rx)
                     self._rx.clear()
@@ -373,7 +429,7 @@ class StrawlabTriggerbox(SerialTrigger):
             try:
                 count, ticks = self.version_sample()
             except TriggerError:
-                continue  # unanswered: the next try is realigned
+                continue  # unanswered: the next S0 goes after a clock query has shown the box in step
             if count == 0 and ticks == 0:
                 self.model.reset()
                 return
@@ -384,7 +440,6 @@ class StrawlabTriggerbox(SerialTrigger):
         if self.rate is None:
             raise TriggerError("frame rate unknown: call set_rate() first")
         token = self._next_byte()
-        self._last_token = token
         payload, t0, t1 = self._request(b"P" + bytes([token]), b"P", token, self.timeout_s)
         _, count, ticks = struct.unpack("<BIH", payload)
         top, period = self.rate.top, self.rate.top + 1
@@ -415,6 +470,7 @@ class StrawlabTriggerbox(SerialTrigger):
         taken for one)."""
         if channel not in (0, 1):
             raise TriggerError("the strawlab triggerbox has analog outputs 0 and 1")
+        self._in_step_now()  # O= taken apart would leave the box waiting for bytes that are our next queries
         self._levels[channel] = 4095 if level else 0  # 12-bit DAC, full scale
         seq = self._next_byte()
         payload, _, _ = self._request(b"O=" + struct.pack("<HHB", self._levels[0], self._levels[1], seq),

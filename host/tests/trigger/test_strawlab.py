@@ -261,7 +261,7 @@ def test_unplugged_box_is_a_trigger_error_not_a_traceback() -> None:
         tb._ser.close()  # the board is unplugged: every write fails at the port
         with pytest.raises(TriggerError, match="cannot"):
             tb.set_output(0, 1)
-        with pytest.raises(TriggerError, match="cannot write"):
+        with pytest.raises(TriggerError, match="cannot"):
             tb.stop()
         tb.close()
     finally:
