@@ -9,14 +9,17 @@ What the box does, and what the driver does about it:
   `reset_wait_s` (RESET_WAIT_S = 7 s, as Braid does) and asks `V?` every second until it answers,
   at most `connect_timeout_s` (20 s, as Braid) after opening. A port that does not reset the box
   (a simulated box on a pty) is opened with reset_wait_s = 0: the probes then start at once.
-- No framing. A command is two bytes, taken whenever two are waiting; one stray byte (a probe
-  that fell half into the end of the handshake, line noise) shifts every later pair. So from the
-  second query in a row left unanswered on (after one, the reply was more likely late), every
-  other query is sent with a leading '?': '?' is no command and a pair that starts with it does
-  nothing, so one of the two puts the box back in step. Replies are found by their header, length
-  (7) and checksum; whatever is waiting before a query is read and dropped first, and a reply to
-  another query (late, or not asked for) is dropped, so none of them shifts later queries onto
-  the wrong replies.
+- No framing. A command is two bytes, taken whenever two are waiting; one stray byte (line noise,
+  a probe cut in two as the box leaves its handshake) shifts every later pair. Replies are found by
+  their header, length (7) and checksum; whatever is waiting before a query is read and dropped
+  first, and a reply to another query (late, or not asked for) is dropped, so none of them shifts
+  later queries onto the wrong replies. The box itself is put back in step only on evidence: from
+  the second clock query in a row left unanswered on, with no late reply to a recent token seen
+  0.2 s more, every other query is sent with a leading '?' ('?' is no command, and a pair that
+  starts with it does nothing, so one of the two realigns the box). V? probes stay plain for the
+  first 8 s (the box may still be in its handshake). The commands the box does not answer (S, T=,
+  N=) and those that would leave it waiting for bytes (O=, N?) go only after a reply carrying a
+  token has shown it in step; a clock query is made first when none has.
 - Commands: `V?` (reply 'V', value 14), `P` + token (reply 'P' with the token), `S0` stop and zero
   the pulse count and TCNT1, `S1` start, `S2` stop only, `T=` + u16 LE TOP + '1' (prescaler 8) or
   '2' (64), `O=` + u16 + u16 + u8 (analog outputs; reply 'O' with the u8), `N?` (name), `N=` +
