@@ -1,8 +1,8 @@
 # Trigger firmware (firmware/avr_trigger): AVR builds for both MCUs and the simavr tests.
 # DVS USB bridge firmware (firmware/dvs_usb): the ATmega32U4 target build and its simulator build.
-.PHONY: firmware-avr firmware-dvs test-firmware
+.PHONY: firmware-avr firmware-dvs firmware-strawlab test-firmware
 
-firmware: firmware-avr firmware-dvs
+firmware: firmware-avr firmware-dvs firmware-strawlab
 
 firmware-avr:
 	@$(MAKE) --no-print-directory -C firmware/avr_trigger ROOT=$(ROOT) OUT=$(BUILD)/firmware
@@ -10,9 +10,13 @@ firmware-avr:
 firmware-dvs:
 	@$(MAKE) --no-print-directory -C firmware/dvs_usb ROOT=$(ROOT) OUT=$(BUILD)/firmware
 
+# The strawlab triggerbox stand-in (firmware/strawlab_box) that the strawlab driver is tested against.
+firmware-strawlab:
+	@$(MAKE) --no-print-directory -C firmware/strawlab_box ROOT=$(ROOT) OUT=$(BUILD)/firmware
+
 # Runs the real firmware in simavr (harnesses built by cbuild) and prints the figures: the trigger's,
 # and the DVS bridge's sustained event rate, timestamp error and sync events == pulses sent.
-test-firmware: cbuild firmware-avr firmware-dvs
+test-firmware: cbuild firmware-avr firmware-dvs firmware-strawlab
 	@$(PYTEST) -q -s tests/firmware host/tests/trigger
 
 PART_TARGETS += test-firmware firmware-dvs

@@ -56,6 +56,16 @@
  * it counts a parity bit that is not configured: 187 us a byte instead of the chip's 85 us (117647
  * baud). The harness recomputes the byte time from UBRR, U2X, UCSZ, UPM and USBS whenever any of
  * them is written, so the pty carries bytes at the chip's rate.
+ *
+ * Two more, for Timer1 started and stopped by software, as the strawlab triggerbox firmware does
+ * (firmware/strawlab_box): simavr 1.6 sets a "clear on match, set at BOTTOM" output (OC1A, OC1B)
+ * when the clock is switched on or TCNT1 is written below the match, but on the chip such an
+ * output is set only when the counter passes from TOP to BOTTOM: after a start from TCNT1 = 0 the
+ * first rising edge is one period later. The harness leaves out of the edge log a rising edge
+ * that simavr raises while a TCCR1B or TCNT1 write is under way. And simavr 1.6 reads TCNT1 as 0
+ * while the clock is off and starts again from 0, where the chip's counter keeps its value while
+ * stopped and goes on from it: the harness keeps the value when the clock goes off (and what is
+ * written to TCNT1 meanwhile), reads it back while the clock is off, and restarts from it.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -211,6 +221,82 @@ static void irq_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     }
 }
 
+/* Timer1 started and stopped by software, as on the chip (see the header comment) */
+static int g_t1_writing;   /* a TCCR1B or TCNT1 write is under way */
+static uint16_t g_t1_hold; /* TCNT1 while the clock is off */
+static struct {
+    avr_io_write_t c;
+    void *param;
+} g_t1_cs_w, g_t1_tcnt_w;
+static struct {
+    avr_io_read_t c;
+    void *param;
+} g_t1_tcnt_r;
+
+static int t1_clock_off(void) {
+    return (g_avr->data[g_t1->cs[0].reg] & 7) == 0;
+}
+
+static uint16_t t1_data_tcnt(void) {
+    return (uint16_t)(g_avr->data[g_t1->r_tcnt] | (g_avr->data[g_t1->r_tcnth] << 8));
+}
+
+static void t1_cs_write(struct avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param) {
+    (void)param;
+    int was_off = t1_clock_off();
+    if (!was_off && (v & 7) == 0) { /* stopping: the counter keeps its value */
+        g_t1_tcnt_r.c(avr, g_t1->r_tcnt, g_t1_tcnt_r.param);
+        g_t1_hold = t1_data_tcnt();
+    }
+    g_t1_writing++;
+    if (g_t1_cs_w.c)
+        g_t1_cs_w.c(avr, addr, v, g_t1_cs_w.param);
+    else
+        avr->data[addr] = v;
+    if (was_off && !t1_clock_off() && g_t1_hold) { /* started again: from the kept value */
+        avr->data[g_t1->r_tcnth] = (uint8_t)(g_t1_hold >> 8);
+        avr->data[g_t1->r_tcnt] = (uint8_t)g_t1_hold;
+        g_t1_tcnt_w.c(avr, g_t1->r_tcnt, (uint8_t)g_t1_hold, g_t1_tcnt_w.param);
+    }
+    g_t1_writing--;
+}
+
+static void t1_tcnt_write(struct avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param) {
+    (void)param;
+    g_t1_writing++;
+    g_t1_tcnt_w.c(avr, addr, v, g_t1_tcnt_w.param);
+    g_t1_writing--;
+    if (t1_clock_off())
+        g_t1_hold = t1_data_tcnt();
+}
+
+static uint8_t t1_tcnt_read(struct avr_t *avr, avr_io_addr_t addr, void *param) {
+    (void)param;
+    if (!t1_clock_off())
+        return g_t1_tcnt_r.c(avr, addr, g_t1_tcnt_r.param);
+    avr->data[g_t1->r_tcnth] = (uint8_t)(g_t1_hold >> 8);
+    avr->data[g_t1->r_tcnt] = (uint8_t)g_t1_hold;
+    return avr->data[addr];
+}
+
+static void t1_start_stop_install(void) {
+    int cs = AVR_DATA_TO_IO(g_t1->cs[0].reg), tc = AVR_DATA_TO_IO(g_t1->r_tcnt);
+    if (!g_t1->r_tcnth || !g_avr->io[tc].w.c || !g_avr->io[tc].r.c)
+        return;
+    g_t1_cs_w.c = g_avr->io[cs].w.c;
+    g_t1_cs_w.param = g_avr->io[cs].w.param;
+    g_avr->io[cs].w.c = t1_cs_write;
+    g_avr->io[cs].w.param = NULL;
+    g_t1_tcnt_w.c = g_avr->io[tc].w.c;
+    g_t1_tcnt_w.param = g_avr->io[tc].w.param;
+    g_avr->io[tc].w.c = t1_tcnt_write;
+    g_avr->io[tc].w.param = NULL;
+    g_t1_tcnt_r.c = g_avr->io[tc].r.c;
+    g_t1_tcnt_r.param = g_avr->io[tc].r.param;
+    g_avr->io[tc].r.c = t1_tcnt_read;
+    g_avr->io[tc].r.param = NULL;
+}
+
 static void on_signal(int s) {
     (void)s;
     g_stop = 1;
@@ -251,6 +337,9 @@ static void pin_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     uint64_t cycle = g_avr->cycle;
     (void)irq;
     g_activity++;
+    /* simavr sets a PWM output when Timer1 is started; the chip only at the next BOTTOM */
+    if (level && g_t1_writing && (sig == SIG_TRIGGER || sig == SIG_PULSE0))
+        return;
     if (sig == SIG_TRIGGER)
         cycle = timer_edge_cycle(AVR_TIMER_COMPA, level);
     else if (sig == SIG_PULSE0)
@@ -660,6 +749,7 @@ int main(int argc, char **argv) {
     avr_irq_register_notify(g_t1->overflow.irq + AVR_INT_IRQ_PENDING, tov_hook, NULL);
     if (find_timer(g_avr, '3'))
         tsm_model_install();
+    t1_start_stop_install();
 
     if (edges) {
         g_log = fopen(edges, "w");

@@ -49,8 +49,8 @@ def _print_braidz_counts(path: Path, counts: dict[str, int]) -> None:
 
 def retrack_command(
     source: Path = typer.Argument(..., help="A FlyTrack recording, a .braidz, a Braid .braid folder or a flydra .h5."),
-    out: Path | None = typer.Option(None, "--out", help="New recording folder (default: beside SOURCE, named "
-                                    "SOURCE-without-suffix.retrack.flytrack)."),
+    out: Path | None = typer.Option(None, "--out", help="New recording folder (default: beside SOURCE, its name "
+                                    "without .h5/.braidz/.braid/.flytrack + .retrack.flytrack)."),
     calibration: Path | None = typer.Option(None, help="Calibration file: flydra XML or .h5, pymvg JSON, ... "
                                             "(default: the one in SOURCE)."),
     params: Path | None = typer.Option(None, "--params", help="TOML with tracking parameters ([tracking] table)."),
@@ -61,7 +61,7 @@ def retrack_command(
 ) -> None:
     """Re-run the tracker offline over recorded 2D data, possibly with other tracking parameters. The result
     carries the calibration it used; when nothing tracks although points arrived, the run says why."""
-    from flytrack_host.io.retrack import RetrackError, cameras_for, load_2d, params_with, retrack
+    from flytrack_host.io.retrack import RetrackError, cameras_for, default_output, load_2d, params_with, retrack
 
     warns: list[str] = []
     try:
@@ -72,8 +72,8 @@ def retrack_command(
         console.print(f"[red]error[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
     for w in [*data.notes, *warns]:
-        if w.startswith("braid tracking_params"):
-            continue  # information kept in the output's text log, not a problem
+        if w.startswith(("braid tracking_params", "trigger clock")):
+            continue  # information kept in the output's text log (the clock's is printed below)
         console.print(f"[yellow]warning[/yellow] {w}", highlight=False)
     data.notes = [*data.notes, *warns]
     rate = fps or data.fps
@@ -89,7 +89,7 @@ def retrack_command(
         console.print(f"frame rate not in the source: {rate:.3f} fps inferred from {how} (--fps overrides)",
                       highlight=False)
     if out is None:
-        out = source.with_name(source.name.split(".")[0] + ".retrack.flytrack")
+        out = default_output(source)
     if out.exists():
         console.print(f"[red]error[/red] {out} exists; pass another --out")
         raise typer.Exit(code=2)

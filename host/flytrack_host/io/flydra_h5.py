@@ -30,6 +30,8 @@ from flytrack_host.io.braidz import _rows_from_braid_df
 from flytrack_host.io.data2d import Data2D
 
 _FPS_RE = re.compile(r"running at\s+([0-9]+(?:\.[0-9]*)?(?:[eE][+-]?[0-9]+)?)\s*fps")
+_TOP_RE = re.compile(r"\btop\s+([0-9]+)\b")
+_VERSION_RE = re.compile(r"using flydra version\s+([0-9]+(?:\.[0-9]+)*)")
 
 
 def _text(v: object) -> str:
@@ -47,6 +49,34 @@ def fps_from_textlog(messages: list[str]) -> float | None:
     return None
 
 
+
+
+def clock_tcnt_scale(messages: list[str]) -> tuple[float | None, str]:
+    """What `trigger_clock_info.tcnt` counts up to, as flydra's own time model reads it
+    (result_utils.get_time_model_from_data): the textlog's "top N" when it has one (flydra before 0.5.3
+    kept the raw timer value, e.g. 0..10000), else 255 for flydra 0.5.3 on (and Braid: the fraction
+    of the frame x 255), else unknown (None). Returns (scale, what it was taken from)."""
+    version = None
+    for msg in messages:
+        m = _TOP_RE.search(msg)
+        if m and int(m.group(1)) > 0:
+            return float(m.group(1)), f"the textlog's top {m.group(1)}"
+        v = _VERSION_RE.search(msg)
+        if v:
+            version = tuple(int(x) for x in v.group(1).split("."))
+    if version is None or version >= (0, 5, 3):
+        return 255.0, "255 (flydra 0.5.3 on, Braid)"
+    return None, f"flydra {'.'.join(map(str, version))} without a timer top in its textlog"
+
+
+def _with_fraction(clock: np.ndarray, scale: float) -> np.ndarray:
+    """The clock table with a `fraction` column (tcnt / scale) added."""
+    names = clock.dtype.names or ()
+    out = np.zeros(len(clock), dtype=[*clock.dtype.descr, ("fraction", "<f8")])
+    for n in names:
+        out[n] = clock[n]
+    out["fraction"] = np.asarray(clock["tcnt"], dtype=np.float64) / scale
+    return out
 
 
 def _table(h5: h5py.File, name: str) -> np.ndarray | None:
@@ -114,8 +144,9 @@ def read_flydra_h5(path: Path | str) -> Data2D:
         by_id = read_flydra_calibration(h5, notes)
         fps = None
         tl = _table(h5, "textlog")
-        if tl is not None and "message" in tl.dtype.names:
-            fps = fps_from_textlog([_text(m) for m in tl["message"]])
+        messages = [_text(m) for m in tl["message"]] if tl is not None and "message" in tl.dtype.names else []
+        if messages:
+            fps = fps_from_textlog(messages)
         for key in ("fps", "framerate"):
             if fps is None and key in h5.attrs:
                 fps = float(h5.attrs[key])
@@ -129,5 +160,15 @@ def read_flydra_h5(path: Path | str) -> Data2D:
     data = Data2D(rows=rows, cam_names=names, fps=fps, calibration=None, source=str(path), cameras=cameras,
                   notes=notes)
     if clock is not None and len(clock):
+        names = clock.dtype.names or ()
+        if "tcnt" in names and "fraction" not in names:
+            scale, source = clock_tcnt_scale(messages)
+            if scale is None:
+                notes.append(f"trigger clock: tcnt's range is unknown ({source}): samples not used")
+                clock = None
+            else:
+                clock = _with_fraction(clock, scale)
+                if scale != 255.0:
+                    notes.append(f"trigger clock: tcnt is the timer's count up to {scale:g} ({source})")
         data.clock_samples = clock
     return data

@@ -31,6 +31,22 @@ class RetrackError(Exception):
     pass
 
 
+SOURCE_SUFFIXES = (".h5", ".hdf5", ".braidz", ".braid", ".flytrack")
+
+
+def default_output(source: Path | str) -> Path:
+    """Where `flytrack retrack SOURCE` writes without --out: beside SOURCE, its name without the
+    suffix of its kind (only that one: "sample_datafile-v0.4.28.h5" -> "sample_datafile-v0.4.28"), plus
+    ".retrack.flytrack"."""
+    source = Path(source)
+    name = source.name
+    for suffix in SOURCE_SUFFIXES:
+        if name.lower().endswith(suffix) and len(name) > len(suffix):
+            name = name[: -len(suffix)]
+            break
+    return source.with_name(name + ".retrack.flytrack")
+
+
 def data2d_from_recording(path: Path) -> Data2D:
     rec = load_recording(path)
     names = {}
@@ -119,12 +135,11 @@ def clock_from_samples(data: Data2D, fps: float) -> tuple[np.ndarray | None, lis
     t1 = np.asarray(c["stop_timestamp"], dtype=np.float64)
     frac = (np.asarray(c["fraction"], dtype=np.float64) if "fraction" in names
             else np.asarray(c["tcnt"], dtype=np.float64) / 255.0)
-    corr = correct_clock_counts(np.asarray(c["framecount"], dtype=np.float64), frac, 0.5 * (t0 + t1))
+    corr = correct_clock_counts(np.asarray(c["framecount"], dtype=np.float64), frac, 0.5 * (t0 + t1), rtt=t1 - t0)
 
     def fit(frames: np.ndarray) -> ClockModel:
         m = ClockModel(frame_period_s=1.0 / fps, window=max(len(c), 2), max_rtt_s=0.02)
-        for a, b, f in zip(t0, t1, frames, strict=True):
-            m.add_sample(float(a), float(b), float(f) / fps)
+        m.fit_batch(t0, t1, frames / fps)  # once over the recording (refitting per sample is O(n^2))
         return m
 
     model = fit(corr.frames)
@@ -148,8 +163,12 @@ def clock_from_samples(data: Data2D, fps: float) -> tuple[np.ndarray | None, lis
     out["start_timestamp"], out["stop_timestamp"] = t0, t1
     out["framecount"] = np.floor(corr.frames).astype(np.int64)
     out["fraction"] = corr.frames - np.floor(corr.frames)
+    mark = (f", the count stepping {100 * corr.mark:.1f} % into the frame (found from the samples)"
+            if corr.early_fixed and np.isfinite(corr.mark) else "")
     lines = [f"trigger clock: {len(c)} samples, {corr.early_fixed} taken early in a frame (count not yet "
-             f"incremented) corrected by one frame{offset_line}"]
+             f"incremented{mark}) corrected by one frame{offset_line}"]
+    if corr.note:
+        lines.append(f"trigger clock: {corr.note}")
     if model.fitted:
         lines[0] += (f"; fit residual {model.residual_s * 1e6:.0f} us, gain {model.gain:.8f}")
         rows = data.rows

@@ -22,20 +22,22 @@ err = Console(stderr=True, soft_wrap=True)  # one line per message, whatever the
 
 PortOpt = typer.Option("/dev/ttyUSB0", "--port", "-p", help="Serial port of the trigger box.")
 KindOpt = typer.Option("flytrack", "--kind", help="flytrack (this firmware) or strawlab (triggerbox).")
-WaitOpt = typer.Option(2.0, "--reset-wait", min=0.0, help="Seconds to wait after opening (Arduino reset on open).")
+WaitOpt = typer.Option(None, "--reset-wait", min=0.0, show_default=False,
+                       help="Seconds to wait after opening (the Arduino resets on open): default 2 for flytrack, "
+                            "7 for strawlab (its name handshake; it is then asked V? every second up to 20 s).")
 
 
-def _open(port: str, kind: str, reset_wait: float):  # noqa: ANN202 - either driver
+def _open(port: str, kind: str, reset_wait: float | None):  # noqa: ANN202 - either driver
     try:
         if kind == "strawlab":
-            from .strawlab import StrawlabTriggerbox
+            from .strawlab import RESET_WAIT_S, StrawlabTriggerbox
 
-            return StrawlabTriggerbox(port, reset_wait_s=reset_wait)
+            return StrawlabTriggerbox(port, reset_wait_s=RESET_WAIT_S if reset_wait is None else reset_wait)
         if kind != "flytrack":
             raise TriggerError(f"unknown --kind {kind!r} (flytrack or strawlab)")
         from .device import TriggerDevice
 
-        return TriggerDevice(port, reset_wait_s=reset_wait)
+        return TriggerDevice(port, reset_wait_s=2.0 if reset_wait is None else reset_wait)
     except TriggerError as exc:
         err.print(f"[red]error[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
@@ -47,7 +49,7 @@ def _fail(exc: Exception) -> None:
 
 
 @app.command()
-def info(port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt) -> None:
+def info(port: str = PortOpt, kind: str = KindOpt, reset_wait: float | None = WaitOpt) -> None:
     """Print what the device reports about itself."""
     with _open(port, kind, reset_wait) as dev:
         try:
@@ -60,7 +62,7 @@ def info(port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt) 
 @app.command()
 def start(
     fps: float = typer.Option(..., "--fps", help="Frame rate asked for; the exact rate made is printed."),
-    port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
+    port: str = PortOpt, kind: str = KindOpt, reset_wait: float | None = WaitOpt,
 ) -> None:
     """Set the frame rate and start triggering."""
     with _open(port, kind, reset_wait) as dev:
@@ -76,7 +78,7 @@ def start(
 
 
 @app.command()
-def stop(port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
+def stop(port: str = PortOpt, kind: str = KindOpt, reset_wait: float | None = WaitOpt,
          reset: bool = typer.Option(False, "--reset", help="Also zero the frame count.")) -> None:
     """Stop triggering."""
     with _open(port, kind, reset_wait) as dev:
@@ -92,7 +94,7 @@ def watch(
     fps: float = typer.Option(100.0, "--fps", help="Frame rate (the device is restarted at it)."),
     seconds: float = typer.Option(10.0, "--seconds", min=0.0, help="How long to watch (0 = until Ctrl-C)."),
     period: float = typer.Option(0.05, "--period", min=0.001, help="Clock query period, s."),
-    port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
+    port: str = PortOpt, kind: str = KindOpt, reset_wait: float | None = WaitOpt,
 ) -> None:
     """Live clock-model figures: frame, gain, offset, residual, samples."""
     with _open(port, kind, reset_wait) as dev:
@@ -127,7 +129,7 @@ def pulse(
     width_ms: float = typer.Option(1.0, "--width-ms", help="Pulse width, ms."),
     channel: int = typer.Option(0, "--channel", min=0,
                                 help="Output channel: 0 is the exact pulse output (D10, hardware/README.md)."),
-    port: str = PortOpt, kind: str = KindOpt, reset_wait: float = WaitOpt,
+    port: str = PortOpt, kind: str = KindOpt, reset_wait: float | None = WaitOpt,
     fps: float = typer.Option(100.0, "--fps", help="Frame rate the device runs at (to convert the width)."),
 ) -> None:
     """Fire a pulse (high-speed camera trigger) now or at a given frame."""

@@ -187,6 +187,27 @@ class ClockModel:
         self.fit()
         return True
 
+    def fit_batch(self, host_t0: np.ndarray, host_t1: np.ndarray, device_time_s: np.ndarray) -> bool:
+        """Fits the model once over many samples in time order (a recording's), as add_sample one by
+        one would end up, without refitting after each: samples that are not finite or whose round trip
+        exceeds max_rtt_s are rejected; where the device time goes back (a restart) the window starts
+        afresh; the last `window` samples are fitted. Returns whether a fit was made."""
+        t0 = np.asarray(host_t0, dtype=np.float64)
+        t1 = np.asarray(host_t1, dtype=np.float64)
+        dev = np.asarray(device_time_s, dtype=np.float64)
+        ok = np.isfinite(t0) & np.isfinite(t1) & np.isfinite(dev) & (t1 >= t0) & (t1 - t0 <= self.max_rtt_s)
+        self.rejected_rtt += int((~ok).sum())
+        idx = np.flatnonzero(ok)
+        back = np.flatnonzero(np.diff(dev[idx]) < 0)
+        if len(back):
+            self.restarts += len(back)
+            idx = idx[back[-1] + 1:]
+        self.reset()
+        for i in idx[-self.window:]:
+            a, b = float(t0[i]), float(t1[i])
+            self._samples.append(ClockSample(a, b, float(dev[i]), self.sample_host_time(a, b)))
+        return self.fit()
+
     def _offset_of(self, s: ClockSample) -> float:
         return s.host_sample - self.gain * s.device_time_s
 
@@ -342,10 +363,13 @@ class ClockModel:
 
 
 # ---------------------------------------------------------------------------------------------
-# Samples taken early in a frame (strawlab triggerbox): the timer has wrapped but the pulse count
-# has not been incremented yet, so (count + fraction) is exactly one frame short.
+# Samples taken early in a frame (strawlab triggerbox, flydra's trigger devices): the frame under way
+# has begun but the pulse count has not stepped yet (it steps at a fixed timer mark, e.g. the
+# strawlab firmware's OCR1A match 1000 ticks into the frame), so (count + fraction) is exactly one
+# frame short for every sample taken before that mark.
 # ---------------------------------------------------------------------------------------------
-EARLY_FRACTION = 0.15  # fraction of a frame (15 % = 1.5 ms at 100 fps) below which a sample is suspect
+CLASSIFY_TOL = 0.3  # frames: a sample within this of 0 (or 1) frame off the line is clean (or early)
+MIN_CLOCK_SAMPLES = 8
 
 
 @dataclass
@@ -353,39 +377,111 @@ class CountCorrection:
     frames: np.ndarray  # corrected (count + fraction) per sample, in frames
     early_fixed: int  # samples found one frame short (count not yet incremented) and corrected
     count_offset: int  # constant offset added to every count (firmware convention)
+    mark: float = math.nan  # fraction of the frame at which the count steps, found from the samples
+    conflicts: int = 0  # samples whose own offset from the line disagreed with the mark (they were followed)
+    note: str = ""  # why nothing was corrected although some samples looked one frame short
+
+
+def _running_median(x: np.ndarray, window: int) -> np.ndarray:
+    """Median of each value's `window` neighbours (odd); near the ends, of the first or last `window`."""
+    half = window // 2
+    if len(x) <= 2 * half + 1:
+        return np.full(len(x), float(np.median(x)))
+    med = np.median(np.lib.stride_tricks.sliding_window_view(x, 2 * half + 1), axis=1)
+    return np.concatenate([np.full(half, med[0]), med, np.full(half, med[-1])])
+
+
+def _best_mark(fr: np.ndarray, early: np.ndarray) -> tuple[float, float, int]:
+    """Where in the frame samples known early (count not stepped) are best split from those known clean
+    above them -> (the last fraction before the split, the first after it, samples on the wrong side)."""
+    order = np.argsort(fr, kind="stable")
+    f, e = fr[order], early[order]
+    # cost of splitting before index k: clean ones below + early ones above
+    clean_below = np.concatenate([[0], np.cumsum(~e)])
+    early_above = np.concatenate([np.cumsum(e[::-1])[::-1], [0]])
+    cost = clean_below + early_above
+    k = int(np.argmin(cost))
+    lo = f[k - 1] if k > 0 else 0.0
+    hi = f[k] if k < len(f) else 1.0
+    return float(lo), float(hi), int(cost[k])
+
+
+def _segment_corrections(fr: np.ndarray, frames: np.ndarray, host: np.ndarray, tight: np.ndarray
+                         ) -> tuple[np.ndarray, float, int, str]:
+    """One run of samples (time order, count not going back) -> (fix mask, mark, conflicts, note)."""
+    n = len(frames)
+    none = np.zeros(n, dtype=bool)
+    half = n // 2
+    df, dh = frames[half:2 * half] - frames[:half], host[half:2 * half] - host[:half]
+    ok = df > 0
+    if not ok.any():
+        return none, math.nan, 0, ""
+    a = float(np.median(dh[ok] / df[ok]))  # host seconds per frame: pairs half the run apart
+    if not (math.isfinite(a) and a > 0):
+        return none, math.nan, 0, ""
+    f0, h0 = float(np.median(frames)), float(np.median(host))
+    lag = (host - h0) / a - (frames - f0)  # frames the host time says the sample is ahead of its count
+    lag -= _running_median(lag, 61)  # against its neighbours: slow drift of the two clocks cancels
+    near1, near0 = np.abs(lag - 1.0) < CLASSIFY_TOL, np.abs(lag) < CLASSIFY_TOL
+    sure = tight & (near0 | near1)
+    if not (sure & near1).any():
+        return none, math.nan, 0, ""
+    lo, hi, conflicts = _best_mark(fr[sure], near1[sure])
+    mark = 0.5 * (lo + hi)
+    if conflicts > 0.02 * int(sure.sum()) or mark > 0.5:
+        note = (f"{int((sure & near1).sum())} samples look one frame short, but not all below one place in the "
+                f"frame (best split {mark:.3f} of the frame, {conflicts} on the wrong side): none corrected")
+        return none, mark, conflicts, note
+    # Below the step: the count had not stepped, unless the sample itself clearly says otherwise; after
+    # it: only a sample clearly one frame short (an interrupt that ran late). Between the last sample
+    # known before the step and the first known after it, each sample's own offset decides.
+    gap = (fr > lo) & (fr < hi)
+    fix = ((fr <= lo) & ~(tight & near0)) | (gap & (lag > 0.5)) | (tight & near1)
+    return fix, mark, conflicts, ""
 
 
 def correct_clock_counts(
     count: np.ndarray, fraction: np.ndarray, host_time: np.ndarray, count_offset: int = 0,
-    early_fraction: float = EARLY_FRACTION,
+    rtt: np.ndarray | None = None,
 ) -> CountCorrection:
     """Frame positions (count + count_offset + fraction) of clock samples, with the early-frame error
-    fixed: a line host = a * frames + b is fitted on the samples whose fraction is >= early_fraction
-    (they cannot have the error); a sample with a smaller fraction that sits one frame (+-0.5) ahead
-    of its (count + fraction) on that line gets count + 1. Needs 3 unaffected samples, else nothing is
-    changed. count_offset: Braid's and the strawlab firmware's counts number the pulse under way from 1
-    (pass -1 to make frame 0 the first pulse) where others count completed pulses (0)."""
+    fixed from the samples themselves: a line host = a x frames + b (robust: slopes between samples
+    half the run apart, offsets against the running median of their neighbours) puts each sample 0
+    or 1 frame ahead of its count; those clearly one frame short (with a round trip no longer than the
+    median, when `rtt` is given) and those clearly on the line give the mark, the fraction of the
+    frame below which the count has not stepped (the split with fewest samples on the wrong side;
+    it must have at most 2 % there and lie in the first half of the frame). Every sample below the
+    mark then gets count + 1, unless it clearly sits on the line; above it only a sample clearly one
+    frame short does. No sample clearly short: nothing changes (a count that steps at the wrap).
+    A count going back (the device restarted) starts a new run, handled on its own. count_offset:
+    Braid's and the strawlab firmware's counts number the pulse under way from 1 (pass -1 to make
+    frame 0 the first pulse) where others count completed pulses (0)."""
     count = np.asarray(count, dtype=np.float64)
     fraction = np.asarray(fraction, dtype=np.float64)
     host = np.asarray(host_time, dtype=np.float64)
     frames = count + count_offset + fraction
-    good = np.isfinite(frames) & np.isfinite(host)
-    clean = good & (fraction >= early_fraction)
-    if clean.sum() < 3 or np.ptp(frames[clean]) <= 0:
-        return CountCorrection(frames, 0, count_offset)
-    f0, h0 = float(frames[clean].mean()), float(host[clean].mean())
-    fc, hc = frames[clean] - f0, host[clean] - h0
-    a = float(np.dot(fc, hc) / np.dot(fc, fc))  # seconds per frame
-    # One robust pass: drop samples far off (long round trips) before the final line.
-    r = hc - a * fc
-    keep = np.abs(r - np.median(r)) <= max(5 * 1.4826 * float(np.median(np.abs(r - np.median(r)))), 1e-6)
-    if keep.sum() >= 3:
-        f0, h0 = float(frames[clean][keep].mean()), float(host[clean][keep].mean())
-        fc, hc = frames[clean][keep] - f0, host[clean][keep] - h0
-        a = float(np.dot(fc, hc) / np.dot(fc, fc))
-    predicted = f0 + (host - h0) / a
-    lag = predicted - frames
-    fix = good & (fraction < early_fraction) & (np.abs(lag - 1.0) < 0.5)
     out = frames.copy()
-    out[fix] += 1.0
-    return CountCorrection(out, int(fix.sum()), count_offset)
+    good = np.isfinite(frames) & np.isfinite(host)
+    idx = np.flatnonzero(good)
+    idx = idx[np.argsort(host[idx], kind="stable")]
+    if rtt is not None:
+        r = np.asarray(rtt, dtype=np.float64)[idx]
+        tight = r <= np.median(r[np.isfinite(r)]) if np.isfinite(r).any() else np.ones(len(idx), dtype=bool)
+    else:
+        tight = np.ones(len(idx), dtype=bool)
+    cuts = np.flatnonzero(np.diff(frames[idx]) < -1.5) + 1  # the count went back (not just one short): a new run
+    fixed, marks, conflicts, notes = 0, [], 0, []
+    for seg in np.split(np.arange(len(idx)), cuts):
+        if len(seg) < MIN_CLOCK_SAMPLES:
+            continue
+        j = idx[seg]
+        fix, mark, c, note = _segment_corrections(fraction[j], frames[j], host[j], tight[seg])
+        out[j[fix]] += 1.0
+        fixed += int(fix.sum())
+        conflicts += c
+        if note:
+            notes.append(note)
+        elif math.isfinite(mark):
+            marks.append(mark)
+    return CountCorrection(out, fixed, count_offset, float(np.median(marks)) if marks else math.nan, conflicts,
+                           "; ".join(notes))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 import time
@@ -94,12 +95,40 @@ def open_serial(port: str, baudrate: int, timeout: float = 0.05) -> serial.Seria
         raise TriggerError(f"cannot open serial port {port}: {text}") from None
 
 
-class ClockThread:
-    """Calls `query` every `period_s` seconds in a daemon thread until stopped."""
+GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
-    def __init__(self, query: Callable[[], object], period_s: float) -> None:
+
+class QuerySchedule:
+    """When clock queries are due: every `interval_s`, each moved within the frame by a share of the
+    frame period `spread_s` that walks through the frame (k x golden ratio mod 1), so that an
+    interval that is a whole number of frames does not put every query at the same place in the
+    frame (the strawlab box's count steps 1000 ticks into it; a query that always lands before
+    that step, or always at it, tells the clock model less). Falls back in step when late."""
+
+    def __init__(self, spread_s: float = 0.0) -> None:
+        self.spread_s = max(0.0, float(spread_s or 0.0))
+        self._grid = time.monotonic()
+        self._k = 0
+
+    def next_wait(self, interval_s: float) -> float:
+        """Seconds from now to the next query, `interval_s` after the last one's grid point."""
+        now = time.monotonic()
+        self._k += 1
+        self._grid += interval_s
+        if self._grid < now - interval_s:  # far behind (a slow query, a reconnect): start again from now
+            self._grid = now
+        due = self._grid + self.spread_s * ((self._k * GOLDEN) % 1.0)
+        return max(0.0, due - now)
+
+
+class ClockThread:
+    """Calls `query` every `period_s` seconds in a daemon thread until stopped; with `spread_s` (the
+    frame period) each call is moved within the frame (QuerySchedule)."""
+
+    def __init__(self, query: Callable[[], object], period_s: float, spread_s: float = 0.0) -> None:
         self._query = query
         self._period = period_s
+        self._schedule = QuerySchedule(spread_s)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="trigger-clock", daemon=True)
         self.errors = 0
@@ -109,15 +138,13 @@ class ClockThread:
         self._thread.start()
 
     def _run(self) -> None:
-        next_t = time.monotonic()
         while not self._stop.is_set():
             try:
                 self._query()
             except (TriggerError, OSError, serial.SerialException) as exc:
                 self.errors += 1
                 self.last_error = exc
-            next_t += self._period
-            self._stop.wait(max(0.0, next_t - time.monotonic()))
+            self._stop.wait(self._schedule.next_wait(self._period))
 
     def stop(self) -> None:
         self._stop.set()
@@ -137,7 +164,9 @@ class SerialTrigger:
 
     def start_clock_thread(self, period_s: float = 0.1) -> None:
         if self._clock_thread is None:
-            self._clock_thread = ClockThread(self.query_clock, period_s)
+            model = getattr(self, "model", None)
+            self._clock_thread = ClockThread(self.query_clock, period_s,
+                                             spread_s=getattr(model, "frame_period_s", None) or 0.0)
             self._clock_thread.start()
 
     def stop_clock_thread(self) -> None:

@@ -42,13 +42,15 @@ import serial
 
 from flytrack_host.rig import TriggerConfig
 from flytrack_host.trigger.clock_model import ClockModel
-from flytrack_host.trigger.common import TriggerError
+from flytrack_host.trigger.common import QuerySchedule, TriggerError
 from flytrack_host.trigger.device import ClockReading
 from flytrack_host.util import hostclock
 
 log = logging.getLogger("flytrack.trigger_session")
 
 ARDUINO_RESET_WAIT_S = 2.0  # an Arduino resets when its port opens; its bootloader listens ~1-2 s
+# A strawlab box then spends ~5.5 s in its name handshake: 7 s, then V? every second up to 20 s
+# (the driver's RESET_WAIT_S and CONNECT_TIMEOUT_S, as Braid does).
 WARMUP_SAMPLES = 15  # clock queries at WARMUP_INTERVAL_S right after a start, before the rig's interval
 WARMUP_INTERVAL_S = 0.02
 # The software stand-in, a thread of this process, replies when a loaded host gets to it: "no reply
@@ -172,8 +174,12 @@ def open_device(cfg: TriggerConfig, port: str | None = None, reset_wait_s: float
             raise
     wait = reset_wait_s if reset_wait_s is not None else (0.0 if is_pty(port) else ARDUINO_RESET_WAIT_S)
     if cfg.kind == "strawlab":
-        from flytrack_host.trigger.strawlab import StrawlabTriggerbox
+        from flytrack_host.trigger.strawlab import RESET_WAIT_S, StrawlabTriggerbox
 
+        if reset_wait_s is None and not is_pty(port):
+            wait = RESET_WAIT_S
+        # A pty (a simulated box) is not reset by opening it, but it may have just booted: the driver's
+        # V? probes, every second for up to 20 s, wait through the handshake either way.
         return StrawlabTriggerbox(port, cfg.baud, reset_wait_s=wait, model=model), None
     from flytrack_host.trigger.device import TriggerDevice
 
@@ -376,6 +382,9 @@ class TriggerSession:
 
     def _clock_loop(self) -> None:
         last_reconnect = time.monotonic()
+        # Each query moved within the frame (QuerySchedule): the warm-up's 20 ms and many a rig's
+        # interval are whole numbers of frames, which would put every query at one place in the frame.
+        schedule = QuerySchedule(self.period_s)
         while not self._stop.is_set():
             with self._dev_lock:
                 if self._stop.is_set():
@@ -385,7 +394,8 @@ class TriggerSession:
                     last_reconnect = time.monotonic()
                     self._reconnect()
             self._warmup_left -= 1
-            self._stop.wait(WARMUP_INTERVAL_S if self._warmup_left > 0 else self.interval_s)
+            schedule.spread_s = self.period_s
+            self._stop.wait(schedule.next_wait(WARMUP_INTERVAL_S if self._warmup_left > 0 else self.interval_s))
 
     # --- stopping ---------------------------------------------------------------------------------
     def stop(self) -> None:

@@ -52,19 +52,43 @@ def tools_available() -> bool:
     )
 
 
+def strawlab_box_path() -> Path:
+    """The strawlab triggerbox stand-in for simavr (firmware/strawlab_box: what the strawlab firmware,
+    version 14, does on the wire). FLYTRACK_STRAWLAB_ELF names another ELF to run in its place, for
+    example the original firmware built with the Arduino core (docs/compatibility.md)."""
+    other = os.environ.get("FLYTRACK_STRAWLAB_ELF")
+    return Path(other) if other else build_dir() / "firmware" / "atmega328p" / "strawlab_box.elf"
+
+
+def build_strawlab_box() -> tuple[Path, Path]:
+    """Builds the strawlab box stand-in (make) and the harness (cmake) if missing; returns (harness, elf)."""
+    elf = strawlab_box_path()
+    if not elf.exists() and "FLYTRACK_STRAWLAB_ELF" not in os.environ:
+        subprocess.run(
+            ["make", "-s", "-C", str(REPO_ROOT / "firmware" / "strawlab_box"), f"OUT={build_dir() / 'firmware'}"],
+            check=True,
+        )
+    return _build_harness(), elf
+
+
 def build(mcu: str = MCU_DEFAULT) -> tuple[Path, Path]:
     """Builds the firmware (make) and the harness (cmake) if missing; returns (harness, elf)."""
-    elf, harness = firmware_path(mcu), harness_path()
+    elf = firmware_path(mcu)
     if not elf.exists():
         subprocess.run(
             ["make", "-s", "-C", str(REPO_ROOT / "firmware" / "avr_trigger"), f"OUT={build_dir() / 'firmware'}"],
             check=True,
         )
+    return _build_harness(), elf
+
+
+def _build_harness() -> Path:
+    harness = harness_path()
     if not harness.exists():
         b = build_dir()
         subprocess.run(["cmake", "-S", str(REPO_ROOT), "-B", str(b), "-Wno-dev"], check=True, capture_output=True)
         subprocess.run(["cmake", "--build", str(b), "--target", "flytrack_trigger_sim", "-j", "2"], check=True)
-    return harness, elf
+    return harness
 
 
 @dataclass(frozen=True)

@@ -330,3 +330,91 @@ def test_truncated_h5_files_are_one_error_line_naming_the_file(tmp_path: Path) -
         out = _flat(r.output)
         assert r.exit_code == 2, (args, out)
         assert out.startswith("error") and "_cut.h5" in out and "Traceback" not in out, (args, out)
+
+
+def _flydra_04_clock(path: Path, seed: int, top: int = 10000, step_ticks: int = 1050) -> dict:
+    """Rewrites the file's clock as flydra 0.4 wrote it (sample_datafile-v0.4.28.h5): the textlog says
+    "(top 10000, ...)" and "using flydra version 0.4.28", tcnt is the timer's raw count (u2, 0..top), and
+    every sample taken before the timer passed `step_ticks` has the frame count not yet incremented."""
+    rng = np.random.default_rng(seed)
+    fpos = np.sort(rng.uniform(1, N_FRAMES - 1, 600))
+    count = np.floor(fpos)
+    tcnt = np.floor((fpos - count) * top)
+    early = tcnt < step_ticks
+    rtt = rng.uniform(0.001, 0.003, len(fpos))
+    sampled = 1.7e9 + (count + tcnt / top) / FPS  # when the device read its clock
+    start = sampled - rng.uniform(0, 1, len(fpos)) * rtt
+    clock = np.zeros(len(fpos), dtype=[("start_timestamp", "<f8"), ("framecount", "<i8"), ("tcnt", "<u2"),
+                                       ("stop_timestamp", "<f8")])
+    clock["start_timestamp"], clock["stop_timestamp"] = start, start + rtt
+    clock["framecount"], clock["tcnt"] = count - early, tcnt
+    textlog = np.array([(1.7e9, b"mainbrain", 1.7e9, f"MainBrain running at {FPS:.1f} fps, (top {top}, "
+                         "hypothesis_test_max_error 20.0)".encode()),
+                        (1.7e9, b"mainbrain", 1.7e9, b"using flydra version 0.4.28")],
+                       dtype=[("mainbrain_timestamp", "<f8"), ("cam_id", "S255"), ("host_timestamp", "<f8"),
+                              ("message", "S255")])
+    with h5py.File(path, "a") as h5:
+        del h5["trigger_clock_info"], h5["textlog"]
+        h5["trigger_clock_info"] = clock
+        h5["textlog"] = textlog
+    return {"early": int(early.sum()), "frames": count + tcnt / top}
+
+
+def test_flydra_04_clock_samples_with_the_count_not_yet_incremented_are_found(tmp_path: Path) -> None:
+    """flydra 0.4's clock samples (sample_datafile-v0.4.28.h5): tcnt counts to the textlog's top (10000),
+    and 1 sample in 10 is taken before the count steps 1050 ticks into the frame, the frame count then
+    one short. The count step is found from the samples; every such sample is corrected, and the
+    default output keeps the dots of the file's name."""
+    path = tmp_path / "sample_datafile-v0.4.28.h5"
+    write_flydra_h5(path, seed=4)
+    truth = _flydra_04_clock(path, seed=4)
+    r = CliRunner().invoke(app, ["retrack", str(path), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    text = _flat(r.output)
+    assert f"{truth['early']} taken early in a frame" in text and truth["early"] > 40, text
+    step = re.search(r"stepping ([0-9.]+) % into the frame", text)
+    assert step and abs(float(step.group(1)) - 10.5) < 1.0, text  # where the samples leave it: 1050 of 10000
+    out = tmp_path / "sample_datafile-v0.4.28.retrack.flytrack"
+    assert out.is_dir(), sorted(p.name for p in tmp_path.iterdir())
+    clock = load_recording(out).table("trigger_clock_info")
+    frames = clock["framecount"] + clock["fraction"]
+    assert np.abs(frames - truth["frames"]).max() < 1e-6
+
+def test_retrack_output_is_named_without_the_suffix_only() -> None:
+    from flytrack_host.io.retrack import default_output
+
+    assert default_output(Path("/d/sample_datafile-v0.4.28.h5")) == Path("/d/sample_datafile-v0.4.28.retrack.flytrack")
+    assert default_output(Path("run.2024-05-01.braidz")) == Path("run.2024-05-01.retrack.flytrack")
+    assert default_output(Path("/d/run.v2.flytrack")) == Path("/d/run.v2.retrack.flytrack")
+    assert default_output(Path("/d/exp.braid")) == Path("/d/exp.retrack.flytrack")
+    assert default_output(Path("/d/old.H5")) == Path("/d/old.retrack.flytrack")
+
+
+def test_flydra_analysis_sample_file(tmp_path: Path) -> None:
+    """flydra-analysis's own sample_datafile-v0.4.28.h5 (17 MB, in its source package; not kept here):
+    FLYTRACK_FLYDRA_SAMPLE names it. 1010 of its 10113 clock samples have the count not yet incremented;
+    corrected, the clock model's causal prediction error (each sample against the fit of those before
+    it) has a P99 of ~0.45 ms, where it was ~10 ms."""
+    import os
+    import shutil
+
+    from flytrack_host.trigger.clock_model import ClockModel
+
+    src = os.environ.get("FLYTRACK_FLYDRA_SAMPLE")
+    if not src or not Path(src).is_file():
+        pytest.skip("FLYTRACK_FLYDRA_SAMPLE does not name flydra-analysis's sample_datafile-v0.4.28.h5")
+    path = tmp_path / "sample_datafile-v0.4.28.h5"
+    shutil.copy(src, path)
+    r = CliRunner().invoke(app, ["retrack", str(path), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert "10113 samples, 1010 taken early in a frame" in _flat(r.output), r.output
+    clock = load_recording(tmp_path / "sample_datafile-v0.4.28.retrack.flytrack").table("trigger_clock_info")
+    m, errs = ClockModel(frame_period_s=0.01, window=200, max_rtt_s=0.02), []
+    for a, b, f in zip(clock["start_timestamp"], clock["stop_timestamp"], clock["framecount"] + clock["fraction"],
+                       strict=True):
+        if m.fitted:
+            errs.append(m.device_to_host(float(f) * 0.01) - m.sample_host_time(float(a), float(b)))
+        m.add_sample(float(a), float(b), float(f) * 0.01)
+    p99 = float(np.percentile(np.abs(errs), 99))
+    print(f"\nsample_datafile-v0.4.28.h5: causal clock prediction error P99 {p99 * 1e3:.2f} ms")
+    assert p99 < 1e-3

@@ -100,7 +100,8 @@ def test_link_timing_from_the_wire() -> None:
     assert link.reply_s == pytest.approx(17 * 10 / 115200)
     assert link.device_s == FIRMWARE_SAMPLE_DELAY_S
     sl = strawlab_timing(115200)
-    assert (sl.request_s, sl.reply_s) == (pytest.approx(2 * 10 / 115200), pytest.approx(10 * 10 / 115200))
+    # The box's UART runs at 16 MHz / 136 = 117647 baud when 115200 is asked for.
+    assert (sl.request_s, sl.reply_s) == (pytest.approx(2 * 10 / 117647.06), pytest.approx(10 * 10 / 117647.06))
     # The sample: request in, processing, half the latency the wire does not explain; never later than
     # the reply's start, never before t0.
     assert link.sample_time(100.0, 100.003) == pytest.approx(
@@ -162,6 +163,52 @@ def test_recorded_samples_with_the_early_frame_error_are_corrected() -> None:
     assert clean.early_fixed == 0 and np.array_equal(clean.frames, count + frac)
     few = correct_clock_counts(count_rec[:3], frac[:3], host[:3])
     assert few.early_fixed == 0
+
+
+def _strawlab_500fps_samples(n: int, seed: int, noise_s: float = 50e-6, early_mark: int | None = 1000,
+                             restart_at: int | None = None, bow_s: float = 0.0):
+    """Clock samples of a strawlab box at 500 fps (prescaler 8, TOP 3999: 2 ms frames), fraction =
+    TCNT1 / 4000; with early_mark, TCNT1 <= early_mark has the count not yet stepped. A restart
+    (count back to 0) after sample `restart_at`; a slow bow of the host clock against the device's."""
+    rng = np.random.default_rng(seed)
+    period = 0.002
+    true = np.sort(rng.uniform(5, 20000, n))  # frame position of each sample
+    if restart_at is not None:
+        true[restart_at:] -= true[restart_at] - 3.0  # the box restarted: counting again from 0
+    d = np.diff(true)
+    host = 1.7e9 + np.cumsum(np.r_[0.0, np.where(d < 0, 500.0, d)]) * period  # restarted 1 s later
+    host += bow_s * np.sin(np.linspace(0, np.pi, n)) + rng.normal(0, noise_s, n)
+    count = np.floor(true)
+    ticks = np.floor((true - count) * 4000)
+    early = ticks <= early_mark if early_mark is not None else np.zeros(n, dtype=bool)
+    return count - early, ticks / 4000, host, count + ticks / 4000, early
+
+
+def test_the_count_step_is_found_from_the_samples() -> None:
+    """The strawlab box at 500 fps steps its count 1000 ticks (25 %) into each 4000-tick frame, past any
+    fixed early-frame window: the mark is found from the samples, every sample below it corrected, none
+    above; with a restart in the middle and the host clock bowing 3 ms against the device's."""
+    from flytrack_host.trigger.clock_model import correct_clock_counts
+
+    count, frac, host, truth, early = _strawlab_500fps_samples(1500, seed=5, restart_at=900, bow_s=0.003)
+    assert early.sum() > 300 and (frac[early] > 0.15).sum() > 100
+    res = correct_clock_counts(count, frac, host)
+    print(f"\n{int(early.sum())} of {len(count)} samples before the count's step; found {res.early_fixed}, "
+          f"mark {getattr(res, 'mark', float('nan')):.4f} of the frame (true: between 1000 and 1001 ticks "
+          f"of 4000), {getattr(res, 'conflicts', '-')} conflicts")
+    assert res.early_fixed == int(early.sum())
+    assert np.abs(res.frames - truth).max() < 1e-9
+    assert abs(res.mark - 0.25) < 0.002  # between the last sample seen before the step and the first after
+
+
+def test_no_count_step_no_correction_even_with_noisy_round_trips() -> None:
+    """A device whose count steps at the wrap (FlyTrack's firmware): nothing is corrected, even when the
+    round trips scatter the midpoints by a third of a frame."""
+    from flytrack_host.trigger.clock_model import correct_clock_counts
+
+    count, frac, host, truth, _ = _strawlab_500fps_samples(1500, seed=6, noise_s=0.0007, early_mark=None)
+    res = correct_clock_counts(count, frac, host)
+    assert res.early_fixed == 0 and np.array_equal(res.frames, truth)
 
 
 def _loaded_link_queries(seconds: float, rate_hz: float, seed: int, ppm: float = 37.0):
