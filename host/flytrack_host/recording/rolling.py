@@ -8,6 +8,7 @@ the thread that appends rows).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import time
@@ -20,6 +21,7 @@ from flytrack_host.recording.parts import part_dirs, part_name
 from flytrack_host.recording.schema import H5_NAME, META_NAME, TABLES
 from flytrack_host.util import hostclock
 
+log = logging.getLogger("flytrack.recording")
 ROLL_RETRY_S = 5.0  # a new part that could not be made (a full disk) is tried again this much later
 NEW_PART = object()  # queued by new_part(): the writer starts a new part there
 
@@ -32,7 +34,9 @@ class PartsMixin:
 
     def _make_part(self, folder: Path, index: int) -> tuple[dict[str, int], dict[str, int]]:
         """A new part: its folder, meta.json, the attached files, the raw files with the header rows so far.
-        On failure nothing of it is left (so it can be tried again)."""
+        On failure nothing of it is left (so it can be tried again); a folder a failed try left is replaced."""
+        if folder.exists() and not (folder / META_NAME).exists():
+            shutil.rmtree(folder)
         folder.mkdir(exist_ok=False)
         fds: dict[str, int] = {}
         try:
@@ -100,9 +104,15 @@ class PartsMixin:
         except OSError as exc:
             self.stats.roll_errors += 1
             self._roll_retry_at = time.monotonic() + ROLL_RETRY_S
-            self._error(f"recording: cannot start part {index} ({os.strerror(exc.errno) if exc.errno else exc}); "
-                        f"going on in {old_dir.name}", exc)
+            self.last_error = (f"recording: cannot start part {index} ({os.strerror(exc.errno) if exc.errno else exc});"
+                               f" going on in {old_dir.name}, trying again every {ROLL_RETRY_S:g} s")
+            if self._roll_failures == 0:  # once per episode
+                log.error("%s", self.last_error)
+            self._roll_failures += 1
             return False
+        if self._roll_failures:
+            log.warning("recording: part %d started after %d failed tries", index, self._roll_failures)
+            self._roll_failures = 0
         self._sync()
         closed = sum(self._sizes.values())
         age = time.monotonic() - self._part_started

@@ -45,8 +45,16 @@ def _ordered(rows: np.ndarray) -> np.ndarray:
     return ok
 
 
-def _lowest_frame(tables: dict[str, np.ndarray]) -> float | None:
-    lows = [float(t["trigger_frame"][_ordered(t)].min()) for t in tables.values() if _ordered(t).any()]
+def _lowest_frame(tables: dict[str, np.ndarray], at_least: float | None) -> float | None:
+    """The lowest frame of the ordered rows (those below `at_least` left out: they come too late anyway,
+    and must not hold back what can be handed on)."""
+    lows = []
+    for t in tables.values():
+        ok = _ordered(t)
+        if at_least is not None:
+            ok &= t["trigger_frame"] >= at_least
+        if ok.any():
+            lows.append(float(t["trigger_frame"][ok].min()))
     return min(lows) if lows else None
 
 
@@ -70,7 +78,7 @@ def frame_blocks(parts: Iterable[dict[str, np.ndarray]]) -> Iterator[FrameBlock]
         if nxt is None:
             below = np.inf
         else:
-            low = _lowest_frame(nxt)
+            low = _lowest_frame(nxt, done_below)
             # An empty next part tells nothing: hold everything (a later part may still hold rows of it).
             below = low if low is not None else (done_below if done_below is not None else -np.inf)
             if done_below is not None:

@@ -133,6 +133,7 @@ class Recorder(PartsMixin):
         self._attached: dict[str, bytes] = {}  # copied into every new part
         self._header: dict[str, list[bytes]] = {}  # HEADER_TABLES rows written so far, for every new part
         self._roll_retry_at = 0.0
+        self._roll_failures = 0  # failed tries to start the next part, in a row
         self._finalizer = (PartFinalizer(on_done=self._part_finalised)
                            if parts is not None and parts.finalize == "process" else None)
 
