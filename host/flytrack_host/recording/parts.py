@@ -59,7 +59,9 @@ class PartPolicy:
             limits.append(f"{self.seconds / 60:g} min")
         if self.bytes:
             limits.append(f"{self.bytes / 1e9:g} GB")
-        return "a new part every " + " or ".join(limits) + " (whichever first)" if limits else "parts on request"
+        if not limits:
+            return "a new part on request"
+        return "a new part every " + " or ".join(limits) + (", whichever first" if len(limits) > 1 else "")
 
 
 def part_name(index: int) -> str:
