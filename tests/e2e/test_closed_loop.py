@@ -9,7 +9,6 @@ import json
 import os
 from pathlib import Path
 
-import h5py
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -93,9 +92,11 @@ def test_entry_drives_the_pulse_the_coil_and_the_can_frame(demo) -> None:  # noq
 
 def test_recording_holds_the_firings(demo) -> None:  # noqa: ANN001
     report, _ = demo
-    with h5py.File(report.recording, "r") as f:
-        t = f["actuation_firings"][:]
-        assert "kalman_estimates" in f and "data2d_distorted" in f  # the other tables as before
+    from flytrack_host.recording import load_recording
+
+    rec = load_recording(report.recording)  # a recording in parts, read as one
+    t = rec.table("actuation_firings")
+    assert "kalman_estimates" in rec.tables and "data2d_distorted" in rec.tables  # the other tables as before
     r = report.actuation["rules"]["enters_box"]
     assert len(t) == 3 * r["fired"]
     assert sorted({o.decode() for o in t["output"]}) == ["hscam", "stimulus_can", "valve"]
@@ -105,16 +106,14 @@ def test_recording_holds_the_firings(demo) -> None:  # noqa: ANN001
     exact = cam[(cam["flags"] & FIRING_FRAME_EXACT) != 0]
     assert set(exact["scheduled_frame"].tolist()) <= set(r["pulse_frames_on_pin"])
     # The text log (exported with the .braidz too) says where each high-speed camera trigger point is.
-    from flytrack_host.recording import load_recording
-
-    lines = [x["message"] for x in load_recording(report.recording).textlog if x["source"] == "actuation"]
+    lines = [x["message"] for x in rec.textlog if x["source"] == "actuation"]
     for f in exact["scheduled_frame"].tolist():
         assert any(f"hscam: pulse (high-speed camera trigger point) at trigger frame {f} (exact)" in m for m in lines)
 
 
 def test_rules_replay_on_the_recording(demo, tmp_path: Path) -> None:  # noqa: ANN001
     report, out = demo
-    rec = Path(report.recording).parent
+    rec = Path(report.recording)  # the recording folder
     runner = CliRunner()
     js, png = tmp_path / "replay.json", tmp_path / "replay.png"
     res = runner.invoke(app, ["rules", "replay", str(rec), "--rules", str(RULES), "--json", str(js), "--plot",

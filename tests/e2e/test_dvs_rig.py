@@ -8,6 +8,7 @@ import json
 
 import pytest
 
+from flytrack_host.recording import load_recording
 from flytrack_host.sim.run import DemoConfig, find_edge_binary, run_demo, write_json
 
 
@@ -47,7 +48,6 @@ def test_every_dvs_event_reaches_the_host(dvs_demo, tmp_path):
 
 @pytest.mark.slow
 def test_dvs_clusters_reach_the_tracker_and_the_recording_flags_them(dvs_demo):
-    import h5py
     import numpy as np
 
     from flytrack_host.recording.schema import FLAG_DVS
@@ -59,8 +59,7 @@ def test_dvs_clusters_reach_the_tracker_and_the_recording_flags_them(dvs_demo):
     assert sum(d["points_observed"] for d in r.dvs) > 0
     assert 0 < sum(d["points_used"] for d in r.dvs) <= sum(d["points_observed"] for d in r.dvs)
     assert r.scores.false_positives == 0  # DVS points update tracks, never start phantom ones
-    with h5py.File(r.recording, "r") as f:
-        d = f["data2d_distorted"][:]
+    d = load_recording(r.recording).table("data2d_distorted")  # the demo records in parts
     dvs_rows = d[(d["flags"] & FLAG_DVS) != 0]
     assert set(np.unique(dvs_rows["camera_index"])) <= {2, 3} and len(dvs_rows) > 0
     assert not np.any((d["flags"][np.isin(d["camera_index"], [0, 1])] & FLAG_DVS) != 0)
@@ -98,8 +97,7 @@ def test_retrack_of_the_recording_uses_the_dvs_points_with_their_covariance(dvs_
     from flytrack_host.io.retrack import cameras_for, load_2d, params_with, retrack
 
     _, r = dvs_demo
-    with h5py.File(r.recording, "r") as f:
-        cov = f["dvs_point_covariance"][:]
+    cov = load_recording(r.recording).table("dvs_point_covariance")
     assert len(cov) > 100 and set(cov["camera_index"].tolist()) <= {2, 3}
     assert (cov["var_x"] > 0).all() and (cov["var_y"] > 0).all()
     data = load_2d(r.recording)

@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import json
 import zipfile
+from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
+from flytrack_host.recording.parts import part_dirs
 from flytrack_host.sim.run import PREROLL_FRAMES, DemoConfig, find_edge_binary, run_demo, write_json
 from flytrack_host.trigger import simulator
 from flytrack_host.util.testing import missing_part
@@ -93,12 +95,17 @@ def test_loopback_loses_nothing_and_the_host_publishes(demo):
 @pytest.mark.slow
 def test_recording_opens_with_h5py_and_exports_to_braidz(demo):
     _, r = demo
-    with h5py.File(r.recording, "r") as f:
-        k = f["kalman_estimates"][:]
-        assert len(k) > 100
-        assert len(np.unique(k["obj_id"])) >= 2 and np.all(np.isfinite(k["x"]))
-        d = f["data2d_distorted"][:]
-        assert set(np.unique(d["camera_index"])) == {0, 1, 2}
+    parts = part_dirs(Path(r.recording))  # the demo records in parts: each part is an HDF5 file of its own
+    assert parts
+    k, d = [], []
+    for part in parts:
+        with h5py.File(part / "recording.h5", "r") as f:
+            k.append(f["kalman_estimates"][:])
+            d.append(f["data2d_distorted"][:])
+    k, d = np.concatenate(k), np.concatenate(d)
+    assert len(k) > 100
+    assert len(np.unique(k["obj_id"])) >= 2 and np.all(np.isfinite(k["x"]))
+    assert set(np.unique(d["camera_index"])) == {0, 1, 2}
     with zipfile.ZipFile(r.braidz) as z:
         names = set(z.namelist())
     assert "kalman_estimates.csv.gz" in names and "data2d_distorted.csv.gz" in names

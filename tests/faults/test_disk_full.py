@@ -17,6 +17,7 @@ import pytest
 
 from flytrack_host.protocol.udp import POINT_DTYPE, FeatureFrame, encode_features
 from flytrack_host.recording import load_recording
+from flytrack_host.recording.parts import part_dirs
 from flytrack_host.util.testing import small_tmpfs
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -75,14 +76,15 @@ def test_disk_full_exits_non_zero_and_recover_says_what_to_do(small_disk, tmp_pa
     # recover on the full disk: one clear line, what to do, exit 2; no traceback
     r = subprocess.run(FLYTRACK + ["recording", "recover", str(rec)], capture_output=True, text=True, cwd=ROOT)
     said = r.stdout + r.stderr
-    if r.returncode == 0:  # finalising at stop fitted after all: then the file is there and opens
-        assert (rec / "recording.h5").exists()
+    if r.returncode == 0:  # finalising at stop fitted after all: then the files are there and open
+        assert all((p / "recording.h5").exists() for p in part_dirs(rec))
     else:
         assert r.returncode == 2 and "Traceback" not in said, said
         assert "disk is full" in said and "--out" in said and "Nothing is lost" in said, said
-        assert not list(rec.glob("*.tmp")), "a failed recover must not leave its partial file behind"
-    # ... and with --out on another disk it works; every row written before the disk filled is there.
-    dest = tmp_path / "elsewhere.h5"
+        assert not list(rec.rglob("*.tmp")), "a failed recover must not leave its partial file behind"
+    # ... and with --out on another disk it works (a recording in parts: a folder of its parts' HDF5
+    # files); every row written before the disk filled is there.
+    dest = tmp_path / "elsewhere.flytrack"
     r = subprocess.run(FLYTRACK + ["recording", "recover", str(rec), "--out", str(dest), "--force"],
                        capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr

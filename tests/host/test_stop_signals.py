@@ -1,7 +1,7 @@
 """Stops cleanly (issue 24): `flytrack demo`, `flytrack run` and the fault suite, each in a process of its
 own, sent SIGINT (Ctrl-C), SIGTERM (a service manager, a supervisor) or SIGKILL once running. Every
 process it started (its descendants, found in /proc before the signal) must be gone within a deadline,
-whatever the signal; after SIGINT or SIGTERM the recording must be finalised (recording.h5, readable,
+whatever the signal; after SIGINT or SIGTERM the recording must be finalised (every part its recording.h5, readable,
 with the frames received) and the exit code must be Ctrl-C's.
 
 Descendants are read from /proc/<pid>/task/*/children, and known by (pid, start time) so that a pid
@@ -25,6 +25,7 @@ import pytest
 
 from flytrack_host.protocol.udp import POINT_DTYPE, FeatureFrame, encode_features
 from flytrack_host.recording import load_recording
+from flytrack_host.recording.parts import part_dirs
 
 ROOT = Path(__file__).resolve().parents[2]
 FLYTRACK = [sys.executable, "-m", "flytrack_host.cli"]
@@ -45,6 +46,12 @@ def _stat(pid: int) -> tuple[str, int] | None:
         return None
     return fields[0], int(fields[19])
 
+
+
+def finalised(rec: Path) -> bool:
+    """Every part of the recording has its recording.h5 (the demo and `run` record in parts)."""
+    parts = part_dirs(rec)
+    return bool(parts) and all((p / "recording.h5").exists() for p in parts)
 
 def _cmdline(pid: int) -> str:
     try:
@@ -195,7 +202,7 @@ def test_demo_stops_with_everything_it_started(tmp_path, sig):
                                    "--out", str(out)], tmp_path)
     try:
         def running() -> bool:
-            d2 = rec / "data2d_distorted.bin"  # frames received and flushed: the trigger runs
+            d2 = rec / "part-0001" / "data2d_distorted.bin"  # frames received and flushed: the trigger runs
             kids = descendants(demo.pid).values()
             return (d2.exists() and d2.stat().st_size > 0
                     and sum(_is_edge(c) for _, c in kids) == 2
@@ -215,7 +222,7 @@ def test_demo_stops_with_everything_it_started(tmp_path, sig):
         return
     assert rc == CTRL_C_EXIT["demo"], err[-3000:]
     assert "stopped by " + ("SIGTERM" if sig == signal.SIGTERM else "Ctrl-C") in err, err[-3000:]
-    assert (rec / "recording.h5").exists(), sorted(p.name for p in rec.iterdir())
+    assert finalised(rec), sorted(p.name for p in rec.rglob("*"))
     d2 = load_recording(rec).table("data2d_distorted")
     assert len(d2) > 0
     info = subprocess.run(FLYTRACK + ["recording", "info", str(rec)], cwd=ROOT, capture_output=True, text=True,
@@ -265,7 +272,7 @@ def test_run_stops_with_everything_it_started_and_finalises(tmp_path, sig):
                         sock.sendto(d, ("127.0.0.1", port))
                     seq[cam] += 1
                 time.sleep(0.01)
-        d2 = out / "data2d_distorted.bin"
+        d2 = out / "part-0001" / "data2d_distorted.bin"
         run.wait_for("recording frames", lambda: d2.exists() and d2.stat().st_size > 0, 60.0)
     except BaseException:
         run.abandon()
@@ -277,7 +284,7 @@ def test_run_stops_with_everything_it_started_and_finalises(tmp_path, sig):
         assert rc == -signal.SIGKILL
         return
     assert rc == CTRL_C_EXIT["run"], err[-3000:]
-    assert (out / "recording.h5").exists(), sorted(p.name for p in out.iterdir())
+    assert finalised(out), sorted(p.name for p in out.rglob("*"))
     d2 = load_recording(out).table("data2d_distorted")
     assert {int(c) for c in d2["camera_index"]} == {0, 1}
 

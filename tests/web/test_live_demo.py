@@ -12,7 +12,6 @@ import math
 import threading
 import time
 
-import h5py
 import numpy as np
 import pytest
 
@@ -113,8 +112,9 @@ def live_demo(tmp_path_factory):
 
 
 def _kalman(report) -> np.ndarray:
-    with h5py.File(report.recording, "r") as f:
-        return f["kalman_estimates"][:]
+    from flytrack_host.recording import load_recording
+
+    return load_recording(report.recording).table("kalman_estimates")  # the demo records in parts
 
 
 @pytest.mark.slow

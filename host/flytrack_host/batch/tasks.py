@@ -77,9 +77,8 @@ def _base_row(task: Task) -> dict[str, Any]:
 
 def _retrack(task: Task, tmp: Path) -> dict[str, Any]:
     from flytrack_host.io.retrack import RetrackError, cameras_for, load_2d, params_with, retrack
-    from flytrack_host.recording import load_recording
 
-    data = load_2d(task.source)
+    data = load_2d(task.source, stream=True)  # a recording in parts: re-tracked part by part
     cams = cameras_for(data, task.calibration)
     params = params_with(data.tracking_params, None, list(task.params.sets))
     fps = task.fps or data.fps
@@ -87,7 +86,7 @@ def _retrack(task: Task, tmp: Path) -> dict[str, Any]:
         raise RetrackError(f"{task.source}: the source does not give the frame rate: pass --fps")
     res = retrack(data, cams, params, fps, out=tmp, progress=False)
     row = _base_row(task)
-    row.update(recording_metrics(load_recording(tmp), cams))
+    row.update(recording_metrics(tmp, cams))
     if res.why_nothing:  # why it tracked nothing although 2D points came (retrack's reasons, with numbers)
         row["why_no_estimates"] = "; ".join(res.why_nothing)
     row.update({"frames": res.frames, "tracker_s": res.seconds,
@@ -98,9 +97,9 @@ def _retrack(task: Task, tmp: Path) -> dict[str, Any]:
 def _export(task: Task, tmp: Path) -> dict[str, Any]:
     from flytrack_host.io.braidz import export_braidz
     from flytrack_host.io.csv_export import export_csv
-    from flytrack_host.recording import load_recording
+    from flytrack_host.recording.source import open_source
 
-    rec = load_recording(task.source)
+    rec = open_source(task.source)  # a recording in parts is exported part by part
     tmp.mkdir(parents=True)
     row = _base_row(task)
     if "braidz" in task.formats:

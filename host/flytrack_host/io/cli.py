@@ -11,20 +11,22 @@ console = Console()
 
 
 def export_command(
-    recording: Path = typer.Argument(..., help="A FlyTrack recording (folder or its recording.h5)."),
+    recording: Path = typer.Argument(..., help="A FlyTrack recording (folder, in parts or not, or its recording.h5)."),
     braidz: Path | None = typer.Option(None, "--braidz", help="Write Braid's .braidz archive here."),
     csv: Path | None = typer.Option(None, "--csv", help="Write one CSV file per table into this folder."),
 ) -> None:
-    """Export a recording to .braidz (Braid) and/or CSV (spreadsheets)."""
+    """Export a recording to .braidz (Braid) and/or CSV (spreadsheets). A recording in parts is read part by
+    part, so a day's recording exports in the memory of about two parts."""
     from flytrack_host.io.braidz import export_braidz
     from flytrack_host.io.csv_export import export_csv
-    from flytrack_host.recording import RecordingError, load_recording
+    from flytrack_host.recording import RecordingError
+    from flytrack_host.recording.source import open_source
 
     if braidz is None and csv is None:
         console.print("[red]error[/red] nothing to do: pass --braidz OUT and/or --csv OUT_DIR")
         raise typer.Exit(code=2)
     try:
-        rec = load_recording(recording)
+        rec = open_source(recording)
     except RecordingError as exc:
         console.print(f"[red]error[/red] {exc}", highlight=False)
         raise typer.Exit(code=2) from None
@@ -45,6 +47,10 @@ def _print_braidz_counts(path: Path, counts: dict[str, int]) -> None:
     if left:
         console.print("[yellow]warning[/yellow] rows Braid has no place for were left out: "
                       + ", ".join(f"{k} {v}" for k, v in left.items()), highlight=False)
+    late = counts.get("rows written out of frame order")
+    if late:
+        console.print(f"[yellow]warning[/yellow] {late} rows came more than a part after their frame: written after "
+                      "it, out of frame order", highlight=False)
 
 
 def retrack_command(
@@ -108,9 +114,8 @@ def retrack_command(
         console.print(f"[yellow]warning[/yellow] no estimates: {w}", highlight=False)
     if braidz is not None:
         from flytrack_host.io.braidz import export_braidz
-        from flytrack_host.recording import load_recording
 
-        _print_braidz_counts(braidz, export_braidz(load_recording(res.out), braidz))
+        _print_braidz_counts(braidz, export_braidz(res.out, braidz))
 
 
 def compare_command(

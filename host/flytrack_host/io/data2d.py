@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -33,6 +34,9 @@ class Data2D:
     clock_samples: np.ndarray | None = None
     # DVS_COVARIANCE rows: the event cameras' points' covariances (FlyTrack recordings since they are kept)
     dvs_cov: np.ndarray | None = None
+    # A FlyTrack recording in parts read part by part (recording.source.RecordingSource): `rows` and
+    # `dvs_cov` are then empty and a re-track streams the parts (load_2d(..., stream=True)).
+    parts: Any = None
 
 
 def empty_rows(n: int) -> np.ndarray:

@@ -3,13 +3,18 @@
 Sources: a FlyTrack recording (folder or recording.h5), a `.braidz`, or a flydra `.h5`. The result
 is a new FlyTrack recording (2D rows copied, new 3D estimates and associations), finalised to HDF5,
 which `flytrack export` turns into .braidz or CSV like any other.
+
+A FlyTrack recording in parts is re-tracked part by part (`load_2d(..., stream=True)`): the parts are
+regrouped by frame (recording.stream) and fed in order to one tracker, whose state carries over from
+part to part, so the estimates are those of the recording read whole; memory stays at about two parts.
+The result is a recording in parts too, one part per part of the source.
 """
 
 from __future__ import annotations
 
 import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,8 +26,11 @@ from tqdm import tqdm
 from flytrack_host.geometry.camera import Camera
 from flytrack_host.io.data2d import Data2D, dvs_rows_left_out, fill_undistorted, iter_bundles, n_frames
 from flytrack_host.recording.finalize import RecordingError
+from flytrack_host.recording.parts import PartPolicy
 from flytrack_host.recording.reader import load_recording
-from flytrack_host.recording.schema import CAM_INFO, TRIGGER_CLOCK
+from flytrack_host.recording.schema import CAM_INFO, DATA2D, TRIGGER_CLOCK
+from flytrack_host.recording.source import open_source
+from flytrack_host.recording.stream import frame_blocks
 from flytrack_host.recording.writer import Recorder
 from flytrack_host.tracking.params import TrackingParams
 
@@ -47,19 +55,30 @@ def default_output(source: Path | str) -> Path:
     return source.with_name(name + ".retrack.flytrack")
 
 
-def data2d_from_recording(path: Path) -> Data2D:
+def data2d_from_recording(path: Path, stream: bool = False) -> Data2D:
+    """2D data of a FlyTrack recording; with `stream` a recording in parts is not read here but part by
+    part by `retrack` (Data2D.parts)."""
+    if stream:
+        src = open_source(path)
+        if src.parted:
+            return Data2D(rows=np.zeros(0, dtype=DATA2D), cam_names=_names(src.table("cam_info")), fps=src.fps,
+                          calibration=src.calibration, source=str(path),
+                          tracking_params=src.meta.get("tracking_params"), parts=src)
     rec = load_recording(path)
-    names = {}
-    for r in rec.table("cam_info"):
-        names[int(r["camera_index"])] = r["calibration_id"].decode() or r["name"].decode()
+    names = _names(rec.table("cam_info"))
     dvs_cov = rec.table("dvs_point_covariance")
     return Data2D(rows=rec.table("data2d_distorted").copy(), cam_names=names, fps=rec.fps,
                   calibration=rec.calibration, source=str(path), tracking_params=rec.meta.get("tracking_params"),
                   dvs_cov=dvs_cov.copy() if len(dvs_cov) else None)
 
 
-def load_2d(path: Path | str) -> Data2D:
-    """2D data from a FlyTrack recording, a .braidz or Braid's .braid folder, or a flydra .h5 (by content)."""
+def _names(cam_info: np.ndarray) -> dict[int, str]:
+    return {int(r["camera_index"]): r["calibration_id"].decode() or r["name"].decode() for r in cam_info}
+
+
+def load_2d(path: Path | str, stream: bool = False) -> Data2D:
+    """2D data from a FlyTrack recording, a .braidz or Braid's .braid folder, or a flydra .h5 (by content).
+    `stream`: a FlyTrack recording in parts is left on disk for `retrack` to read part by part."""
     path = Path(path)
     if not path.exists():
         raise RetrackError(f"{path}: no such file or folder")
@@ -70,7 +89,7 @@ def load_2d(path: Path | str) -> Data2D:
 
         return read_braidz(path)
     try:
-        return data2d_from_recording(path)
+        return data2d_from_recording(path, stream=stream)
     except RecordingError:
         if path.is_file():
             from flytrack_host.io.flydra_h5 import read_flydra_h5
@@ -224,6 +243,17 @@ class RetrackResult:
     notes: list[str] | None = None  # what the run said on the way (clock fit, missing calibration, ...)
 
 
+def _blocks(data: Data2D) -> Iterator[tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]:
+    """(2D rows, their DVS covariances, rows too late to track) per block: the whole source at once, or a
+    recording in parts regrouped by frame part by part (recording.stream)."""
+    if data.parts is None:
+        yield data.rows, data.dvs_cov, None
+        return
+    for b in frame_blocks(data.parts.iter_tables(["data2d_distorted", "dvs_point_covariance"])):
+        cov = b.tables["dvs_point_covariance"]
+        yield b.tables["data2d_distorted"], cov if len(cov) else None, b.late.get("data2d_distorted")
+
+
 def retrack(
     data: Data2D,
     cameras: Mapping[int, Camera],
@@ -236,77 +266,80 @@ def retrack(
 ) -> RetrackResult:
     if tracker_factory is None:
         from flytrack_host.tracking.tracker import Tracker as tracker_factory  # noqa: N813
-    rows = data.rows
-    fill_undistorted(rows, cameras)
+    parted = data.parts is not None
     tracker = tracker_factory(cameras, params, 1.0 / fps)
     clock, clock_lines = clock_from_samples(data, fps)
     notes = list(data.notes) + clock_lines
-    left_out = dvs_rows_left_out(rows, data.dvs_cov)
-    if left_out:
-        notes.append(f"{left_out} event-camera points left out: the source has no covariance for them "
-                     "(recorded before FlyTrack kept it), and the tracker weighs them by it")
+    if not parted:
+        fill_undistorted(data.rows, cameras)
+        left_out = dvs_rows_left_out(data.rows, data.dvs_cov)
+        if left_out:
+            notes.append(_left_out_note(left_out))
     rec = None
     if out is not None:
-        rec = Recorder(out, flush_interval_s=1.0, on_full="block", meta={
+        rec = Recorder(out, flush_interval_s=1.0, on_full="block", parts=PartPolicy() if parted else None, meta={
             "rig_name": f"retrack of {Path(data.source).name}", "fps": fps,
             "tracking_params": params.model_dump(), "retracked_from": data.source, "saving_program": "flytrack retrack",
         })
         rec.start()
-        # The calibration used travels with the result (so it can be retracked again).
-        from flytrack_host.geometry.formats import CalibrationFormatError
-
-        try:
-            rec.attach("calibration.xml", calibration_xml(data, cameras))
-        except CalibrationFormatError as exc:  # e.g. tank-wall interfaces flydra XML cannot hold
-            if data.calibration is not None:
-                rec.attach(data.calibration[0], data.calibration[1])
-            notes.append(f"the calibration used could not be written as flydra XML ({exc}); "
-                         + ("the source's calibration file is attached instead" if data.calibration is not None
-                            else "the result carries no calibration"))
-        ci = np.zeros(len(data.cam_names), dtype=CAM_INFO)
-        for i, (idx, name) in enumerate(sorted(data.cam_names.items())):
-            ci[i] = (idx, name.encode()[:64], b"", name.encode()[:64])
-        rec.append("cam_info", ci)
-        rec.log(f"MainBrain running at {fps:g} fps")
-        rec.log(f"retracked from {data.source} with {params.model_dump_json()}")
-        path = getattr(tracker, "kernel_path", "numpy")
-        rec.log(f"tracker: {'C kernel' if path == 'c' else 'NumPy'} path")
-        for line in notes:
-            rec.log(line)
-        rec.append("data2d_distorted", rows)
-        if data.dvs_cov is not None:
-            rec.append("dvs_point_covariance", data.dvs_cov)
+        _start_output(rec, data, cameras, fps, params, tracker, notes)
         if clock is not None:
             rec.append("trigger_clock_info", clock)
     from flytrack_host.recording.rows import result_rows
 
     t0 = time.perf_counter()
-    n = n_estimates = 0
+    n = n_estimates = late = left_out_parts = 0
     ids: set[int] = set()
+    with_points: set[int] = set()
     cams = sorted(data.cam_names) or None
-    for bundle in tqdm(iter_bundles(rows, fps, cams, data.dvs_cov), total=n_frames(rows, data.dvs_cov),
-                       disable=not progress, unit="frame", desc="retrack"):
-        result = tracker.process(bundle)
-        n += 1
-        n_estimates += len(result.estimates)
-        ids.update(e.obj_id for e in result.estimates)
+    total = None if parted else n_frames(data.rows, data.dvs_cov)
+    bar = tqdm(total=total, disable=not progress, unit="frame", desc="retrack")
+    for k, (rows, dvs_cov, too_late) in enumerate(_blocks(data)):
+        if parted:
+            fill_undistorted(rows, cameras)
+            left_out_parts += dvs_rows_left_out(rows, dvs_cov)
+            if k and rec is not None:
+                rec.new_part()  # the result's parts follow the source's
         if rec is not None:
-            k, a = result_rows(result, bundle.timestamp)
-            rec.append("kalman_estimates", k)
-            rec.append("data_association", a)
-        if on_result is not None:
-            on_result(result)
+            rec.append("data2d_distorted", rows)
+            if dvs_cov is not None:
+                rec.append("dvs_point_covariance", dvs_cov)
+            if too_late is not None and len(too_late):
+                rec.append("data2d_distorted", too_late)  # copied, not tracked (their frame was)
+        if too_late is not None:
+            late += len(too_late)
+        ok = np.isfinite(rows["x_dist"]) & np.isfinite(rows["y_dist"])
+        with_points.update(int(c) for c in np.unique(rows["camera_index"][ok]))
+        for bundle in iter_bundles(rows, fps, cams, dvs_cov):
+            result = tracker.process(bundle)
+            n += 1
+            n_estimates += len(result.estimates)
+            ids.update(e.obj_id for e in result.estimates)
+            if rec is not None:
+                k_rows, a_rows = result_rows(result, bundle.timestamp)
+                rec.append("kalman_estimates", k_rows)
+                rec.append("data_association", a_rows)
+            if on_result is not None:
+                on_result(result)
+            bar.update(1)
+    bar.close()
     dt = time.perf_counter() - t0
+    end_notes = [_left_out_note(left_out_parts)] if left_out_parts else []
+    if late:
+        end_notes.append(f"{late} 2D rows came more than a part after their frame (whose bundle was tracked "
+                         "already): copied, not tracked")
+    notes += end_notes
     stats = dict(getattr(tracker, "stats", {}) or {})
     why: list[str] = []
     if n_estimates == 0 and stats:
         from flytrack_host.tracking.diagnosis import why_no_estimates
 
-        with_points = np.unique(rows["camera_index"][np.isfinite(rows["x_dist"]) & np.isfinite(rows["y_dist"])])
         why = why_no_estimates(stats, cameras, params,
-                               cameras_with_points=[int(c) for c in with_points if int(c) in cameras])
+                               cameras_with_points=[c for c in sorted(with_points) if c in cameras])
     h5 = None
     if rec is not None:
+        for line in end_notes:
+            rec.log(line)
         rec.log(f"retrack done: {n} frames, {n_estimates} estimates, {len(ids)} objects in {dt:.2f} s")
         for w in why:
             rec.log(f"no estimates: {w}")
@@ -314,3 +347,34 @@ def retrack(
     return RetrackResult(frames=n, estimates=n_estimates, objects=len(ids), out=h5, seconds=dt,
                          tracker_path=getattr(tracker, "kernel_path", "numpy"), stats=stats, why_nothing=why,
                          notes=notes)
+
+
+def _left_out_note(n: int) -> str:
+    return (f"{n} event-camera points left out: the source has no covariance for them "
+            "(recorded before FlyTrack kept it), and the tracker weighs them by it")
+
+
+def _start_output(rec: Recorder, data: Data2D, cameras: Mapping[int, Camera], fps: float, params: TrackingParams,
+                  tracker: Any, notes: list[str]) -> None:
+    """The result's first rows: the calibration used (it travels with the result, so that it can be
+    retracked again), cam_info, and the text log's opening lines."""
+    from flytrack_host.geometry.formats import CalibrationFormatError
+
+    try:
+        rec.attach("calibration.xml", calibration_xml(data, cameras))
+    except CalibrationFormatError as exc:  # e.g. tank-wall interfaces flydra XML cannot hold
+        if data.calibration is not None:
+            rec.attach(data.calibration[0], data.calibration[1])
+        notes.append(f"the calibration used could not be written as flydra XML ({exc}); "
+                     + ("the source's calibration file is attached instead" if data.calibration is not None
+                        else "the result carries no calibration"))
+    ci = np.zeros(len(data.cam_names), dtype=CAM_INFO)
+    for i, (idx, name) in enumerate(sorted(data.cam_names.items())):
+        ci[i] = (idx, name.encode()[:64], b"", name.encode()[:64])
+    rec.append("cam_info", ci)
+    rec.log(f"MainBrain running at {fps:g} fps")
+    rec.log(f"retracked from {data.source} with {params.model_dump_json()}")
+    path = getattr(tracker, "kernel_path", "numpy")
+    rec.log(f"tracker: {'C kernel' if path == 'c' else 'NumPy'} path")
+    for line in notes:
+        rec.log(line)

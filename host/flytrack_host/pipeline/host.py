@@ -46,6 +46,7 @@ from flytrack_host.pipeline.dvs import DvsIntake
 from flytrack_host.pipeline.report import PipelineReport
 from flytrack_host.pipeline.sink import ResultSink
 from flytrack_host.recording.latency import LatencyStats
+from flytrack_host.recording.parts import PartPolicy
 from flytrack_host.recording.rows import data2d_rows, dvs_covariance_rows, result_rows
 from flytrack_host.recording.schema import (
     CAM_INFO,
@@ -144,7 +145,8 @@ class HostPipeline(DvsIntake, PipelineReport):
         self.sink_errors = 0
         self.last_synced: SyncedBundle | None = None  # the last bundle tracked (read by the live page)
         self.recording_error: str | None = None  # finalising the recording failed (raw files kept)
-        # Seconds stop() took to write what was queued and turn the raw files into HDF5 (None: not done).
+        # Seconds stop() took to write what was queued and turn the raw files into HDF5 (None: not done): in
+        # parts, the last part only (and one the background finaliser was still on).
         self.recording_finalize_s: float | None = None
         self.range_errors = 0  # camera frames with a value the recording's column cannot hold
         self.warn = RateLimitedLog(lambda m: self.log(m, "sync"))
@@ -339,7 +341,9 @@ class HostPipeline(DvsIntake, PipelineReport):
             "tracking_params": self.params.model_dump(),
             "saving_program": "flytrack",
         }
-        self.recorder = Recorder(self.recording_path, self.rig.recording.flush_interval_s, meta=meta)
+        rc = self.rig.recording
+        self.recorder = Recorder(self.recording_path, rc.flush_interval_s, meta=meta,
+                                 parts=PartPolicy.from_rig(rc.part_minutes, rc.part_gb))
         self.recorder.start()
         if self.rig_text is not None:
             self.recorder.attach("rig.toml", self.rig_text.encode())

@@ -60,6 +60,23 @@ class PipelineReport:
             out += f" LOST {lost} rows"
         return out
 
+    def recording_stop_text(self) -> str | None:
+        """What finalising cost at stop and what reading the recording back costs: its parts, the bytes
+        finalised at stop and how long it took, the memory a part-by-part reader holds."""
+        rec = self.recorder
+        if rec is None or rec.stats.finalise_at_stop_s is None:
+            return None
+        st = rec.stats
+        at_stop = f"finalised at stop: {st.finalise_at_stop_bytes / 1e6:.1f} MB in {st.finalise_at_stop_s:.2f} s"
+        if rec.parts is None:
+            return (f"one unparted recording, {at_stop} (the whole recording: this grows with its length; read "
+                    f"back whole it needs about {st.bytes_written / 1e6:.0f} MB of memory)")
+        bg = (f"{st.parts_finalised_background} in the background ({st.finalise_background_s:.1f} s)"
+              if st.parts_finalised_background else "none in the background")
+        return (f"{st.parts} part{'s' if st.parts != 1 else ''} ({rec.parts.describe()}), {bg}; {at_stop}; "
+                f"read part by part (export, retrack) it needs about {2 * st.largest_part_bytes / 1e6:.0f} MB of "
+                f"memory (two parts of {st.largest_part_bytes / 1e6:.0f} MB at most)")
+
     def _why_nothing(self) -> list[str]:
         """Reasons, with numbers, that a run whose points arrived produced no estimate."""
         stats = getattr(self.tracker, "stats", None)
@@ -93,6 +110,7 @@ class PipelineReport:
             "recording": str(recording_h5) if recording_h5 else (str(self.recording_path) if self.record else None),
             "recording_error": self.recording_error,
             "recording_finalize_s": self.recording_finalize_s,
+            "recording_stop": self.recording_stop_text(),
             "cpu_wake_latency": self.cpu_wake.summary() if self.cpu_wake is not None else None,
         }
         if rs is not None:

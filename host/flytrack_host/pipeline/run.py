@@ -164,6 +164,8 @@ def run_command(
                       highlight=False)
     if summary["recording"]:
         console.print(f"recording: {summary['recording']}", highlight=False)
+        if summary.get("recording_stop"):
+            console.print(f"  {summary['recording_stop']}", highlight=False, soft_wrap=True)
     rs = summary.get("recorder") or {}
     lost = sum(rs.get("dropped_rows", {}).values())
     if rs.get("write_errors") or lost or summary.get("recording_error"):

@@ -1,4 +1,5 @@
-"""Recording: crash-safe append-only capture of a run, finalised to HDF5 (see writer.py).
+"""Recording: crash-safe append-only capture of a run in parts, finalised to HDF5 (writer.py, parts.py), read
+whole (reader.py) or part by part (source.py, stream.py); docs/recordings.md.
 
 May import: util, protocol, geometry, tracking, intake.
 """

@@ -5,6 +5,9 @@ mid-line loses that line only. The HDF5 file is written under a temporary name a
 either complete or absent. Tables are copied in chunks of `CHUNK_BYTES` (a memory map of the raw
 file into a resizable dataset), so a recording of any length finalises in bounded memory; the
 latency histogram and its percentiles (0.1 ms bins) are accumulated over the same chunks.
+
+A recording in parts (parts.py) is finalised part by part: each part gets its own recording.h5.
+`main` finalises one folder in a process of its own (the background finaliser, finalizer.py).
 """
 
 from __future__ import annotations
@@ -19,7 +22,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from flytrack_host.recording.schema import H5_NAME, META_NAME, RAW_SUFFIX, TEXTLOG_NAME, dtype_from_json
+from flytrack_host.recording.parts import is_parted, part_dirs
+from flytrack_host.recording.schema import H5_NAME, META_NAME, PARTS_NAME, RAW_SUFFIX, TEXTLOG_NAME, dtype_from_json
 
 ATTACHED = ("rig.toml", "rig.json")  # rig.json: a rig given without its TOML text
 
@@ -43,6 +47,8 @@ class FinalizeReport:
     log_lines: int = 0
     log_lines_dropped: int = 0
     last_host_time: float | None = None
+    parts: list[FinalizeReport] = field(default_factory=list)  # a recording in parts: one per part finalised
+    raw_bytes: int = 0  # bytes of raw files read
 
 
 def read_meta(folder: Path) -> dict:
@@ -112,10 +118,16 @@ def _copy_table(h5: h5py.File, folder: Path, name: str, dt: np.dtype, report: Fi
         del mm
 
 
-def finalize(folder: Path | str, out: Path | str | None = None) -> FinalizeReport:
+def finalize(folder: Path | str, out: Path | str | None = None, force: bool = True) -> FinalizeReport:
     """Raw files of `folder` -> its recording.h5 (or `out`, e.g. on another disk when this one is
-    full). Written to a temporary file first: a failure (a full disk) leaves no half file behind."""
+    full). Written to a temporary file first: a failure (a full disk) leaves no half file behind.
+
+    A recording in parts: every part without its recording.h5 (every part with `force`), in order;
+    the report sums them (h5_path is the folder, or `out`) and lists each in `parts`. With `out` (a
+    folder), the parts are written there as a recording in parts of HDF5 files (see finalize_parts)."""
     folder = Path(folder)
+    if is_parted(folder) and not (folder / META_NAME).exists():
+        return finalize_parts(folder, force=force, out=Path(out) if out is not None else None)
     meta = read_meta(folder)
     report = FinalizeReport(h5_path=Path(out) if out is not None else folder / H5_NAME)
     tmp = report.h5_path.with_name(report.h5_path.name + ".tmp")
@@ -133,7 +145,47 @@ def finalize(folder: Path | str, out: Path | str | None = None) -> FinalizeRepor
         tmp.unlink(missing_ok=True)  # frees what it took: the raw files stay, nothing is lost
         raise
     os.replace(tmp, report.h5_path)
+    report.raw_bytes = need - (1 << 20)
     return report
+
+
+def finalize_parts(folder: Path, force: bool = False, out: Path | None = None) -> FinalizeReport:
+    """Finalise the parts of a recording in parts (those not finalised yet, or all with `force`).
+
+    `out`: a new folder (e.g. on another disk when this one is full) that becomes the same recording in
+    parts, each part its meta.json, small files and recording.h5 (the raw files stay where they are)."""
+    parts = part_dirs(folder)
+    if not parts:
+        raise RecordingError(f"{folder}: a recording in parts without any part (no part-NNNN/meta.json)")
+    if out is not None:
+        if out.suffix in (".h5", ".hdf5"):
+            raise RecordingError(f"{folder} is a recording in parts: give --out a folder (e.g. OTHER_DISK/"
+                                 f"{folder.name}), which becomes the recording in parts with one HDF5 file per part")
+        out.mkdir(parents=True, exist_ok=True)
+        if (folder / PARTS_NAME).exists():
+            shutil.copyfile(folder / PARTS_NAME, out / PARTS_NAME)
+    total = FinalizeReport(h5_path=out if out is not None else folder)
+    for part in parts:
+        dest = part if out is None else out / part.name
+        if not force and (dest / H5_NAME).exists():
+            continue
+        if out is not None:
+            dest.mkdir(exist_ok=True)
+            for f in part.iterdir():
+                if f.name == META_NAME or is_attached(f.name):
+                    shutil.copyfile(f, dest / f.name)
+        rep = finalize(part, out=dest / H5_NAME)
+        total.parts.append(rep)
+        for k, v in rep.rows.items():
+            total.rows[k] = total.rows.get(k, 0) + v
+        for k, v in rep.partial_bytes_dropped.items():
+            total.partial_bytes_dropped[k] = total.partial_bytes_dropped.get(k, 0) + v
+        total.log_lines += rep.log_lines
+        total.log_lines_dropped += rep.log_lines_dropped
+        total.raw_bytes += rep.raw_bytes
+        if rep.last_host_time is not None:
+            total.last_host_time = max(total.last_host_time or rep.last_host_time, rep.last_host_time)
+    return total
 
 
 def _write_h5(folder: Path, meta: dict, report: FinalizeReport, tmp: Path) -> None:
@@ -169,3 +221,19 @@ def _write_h5(folder: Path, meta: dict, report: FinalizeReport, tmp: Path) -> No
             h5.attrs[k] = json.dumps(v)
         h5.attrs["recovered_partial_bytes"] = json.dumps(report.partial_bytes_dropped)
     report.last_host_time = max(last_t) if last_t else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Finalise one recording folder (a part, as the background finaliser does). Exit 1 on failure."""
+    import sys
+
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: finalize FOLDER", file=sys.stderr)
+        return 2
+    try:
+        finalize(Path(args[0]))
+    except (RecordingError, OSError, RuntimeError) as exc:
+        print(f"finalising {args[0]} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+    return 0

@@ -14,6 +14,10 @@ RAW_SUFFIX = ".bin"
 TEXTLOG_NAME = "textlog.jsonl"
 META_NAME = "meta.json"
 H5_NAME = "recording.h5"
+# A recording in parts (recording/parts.py): this file at the top of the folder, and one folder per part
+# (part-0001, part-0002, ...), each a whole recording of the layout above.
+PARTS_NAME = "parts.json"
+PART_PREFIX = "part-"
 
 # Upper triangle of the 6x6 state covariance, row-major: P00 P01 ... P05 P11 ... P55 (21 values).
 COV_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
@@ -152,6 +156,11 @@ TABLES: dict[str, np.dtype] = {
     "actuation_firings": FIRINGS,
     "dvs_point_covariance": DVS_COVARIANCE,
 }
+
+
+# Tables that describe the run rather than happen in it: a recording in parts repeats their rows at the
+# start of every part (so that each part reads alone), and a reader of the whole recording keeps them once.
+HEADER_TABLES = ("cam_info",)
 
 
 def dtype_to_json(dt: np.dtype) -> list[list[str]]:

@@ -10,20 +10,22 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host.recording.parts import PartPolicy
 from flytrack_host.recording.schema import CAM_INFO, FLAG_TRACKED
 from flytrack_host.recording.writer import Recorder
 
 
 def start_synthetic_recording(path: Path, scenario: Any, fps: float, *, flush_s: float = 0.2, on_full: str = "drop",
-                              rig_name: str = "synthetic") -> Recorder:
+                              rig_name: str = "synthetic", parts: PartPolicy | None = None) -> Recorder:
     """A started Recorder holding the scenario's rig: calibration.xml, cam_info (cameras named camN) and
-    the textlog's frame-rate line, as a live run writes them before its first frame."""
+    the textlog's frame-rate line, as a live run writes them before its first frame. `parts`: record in
+    parts (recording/parts.py)."""
     from flytrack_host.geometry.formats import save_flydra_xml
     from flytrack_host.tracking.params import TrackingParams
 
     names = {i: f"cam{i}" for i in scenario.cameras}
     meta = {"rig_name": rig_name, "fps": fps, "tracking_params": TrackingParams().model_dump()}
-    rec = Recorder(path, flush_s, meta=meta, on_full=on_full)
+    rec = Recorder(path, flush_s, meta=meta, on_full=on_full, parts=parts)
     rec.start()
     with tempfile.TemporaryDirectory() as d:
         cal = Path(d) / "calibration.xml"
@@ -41,8 +43,9 @@ def write_scenario_frames(rec: Recorder, scenario: Any, fps: float, *, track: bo
                           camera_frame_offset: int = 0,
                           on_frame: Callable[[int, Any], None] | None = None) -> None:
     """Append every bundle's 2D rows (trigger time t0 + frame / fps, arrival 2 ms later) and, with `track`,
-    the real tracker's kalman_estimates and data_association rows. Each camera frame is numbered trigger frame
-    + `camera_frame_offset`; `on_frame(n, bundle)` runs after each bundle."""
+    the real tracker's kalman_estimates and data_association rows, a frame's rows queued as one item as the
+    pipeline queues them (so a recording in parts never splits a frame). Each camera frame is numbered
+    trigger frame + `camera_frame_offset`; `on_frame(n, bundle)` runs after each bundle."""
     from flytrack_host.intake.sync import CameraFrame
     from flytrack_host.recording.rows import data2d_rows, result_rows
     from flytrack_host.tracking.params import TrackingParams
@@ -54,12 +57,11 @@ def write_scenario_frames(rec: Recorder, scenario: Any, fps: float, *, track: bo
         cam_frame = b.trigger_frame + camera_frame_offset
         rows = [data2d_rows(CameraFrame(cam, cam_frame, -1, pts, b.timestamp + 0.002), b.trigger_frame,
                             b.timestamp, FLAG_TRACKED) for cam, pts in b.detections.items()]
-        if rows:
-            rec.append("data2d_distorted", np.concatenate(rows))
+        items = [("data2d_distorted", np.concatenate(rows))] if rows else []
         if tracker is not None:
             k, a = result_rows(tracker.process(b), b.timestamp)
-            rec.append("kalman_estimates", k)
-            rec.append("data_association", a)
+            items += [("kalman_estimates", k), ("data_association", a)]
+        rec.append_many(items)
         if on_frame is not None:
             on_frame(n, b)
 

@@ -14,6 +14,10 @@ Failures are never silent and never grow memory without bound:
 - the queue holds at most `max_queue_bytes`: beyond that `append` drops the rows and counts them
   (`stats.dropped_rows`, `stats.queue_bytes` shows the depth); the writer notes every drop in the
   recording's text log once it can, so the recording itself says rows are missing.
+
+With `parts` (a PartPolicy) the folder holds the recording in parts (parts.py): the writer thread
+rolls to a new part between two queued items once the part is old or big enough, and a background
+process finalises the part it closed, so `stop` finalises the last part only.
 """
 
 from __future__ import annotations
@@ -32,7 +36,18 @@ from typing import Any
 
 import numpy as np
 
-from flytrack_host.recording.schema import H5_NAME, META_NAME, RAW_SUFFIX, TABLES, TEXTLOG_NAME, dtype_to_json
+from flytrack_host.recording.finalizer import PartFinalizer
+from flytrack_host.recording.parts import PARTS_FORMAT_VERSION, PartPolicy, part_name
+from flytrack_host.recording.rolling import NEW_PART, PartsMixin
+from flytrack_host.recording.schema import (
+    HEADER_TABLES,
+    META_NAME,
+    PARTS_NAME,
+    RAW_SUFFIX,
+    TABLES,
+    TEXTLOG_NAME,
+    dtype_to_json,
+)
 from flytrack_host.util import hostclock
 
 FORMAT_VERSION = 1
@@ -66,16 +81,25 @@ class RecorderStats:
     dropped_rows: dict[str, int] = field(default_factory=dict)  # lost to a full queue or a failed write
     dropped_log_lines: int = 0
     queue_full_drops: int = 0  # rows and lines dropped because the queue was full
+    parts: int = 0  # parts started (a recording in parts)
+    largest_part_bytes: int = 0  # raw bytes of the largest part (what a part-by-part reader holds)
+    roll_errors: int = 0  # new parts that could not be made (the writer went on in the old one)
+    parts_finalised_background: int = 0
+    finalise_background_s: float = 0.0
+    finalise_at_stop_bytes: int = 0  # raw bytes stop() finalised or waited on (None before stop)
+    finalise_at_stop_s: float | None = None
 
 
-class Recorder:
+class Recorder(PartsMixin):
     """Records one run into the folder `path` (created; must not exist yet).
 
     `on_full`: "drop" (live: `append` never blocks, rows beyond `max_queue_bytes` are dropped and
-    counted) or "block" (offline, e.g. re-tracking: `append` waits for room)."""
+    counted) or "block" (offline, e.g. re-tracking: `append` waits for room). `parts`: None for one
+    folder of raw files, or a PartPolicy for a recording in parts."""
 
     def __init__(self, path: Path | str, flush_interval_s: float = 1.0, meta: dict[str, Any] | None = None,
-                 max_queue_bytes: int = DEFAULT_MAX_QUEUE_BYTES, on_full: str = "drop"):
+                 max_queue_bytes: int = DEFAULT_MAX_QUEUE_BYTES, on_full: str = "drop",
+                 parts: PartPolicy | None = None):
         if on_full not in ("drop", "block"):
             raise ValueError(f"on_full must be 'drop' or 'block', not {on_full!r}")
         self.path = Path(path)
@@ -100,11 +124,23 @@ class Recorder:
         self._stopped = False
         self._wake = threading.Event()
         self.poll_s = min(0.05, self.flush_interval_s)
+        self.parts = parts
+        self.part_index = 0  # the part being written (0: not a recording in parts)
+        self._part_dir = self.path  # where the files being written are
+        self._part_started = 0.0
+        self._part_base = 0  # bytes a new part starts with (its header rows)
+        self._part_lock = threading.Lock()  # attach() (any thread) against a roll (writer thread)
+        self._attached: dict[str, bytes] = {}  # copied into every new part
+        self._header: dict[str, list[bytes]] = {}  # HEADER_TABLES rows written so far, for every new part
+        self._roll_retry_at = 0.0
+        self._roll_failures = 0  # failed tries to start the next part, in a row
+        self._finalizer = (PartFinalizer(on_done=self._part_finalised)
+                           if parts is not None and parts.finalize == "process" else None)
 
     # --- life cycle ---------------------------------------------------------------------------
     def start(self) -> None:
         self.path.mkdir(parents=True, exist_ok=False)
-        meta = {
+        self._meta = {
             "format": "flytrack-recording",
             "format_version": FORMAT_VERSION,
             "tables": {name: dtype_to_json(dt) for name, dt in TABLES.items()},
@@ -115,22 +151,47 @@ class Recorder:
             "max_queue_bytes": self.max_queue_bytes,
             **self.meta,
         }
-        self._write_small(META_NAME, json.dumps(meta, indent=1).encode())
-        for name in TABLES:
-            self._open(name, self.path / (name + RAW_SUFFIX))
-        self._open(TEXTLOG_KEY, self.path / TEXTLOG_NAME)
-        self._fsync_dir()  # the files exist after a power loss too
+        if self.parts is None:
+            self._write_small(META_NAME, json.dumps(self._meta, indent=1).encode())
+            self._fds, self._sizes = self._open_files(self.path)
+        else:
+            p = self.parts
+            about = {"format": "flytrack-recording", "layout": "parts", "parts_format_version": PARTS_FORMAT_VERSION,
+                     "part_seconds": p.seconds, "part_bytes": p.bytes, "start_time": self._meta["start_time"],
+                     "start_wall_time": self._meta["start_wall_time"], "rig_name": self._meta.get("rig_name")}
+            self._write_small(PARTS_NAME, json.dumps(about, indent=1).encode(), self.path)
+            self._part_dir = self.path / part_name(1)
+            self._fds, self._sizes = self._make_part(self._part_dir, 1)
+            self.part_index = self.stats.parts = 1
+            self._part_started = time.monotonic()
+            self._part_base = sum(self._sizes.values())
+        self._fsync_dir(self.path)  # the files exist after a power loss too
         self._thread = threading.Thread(target=self._run, name="flytrack-recorder", daemon=True)
         self._thread.start()
 
-    def _open(self, key: str, path: Path) -> None:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        self._fds[key] = fd
-        self._sizes[key] = os.fstat(fd).st_size
+    @staticmethod
+    def _write_all(fd: int, data: bytes) -> None:
+        _write_all(fd, data)  # (the module's function, looked up at each call: the tests' write seam)
+
+    @staticmethod
+    def _open_files(folder: Path) -> tuple[dict[str, int], dict[str, int]]:
+        """One append-only file per table and the text log, in `folder`: file descriptors and sizes."""
+        fds: dict[str, int] = {}
+        try:
+            for key, name in [(t, t + RAW_SUFFIX) for t in TABLES] + [(TEXTLOG_KEY, TEXTLOG_NAME)]:
+                fds[key] = os.open(folder / name, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        except OSError:
+            for fd in fds.values():
+                os.close(fd)
+            raise
+        return fds, {k: os.fstat(fd).st_size for k, fd in fds.items()}
 
     def attach(self, name: str, data: bytes) -> None:
-        """Store a whole small file (rig file, calibration) in the recording, right away."""
-        self._write_small(name, data)
+        """Store a whole small file (rig file, calibration) in the recording, right away (in every part)."""
+        with self._part_lock:
+            if self.parts is not None:
+                self._attached[name] = bytes(data)
+            self._write_small(name, data, self._part_dir)
 
     def append(self, table: str, rows: np.ndarray) -> None:
         """Queue rows for `table`; never blocks (with on_full="drop"). Rows must have the table's
@@ -182,9 +243,14 @@ class Recorder:
 
     def stop(self, finalize: bool = True) -> Path | None:
         """Write what is queued, fsync and close the files and (by default) write the HDF5 file.
-        Returns its path. Rows lost to write errors or a full queue are in `stats` and the text log."""
+        Returns its path (a recording in parts: the folder, once every part has its HDF5 file). Rows
+        lost to write errors or a full queue are in `stats` and the text log.
+
+        In parts: waits for the part the background finaliser is on, then finalises here whatever part
+        has no HDF5 file (the last one; one whose background finalising failed). `stats` says how many
+        bytes that was (`finalise_at_stop_bytes`) and how long it took (`finalise_at_stop_s`)."""
         if self._stopped:
-            return self.path / H5_NAME if (self.path / H5_NAME).exists() else None
+            return self._finished_path()
         self._stopped = True
         if self._thread is not None:
             self._q.append((_STOP, 0))
@@ -193,11 +259,20 @@ class Recorder:
         for fd in self._fds.values():
             os.close(fd)
         self._fds.clear()
-        if finalize:
-            from flytrack_host.recording.finalize import finalize as _finalize
+        self.stats.largest_part_bytes = max(self.stats.largest_part_bytes, sum(self._sizes.values()))
+        if not finalize:
+            if self._finalizer is not None:
+                self._finalizer.cancel()
+            return None
+        from flytrack_host.recording.finalize import finalize as _finalize
 
-            return _finalize(self.path).h5_path
-        return None
+        t0 = time.monotonic()
+        if self.parts is None:
+            rep = _finalize(self.path)
+            self.stats.finalise_at_stop_bytes = rep.raw_bytes
+            self.stats.finalise_at_stop_s = time.monotonic() - t0
+            return rep.h5_path
+        return self._stop_parts(_finalize, t0)
 
     # --- writer thread ------------------------------------------------------------------------
     def _run(self) -> None:
@@ -208,6 +283,8 @@ class Recorder:
             stop = self._wake.wait(min(self.poll_s, max(0.0, next_sync - time.monotonic())))
             try:
                 done = self._drain()
+                if self._finalizer is not None:
+                    self._finalizer.poll()
                 self._note_drops(force=done or stop)
                 if time.monotonic() >= next_sync or done or stop:
                     self._sync()
@@ -219,10 +296,14 @@ class Recorder:
                 return
 
     def _drain(self) -> bool:
-        """Write everything queued (one write per file); True when the stop marker was reached."""
+        """Write everything queued (one write per file); True when the stop marker was reached. In parts,
+        a new part is started between two items when the part is old or big enough (or asked for)."""
         batches: dict[str, list[Any]] = {}
+        pending = 0  # bytes in `batches`
         n = 0
         done = False
+        if self.parts is not None and self._part_due(0, 0, by_time=True):
+            self._roll()
         while self._q:
             item, nbytes = self._q.popleft()
             self._out_bytes += nbytes
@@ -230,13 +311,23 @@ class Recorder:
             if item is _STOP:
                 done = True
                 break
+            if item is NEW_PART or (self.parts is not None and self._part_due(pending, nbytes)):
+                self._write_batches(batches)
+                batches, pending = {}, 0
+                self._roll(asked=item is NEW_PART)
+                if item is NEW_PART:
+                    continue
             for name, payload in item if isinstance(item, list) else [item]:
                 batches.setdefault(name, []).append(payload)
+            pending += nbytes
         self.stats.max_queue_depth = max(self.stats.max_queue_depth, n)
-        for name, payloads in batches.items():
-            self._write_batch(name, payloads)
+        self._write_batches(batches)
         self.stats.queue_bytes = self.queue_bytes
         return done
+
+    def _write_batches(self, batches: dict[str, list[Any]]) -> None:
+        for name, payloads in batches.items():
+            self._write_batch(name, payloads)
 
     def _write_batch(self, name: str, payloads: list[Any]) -> None:
         if name == TEXTLOG_KEY:
@@ -269,6 +360,8 @@ class Recorder:
         self._sizes[name] += len(data)
         self._unsynced.add(name)
         self.stats.bytes_written += len(data)
+        if self.parts is not None and name in HEADER_TABLES:
+            self._header.setdefault(name, []).append(data)  # every later part starts with them
         if name == TEXTLOG_KEY:
             self.stats.log_lines += count
         else:
@@ -301,9 +394,21 @@ class Recorder:
             why.append(f"recorder queue full ({self.max_queue_bytes} bytes): {st.queue_full_drops} dropped so far")
         if st.write_errors:
             why.append(f"{st.write_errors} write errors so far, last: {self.last_error}")
-        line = {"host_time": hostclock.now(), "source": "recorder",
-                "message": f"DATA LOST: {what} not recorded ({'; '.join(why)})"}
-        fd = self._fds[TEXTLOG_KEY]
+        message = f"DATA LOST: {what} not recorded ({'; '.join(why)})"
+        if not self._direct_log(message):
+            return  # noted on a later turn
+        self._noted_drops, self._noted_log_drops = snap, snap_lines
+        self._last_note = time.monotonic()
+        if not self._failing:
+            log.warning("%s", message)
+
+    def _direct_log(self, message: str) -> bool:
+        """A line of the recorder's own in the text log, written at once (writer thread: not through the
+        queue, which may be what is full). False when it could not be written."""
+        fd = self._fds.get(TEXTLOG_KEY)
+        if fd is None:
+            return False
+        line = {"host_time": hostclock.now(), "source": "recorder", "message": message}
         data = (json.dumps(line) + "\n").encode()
         try:
             _write_all(fd, data)
@@ -312,13 +417,10 @@ class Recorder:
                 os.ftruncate(fd, self._sizes[TEXTLOG_KEY])
             except OSError:
                 pass
-            return  # noted on a later turn
+            return False
         self._sizes[TEXTLOG_KEY] += len(data)
         self._unsynced.add(TEXTLOG_KEY)
-        self._noted_drops, self._noted_log_drops = snap, snap_lines
-        self._last_note = time.monotonic()
-        if not self._failing:
-            log.warning("%s", line["message"])
+        return True
 
     def _sync(self) -> None:
         """fsync the files written since the last time (power-loss safety, about once a second)."""
@@ -333,9 +435,10 @@ class Recorder:
             self._unsynced.discard(name)
         self.stats.flushes += 1
 
-    def _fsync_dir(self) -> None:
+    @staticmethod
+    def _fsync_dir(folder: Path) -> None:
         try:
-            fd = os.open(self.path, os.O_RDONLY)
+            fd = os.open(folder, os.O_RDONLY)
         except OSError:
             return
         try:
@@ -345,10 +448,11 @@ class Recorder:
         finally:
             os.close(fd)
 
-    def _write_small(self, name: str, data: bytes) -> None:
-        tmp = self.path / (name + ".tmp")
+    def _write_small(self, name: str, data: bytes, folder: Path | None = None) -> None:
+        folder = self.path if folder is None else folder
+        tmp = folder / (name + ".tmp")
         with open(tmp, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, self.path / name)
+        os.replace(tmp, folder / name)

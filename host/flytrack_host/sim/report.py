@@ -231,15 +231,14 @@ def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 
                            "trigger_time_bias_ms": math.nan}
     if not recording or not Path(recording).exists():
         return out
-    import h5py
-
     from flytrack_host.recording.schema import FLAG_TRACKED
+    from flytrack_host.recording.source import open_source
 
-    with h5py.File(recording, "r") as f:
-        if "data2d_distorted" not in f:
-            return out
-        d = f["data2d_distorted"][:]
-        lat = f["latency"][:] if "latency" in f else None
+    src = open_source(recording)  # a recording in parts or not
+    if "data2d_distorted" not in src.table_names:
+        return out
+    d = src.table("data2d_distorted")
+    lat = src.table("latency") if "latency" in src.table_names else None
     from flytrack_host.recording.schema import FLAG_DVS
 
     d = d[(d["camera_frame"] >= preroll) & ((d["flags"] & FLAG_DVS) == 0)]  # frame cameras' rows
@@ -297,13 +296,12 @@ def _frame_numbering(recording: str | None, written: np.ndarray, preroll: int = 
 
 def _export_braidz(recording: str | None, out: Path, notes: list[str]) -> str | None:
     if not recording or not Path(recording).exists():
-        notes.append("no HDF5 recording to export")
+        notes.append("no finalised recording to export")
         return None
     from flytrack_host.io.braidz import export_braidz
-    from flytrack_host.recording import load_recording
 
     dest = out / "recording.braidz"
-    export_braidz(load_recording(recording), dest)
+    export_braidz(recording, dest)  # a recording in parts is read part by part
     return str(dest)
 
 

@@ -43,8 +43,8 @@ from pathlib import Path
 from typing import Any
 
 from flytrack_host.sim.demo_config import ROOT, DemoConfig, DemoError
-from flytrack_host.sim.soak_recording import finalise_scaling, raw_bytes, read_back
-from flytrack_host.sim.soak_report import _fmt, finish
+from flytrack_host.sim.soak_recording import finalise_scaling, h5_files, raw_bytes, read_back
+from flytrack_host.sim.soak_report import _fmt, _parts_summary, finish
 from flytrack_host.sim.soak_sampling import Sampler, load_samples
 
 DEFAULT_RULES = ROOT / "examples" / "closed_loop.toml"
@@ -242,7 +242,8 @@ def soak(cfg: SoakConfig, say: Any = print) -> dict[str, Any]:
     finalise_s = hs.get("recording_finalize_s")
     h5 = Path(report.recording) if report.recording else None
     raw_end = raw_bytes(report.recording)
-    h5_end = h5.stat().st_size if h5 is not None and h5.exists() else 0
+    h5_end = sum(f.stat().st_size for f in h5_files(h5)) if h5 is not None and h5.exists() else 0
+    parts = _parts_summary(h5, hs.get("recorder") or {})
     rb = read_back(h5) if h5 is not None and h5.exists() else None
     scaling = finalise_scaling(h5, cfg.out / "scaling") if cfg.scaling and h5 is not None and h5.exists() else None
     duration = float(samples[-1]["t_s"]) if samples else 0.0
@@ -264,7 +265,7 @@ def soak(cfg: SoakConfig, say: Any = print) -> dict[str, Any]:
         "why_not_sustained": sustained(fr, int(round(seconds * fps))),
         "latency_whole_run": report.latency_host,
         "recording": {"h5": str(h5) if h5 else None, "raw_bytes": raw_end, "h5_bytes": h5_end,
-                      "finalise_s": finalise_s, "read_back": rb, "finalise_scaling": scaling},
+                      "finalise_s": finalise_s, "read_back": rb, "finalise_scaling": scaling, "parts": parts},
         "free_bytes_end": shutil.disk_usage(cfg.out).free,
         "closed_loop": _closed_loop_summary(report.actuation),
         "clients_end": run["end"],

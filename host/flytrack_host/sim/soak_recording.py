@@ -12,17 +12,27 @@ from typing import Any
 
 import numpy as np
 
+from flytrack_host.sim.soak_sampling import folder_bytes
+
 SCALING_FRACTIONS = (0.25, 0.5, 1.0)
 
 
-def raw_bytes(h5: str | None) -> int:
-    """The raw files of a recording (its folder without the HDF5 file)."""
-    if not h5:
+def raw_bytes(recording: str | None) -> int:
+    """The raw files of a recording (its folder, or its parts, without the HDF5 files)."""
+    if not recording:
         return 0
+    p = Path(recording)
+    return folder_bytes(p if p.is_dir() else p.parent)
+
+
+def h5_files(recording: Path) -> list[Path]:
+    """The HDF5 files of a finalised recording: its recording.h5, or one per part."""
+    from flytrack_host.recording.parts import part_dirs
     from flytrack_host.recording.schema import H5_NAME
 
-    folder = Path(h5).parent
-    return sum(e.stat().st_size for e in os.scandir(folder) if e.is_file() and e.name != H5_NAME)
+    if recording.is_file():
+        return [recording]
+    return [p / H5_NAME for p in part_dirs(recording) if (p / H5_NAME).exists()]
 
 
 def drop_cache(path: Path) -> bool:
@@ -46,7 +56,9 @@ def read_back(h5: Path) -> dict[str, Any]:
     dropped for the file) and again warm."""
     from flytrack_host.recording import load_recording
 
-    out: dict[str, Any] = {"h5_bytes": h5.stat().st_size, "cache_dropped": drop_cache(h5)}
+    files = h5_files(h5)
+    out: dict[str, Any] = {"h5_bytes": sum(f.stat().st_size for f in files),
+                           "cache_dropped": bool(files) and all([drop_cache(f) for f in files])}
     t0 = time.monotonic()
     rec = load_recording(h5)
     out["cold_s"] = time.monotonic() - t0
@@ -67,7 +79,7 @@ def finalise_scaling(h5: Path, work: Path, fractions: tuple[float, ...] = SCALIN
     from flytrack_host.recording.finalize import finalize, read_meta
     from flytrack_host.recording.schema import H5_NAME, RAW_SUFFIX, dtype_from_json
 
-    folder = h5.parent
+    folder = h5.parent if h5.is_file() else h5_files(h5)[0].parent  # in parts: the first part
     meta = read_meta(folder)
     sizes = {name + RAW_SUFFIX: dtype_from_json(d).itemsize for name, d in meta["tables"].items()}
     points = []

@@ -148,29 +148,38 @@ def latency_windows(samples: list[dict[str, Any]], duration_s: float) -> dict[st
 
 def projections(sr: dict[str, Any], growth: dict[str, Any], duration_s: float, finalise_s: float | None,
                 raw_end: int, h5_end: int, readback: dict[str, Any] | None, scaling: dict[str, Any] | None,
-                free_bytes: int) -> dict[str, Any]:
-    """What an 8 h and a 24 h recording would cost, from the rates measured here."""
+                free_bytes: int, parts: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What an 8 h and a 24 h recording would cost, from the rates measured here. A recording in parts:
+    stop finalises the last part only, so that is projected from the bytes finalised at stop and a part's
+    size at this rate (not from the whole recording's), and a part-by-part reader's memory is two parts."""
     t = np.asarray(sr["t_s"], dtype=float)
     rec = np.asarray([np.nan if v is None else v for v in sr["disk"].get("recording_bytes", [])], dtype=float)
     fit = linear_fit(t / 3600.0, rec) if len(rec) == len(t) else None
     raw_per_h = fit["slope_per_h"] if fit else (raw_end / (duration_s / 3600.0) if duration_s > 0 else math.nan)
     h5_ratio = h5_end / raw_end if raw_end else math.nan
     expo = (scaling or {}).get("exponent")
+    at_stop = (parts or {}).get("finalise_at_stop_bytes") or raw_end
     out: dict[str, Any] = {"raw_bytes_per_h": raw_per_h, "h5_to_raw": h5_ratio, "free_bytes_now": free_bytes,
-                           "finalise_s_per_gb": finalise_s / (raw_end / 1e9) if finalise_s and raw_end else None,
-                           "finalise_exponent": expo, "hours": {}}
+                           "finalise_s_per_gb": finalise_s / (at_stop / 1e9) if finalise_s and at_stop else None,
+                           "finalise_exponent": expo, "hours": {}, "in_parts": parts is not None}
     for hours in PROJECT_HOURS:
         raw = raw_per_h * hours
         scale = raw / raw_end if raw_end else math.nan
         d: dict[str, Any] = {"raw_bytes": raw, "h5_bytes": raw * h5_ratio, "disk_bytes": raw * (1 + h5_ratio)}
         d["fits_free_disk_now"] = bool(d["disk_bytes"] < free_bytes)
-        if finalise_s is not None:
+        if finalise_s is not None and parts is not None:
+            part = _part_bytes_at(raw_per_h, parts, raw)  # the last part, at most
+            d["finalise_s"] = out["finalise_s_per_gb"] * part / 1e9 if out["finalise_s_per_gb"] else finalise_s
+            d["part_bytes"] = part
+            d["read_by_parts_ram_bytes"] = 2 * part
+            d["finalise_over_a_minute"] = bool(d["finalise_s"] > FINALISE_SPLIT_S)
+        elif finalise_s is not None:
             d["finalise_s"] = finalise_s * scale  # linear in length
             if expo is not None:
                 d["finalise_s_power_law"] = finalise_s * scale ** expo
             d["finalise_over_a_minute"] = bool(max(d["finalise_s"], d.get("finalise_s_power_law", 0.0))
                                                > FINALISE_SPLIT_S)
-        if readback:
+        if readback:  # whole (load_recording)
             d["read_back_s"] = readback["cold_s"] * scale
             d["read_back_ram_bytes"] = readback["table_bytes"] * scale
         mem, unresolved = {}, []
@@ -183,6 +192,16 @@ def projections(sr: dict[str, Any], growth: dict[str, Any], duration_s: float, f
         d["memory_growth_within_noise"] = unresolved  # these projections rest on a slope within its noise
         out["hours"][f"{hours:g}"] = d
     return out
+
+
+def _part_bytes_at(raw_per_h: float, parts: dict[str, Any], total: float) -> float:
+    """A part's size at this recording rate: part_seconds of it or part_bytes, whichever first."""
+    limits = [total]
+    if parts.get("part_seconds"):
+        limits.append(raw_per_h * parts["part_seconds"] / 3600.0)
+    if parts.get("part_bytes"):
+        limits.append(float(parts["part_bytes"]))
+    return min(limits)
 
 
 def plot(sr: dict[str, Any], path: Path, title: str, fit_after_s: float | None = None,
@@ -317,7 +336,8 @@ def finish(result: dict[str, Any], samples: list[dict[str, Any]], out: Path, say
         result["free_bytes_end"] = (result.get("projections") or {}).get("free_bytes_now", 0)
     result["latency_windows"] = latency_windows(samples, duration)
     result["projections"] = projections(sr, growth, duration, rec["finalise_s"], rec["raw_bytes"], rec["h5_bytes"],
-                                        rec["read_back"], rec["finalise_scaling"], result["free_bytes_end"])
+                                        rec["read_back"], rec["finalise_scaling"], result["free_bytes_end"],
+                                        rec.get("parts"))
     result["series"] = sr
     m0 = result["machine"]["start"]
     title = (f"FlyTrack soak: {rate['cameras']} cameras x {rate['animals']} animals x {rate['fps']:g} fps, "
@@ -330,6 +350,19 @@ def finish(result: dict[str, Any], samples: list[dict[str, Any]], out: Path, say
     for line in summary_lines(result):
         say(line)
     return result
+
+
+def _parts_summary(recording: Path | None, recorder: dict[str, Any]) -> dict[str, Any] | None:
+    """A recording in parts: how many, their limits, what stop finalised (None: an unparted recording)."""
+    from flytrack_host.recording.parts import read_parts_json
+
+    if recording is None or not recording.is_dir():
+        return None
+    about = read_parts_json(recording)
+    return {"count": recorder.get("parts", 0), "part_seconds": about.get("part_seconds"),
+            "part_bytes": about.get("part_bytes"), "largest_part_bytes": recorder.get("largest_part_bytes", 0),
+            "finalise_at_stop_bytes": recorder.get("finalise_at_stop_bytes", 0),
+            "finalised_in_background": recorder.get("parts_finalised_background", 0)}
 
 
 VERDICT = {"met": "met", "missed": "MISSED", "within noise": "undecided (within 2 standard errors of it)"}
@@ -376,6 +409,13 @@ def summary_lines(r: dict[str, Any]) -> list[str]:
     out.append(f"latency over the run: P50 {_fmt(whole.get('p50_ms'))} ms, P99 {_fmt(whole.get('p99_ms'))} ms, "
                f"max {_fmt(whole.get('max_ms'))} ms")
     rb = rec["read_back"] or {}
+    pa = rec.get("parts")
+    if pa:
+        every = _fmt((pa['part_seconds'] or 0) / 60, '.0f')
+        out.append(f"recording in {pa['count']} parts (a new one every {every} min "
+                   f"or {(pa['part_bytes'] or 0) / 1e9:.2f} GB), {pa['finalised_in_background']} finalised in the "
+                   f"background; at stop {pa['finalise_at_stop_bytes'] / MB:.1f} MB finalised, largest part "
+                   f"{pa['largest_part_bytes'] / MB:.1f} MB")
     out.append(f"recording: raw {rec['raw_bytes'] / MB:.1f} MB, HDF5 {rec['h5_bytes'] / MB:.1f} MB; finalised in "
                f"{_fmt(rec['finalise_s'])} s by the host at stop; read back whole in {_fmt(rb.get('cold_s'))} s "
                f"from disk ({'page cache dropped' if rb.get('cache_dropped') else 'cache NOT dropped'}), "
@@ -393,6 +433,10 @@ def summary_lines(r: dict[str, Any]) -> list[str]:
         fin = f"finalise {_fmt(d.get('finalise_s'), '.0f')} s"
         if "finalise_s_power_law" in d:
             fin += f" ({_fmt(d['finalise_s_power_law'], '.0f')} s by the measured exponent)"
+        if "part_bytes" in d:
+            fin = (f"finalise at stop {_fmt(d.get('finalise_s'), '.1f')} s (the last part, "
+                   f"{d['part_bytes'] / 1e9:.2f} GB), read part by part in "
+                   f"{d['read_by_parts_ram_bytes'] / 1e9:.2f} GB RAM")
         out.append(f"{h} h recording: disk {d['disk_bytes'] / 1e9:.1f} GB (raw {d['raw_bytes'] / 1e9:.1f} + HDF5 "
                    f"{d['h5_bytes'] / 1e9:.1f}; fits the {pj['free_bytes_now'] / 1e9:.0f} GB free now: "
                    f"{yes[d['fits_free_disk_now']]}), {fin}"

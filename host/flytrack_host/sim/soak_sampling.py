@@ -105,10 +105,20 @@ def udp_socket(port: int) -> dict[str, int] | None:
 
 
 def folder_bytes(path: Path) -> int:
+    """The raw files of a recording folder so far (its parts' too; not the HDF5 files the background
+    finaliser writes beside them)."""
+    from flytrack_host.recording.schema import H5_NAME
+
+    total = 0
     try:
-        return sum(e.stat().st_size for e in os.scandir(path) if e.is_file())
+        for e in os.scandir(path):
+            if e.is_dir():
+                total += folder_bytes(Path(e.path))
+            elif e.is_file() and e.name != H5_NAME and not e.name.endswith(".tmp"):
+                total += e.stat().st_size
     except OSError:
-        return 0
+        pass
+    return total
 
 
 # --- latency windows -------------------------------------------------------------------------------

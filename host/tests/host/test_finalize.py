@@ -83,7 +83,7 @@ def test_rig_json_is_kept_when_there_is_no_rig_text(helpers, tmp_path):
     rec = load_recording(summary["recording"])
     assert "rig.json" in rec.files
     assert json.loads(rec.files["rig.json"])["name"] == "testrig"
-    assert "rig.json" in _load_raw(tmp_path / "r").files  # the raw folder, as before finalising
+    assert "rig.json" in _load_raw(tmp_path / "r" / "part-0001").files  # the raw folder, as before finalising
 
 
 def test_recover_a_folder_that_does_not_exist(tmp_path):

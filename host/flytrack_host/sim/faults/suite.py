@@ -119,17 +119,18 @@ def _run_killed(sc: Scenario, out: Path, timeout_s: float, more: list[str]) -> d
     import signal
 
     from flytrack_host.recording import load_recording
+    from flytrack_host.recording.parts import recording_started
     from flytrack_host.sim.run import PREROLL_FRAMES
     from flytrack_host.util import hostclock
 
     row: dict[str, Any] = {"name": sc.name, "fault": sc.label, "lost_ok": sc.lost_ok}
     cmd = [sys.executable, "-m", "flytrack_host.sim.faults", "one", sc.name, "--out", str(out), *more]
     p = children.popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    meta = out / "recording.flytrack" / "meta.json"
+    folder = out / "recording.flytrack"
     end = time.monotonic() + timeout_s
-    while not meta.exists() and p.poll() is None and time.monotonic() < end:
+    while not recording_started(folder) and p.poll() is None and time.monotonic() < end:
         time.sleep(0.05)
-    if not meta.exists():
+    if not recording_started(folder):
         os.killpg(p.pid, signal.SIGKILL)
         p.wait()
         return {**row, "error": "the run never started recording"}
@@ -137,10 +138,10 @@ def _run_killed(sc: Scenario, out: Path, timeout_s: float, more: list[str]) -> d
     os.killpg(p.pid, signal.SIGKILL)  # the host, its edges, simulated cameras and trigger: all at once
     t_kill = hostclock.now()
     p.wait()
-    r = children.run([sys.executable, "-m", "flytrack_host.cli", "recording", "recover", str(meta.parent)],
+    r = children.run([sys.executable, "-m", "flytrack_host.cli", "recording", "recover", str(folder)],
                      capture_output=True, text=True, timeout=120)
     said = (r.stdout + r.stderr).strip().splitlines()
-    d = load_recording(meta.parent).table("data2d_distorted")
+    d = load_recording(folder).table("data2d_distorted")
     d = d[d["camera_frame"] >= PREROLL_FRAMES]
     got = {(int(c), int(f)) for c, f in zip(d["camera_index"], d["camera_frame"], strict=True)}
     t = d["cam_received_timestamp"]
