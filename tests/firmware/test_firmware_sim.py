@@ -170,7 +170,8 @@ def test_stop_never_cuts_a_pulse_short(built, figures) -> None:
     clock queries each land all over the frame."""
     harness, elf = built
     with SimulatedTrigger(elf=elf, harness=harness) as sim:
-        dev = TriggerDevice(sim.pty, reset_wait_s=0)
+        # The queries only move the STOPs around the frame: a loaded machine may answer them late.
+        dev = TriggerDevice(sim.pty, reset_wait_s=0, timeout_s=10.0)
         dev.set_rate(4000.0)  # /1, TOP 3999
         assert dev.rate is not None and dev.rate.divisor == 1
         for i in range(400):
