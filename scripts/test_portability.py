@@ -165,7 +165,7 @@ def main() -> int:
         cells = []
         for t in threads:
             r = next(x for x in rows if x["core"] == core and x["threads"] == t)
-            cells.append(f"{r['passed']:>4} ok" + (f" {r['failed']} FAIL" if r["failed"] or r["rc"] else "       "))
+            cells.append(f"{r['passed']:>4} ok" + (f", {r['failed']} FAIL" if r["failed"] or r["rc"] else ""))
         print(f"{core:<12} | " + " | ".join(c.ljust(11) for c in cells))
     for r in rows:
         for f in r["failures"]:
