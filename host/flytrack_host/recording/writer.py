@@ -86,8 +86,8 @@ class RecorderStats:
     roll_errors: int = 0  # new parts that could not be made (the writer went on in the old one)
     parts_finalised_background: int = 0
     finalise_background_s: float = 0.0
-    finalise_at_stop_bytes: int = 0  # raw bytes stop() finalised or waited on (None before stop)
-    finalise_at_stop_s: float | None = None
+    finalise_at_stop_bytes: int = 0  # raw bytes stop() finalised or waited on
+    finalise_at_stop_s: float | None = None  # how long that took (None: not stopped, or not finalised)
 
 
 class Recorder(PartsMixin):

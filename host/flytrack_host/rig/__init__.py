@@ -128,11 +128,12 @@ class RecordingConfig(_Strict):
     folder: str = Field("recordings", description="Folder for recordings, relative to the rig file.")
     flush_interval_s: float = Field(1.0, gt=0, le=10, description="Append-only files are flushed this often.")
     part_minutes: float = Field(10.0, ge=0, description="Start a new part of the recording this often (minutes; "
-                                "0: no time limit). Each part is finalised in the background once closed, so "
-                                "stopping finalises only the last one; a crash damages only the part being written.")
-    part_gb: float = Field(1.0, ge=0, description="... or once a part holds this many GB (0: no size limit), "
-                           "whichever comes first. Both 0: one folder of raw files and one recording.h5, unparted "
-                           "(stopping then finalises the whole recording: about 6-7 s per GB).")
+                                "0: no time limit), or at part_gb, whichever comes first. Each part is finalised in "
+                                "the background once closed, so stopping finalises only the last one, and a crash "
+                                "damages only the part being written (docs/recordings.md).")
+    part_gb: float = Field(1.0, ge=0, description="Start a new part once the part holds this many GB (0: no size "
+                           "limit), or at part_minutes, whichever comes first. Both 0: one unparted recording "
+                           "(stopping then finalises the whole of it, about 6-7 s per GB).")
 
 
 ActuatorKind = Literal["trigger_pulse", "modbus", "can", "hid", "usb", "udp", "python"]

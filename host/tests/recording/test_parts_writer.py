@@ -178,7 +178,8 @@ def test_stop_finalises_one_part_whatever_the_length(tmp_path) -> None:
         at_stop[n_parts] = st.finalise_at_stop_bytes
         assert 0 < st.finalise_at_stop_bytes <= part_bytes + 64 << 10, st  # one part (and its text log, meta)
         total = sum(f.stat().st_size for p in parts for f in p.iterdir() if f.is_file() and f.name != H5_NAME)
-        print(f"{n_parts} parts ({total / 1e6:.2f} MB): finalised at stop {st.finalise_at_stop_bytes / 1e6:.3f} MB "
+        print(f"{n_parts} parts' worth ({total / 1e6:.2f} MB, {len(parts)} parts): finalised at stop "
+              f"{st.finalise_at_stop_bytes / 1e6:.3f} MB "
               f"in {st.finalise_at_stop_s:.2f} s; {st.parts_finalised_background} in the background "
               f"({st.finalise_background_s:.1f} s)")
         assert load_recording(tmp_path / f"p{n_parts}").table("data2d_distorted").size == 3 * n_parts * (
