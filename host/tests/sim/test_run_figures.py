@@ -24,6 +24,7 @@ def _recording(path, shift_cam1_from: int):
             rows.append(r)
     with h5py.File(path, "w") as f:
         f["data2d_distorted"] = np.concatenate(rows)
+        f.attrs["format"] = '"flytrack-recording"'  # what the reader checks (attributes are JSON)
     return path
 
 
