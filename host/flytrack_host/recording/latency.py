@@ -118,17 +118,8 @@ class LatencyStats:
         return self.counts["total"].copy(), np.arange(0.0, MAX_MS + BIN_MS / 2, BIN_MS)
 
     def percentile(self, part: str, q: float) -> float:
-        c = self.counts[part]
-        in_range = int(c.sum())
-        total = in_range + self.overflow_n[part]
-        if total == 0:
-            return math.nan
-        rank = max(1, math.ceil(q / 100.0 * total))
-        if rank > in_range:  # among the values of 1 s or more: exact, from the kept ones
-            kept = sorted(self.overflow[part])
-            return kept[min(rank - in_range, len(kept)) - 1]
-        k = int(np.searchsorted(np.cumsum(c), rank))
-        return min((k + 0.5) * BIN_MS, self.max_ms[part])
+        return histogram_percentile(self.counts[part], self.overflow[part], q, self.overflow_n[part],
+                                    self.max_ms[part])
 
     def summary(self) -> dict[str, float]:
         out: dict[str, float] = {"n": float(self.n)}
@@ -152,3 +143,21 @@ class LatencyStats:
                              f"max {s[f'{p}_max_ms']:8.2f}"
                              + (f"  ({over} frames at {MAX_MS / 1e3:g} s or more)" if over else ""))
         return "\n".join(lines)
+
+
+def histogram_percentile(counts: np.ndarray, over_ms: list[float], q: float, n_over: int | None = None,
+                         max_ms: float = math.inf) -> float:
+    """The q-th percentile (ms) of a latency histogram: `counts` per BIN_MS bin from 0, and the values of
+    MAX_MS or more kept exactly in `over_ms` (`n_over` of them in all, when not all were kept). A rank
+    among the bins gives its bin's middle (at most `max_ms`, the largest value seen)."""
+    in_range = int(np.sum(counts))
+    n_over = len(over_ms) if n_over is None else n_over
+    total = in_range + n_over
+    if total == 0:
+        return math.nan
+    rank = max(1, math.ceil(q / 100.0 * total))
+    if rank > in_range:  # among the values of 1 s or more: exact, from the kept ones
+        kept = sorted(over_ms)
+        return kept[min(rank - in_range, len(kept)) - 1]
+    k = int(np.searchsorted(np.cumsum(counts), rank))
+    return min((k + 0.5) * BIN_MS, max_ms)

@@ -10,7 +10,6 @@ as the run goes (nothing is kept in the host process, whose memory is under test
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import subprocess
@@ -123,19 +122,14 @@ def folder_bytes(path: Path) -> int:
 
 # --- latency windows -------------------------------------------------------------------------------
 def hist_percentile(bins: list[int], counts: list[int], over_ms: list[float], q: float, bin_ms: float) -> float:
-    """Percentile (ms) of a sparse latency histogram (bin index -> count, bins of `bin_ms`) and the exact
-    values past its end, as recording.latency.LatencyStats computes it."""
-    in_range = int(sum(counts))
-    total = in_range + len(over_ms)
-    if total == 0:
-        return math.nan
-    rank = max(1, math.ceil(q / 100.0 * total))
-    if rank > in_range:
-        return sorted(over_ms)[rank - in_range - 1]
-    order = np.argsort(bins)
-    cum = np.cumsum(np.asarray(counts)[order])
-    k = int(np.asarray(bins)[order][int(np.searchsorted(cum, rank))])
-    return (k + 0.5) * bin_ms
+    """Percentile (ms) of a sparse latency histogram (bin index -> count, bins of `bin_ms`, the host's
+    BIN_MS) and the exact values past its end: recording.latency's on the dense histogram."""
+    from flytrack_host.recording.latency import BIN_MS, histogram_percentile
+
+    assert bin_ms == BIN_MS, "the soak's windows are the host's latency bins"
+    dense = np.zeros(max(bins, default=-1) + 1, dtype=np.int64)
+    np.add.at(dense, np.asarray(bins, dtype=np.int64), np.asarray(counts, dtype=np.int64))
+    return histogram_percentile(dense, over_ms, q)
 
 
 def merge_hists(windows: list[dict[str, Any]]) -> tuple[list[int], list[int], list[float]]:
