@@ -4,9 +4,9 @@ memory (the recording keeps them all), counting every one; a demo that scores ev
 from __future__ import annotations
 
 from flytrack_host.actuation.devices.base import Job, Outcome
-from flytrack_host.actuation.engine import ALL_FIRES, RECENT_FIRES
+from flytrack_host.actuation.engine import ALL_FIRES, RECENT_FIRES, ActuationEngine
 from flytrack_host.actuation.firings import FiringLog
-from flytrack_host.actuation.rules import Action
+from flytrack_host.actuation.rules import Action, parse_rules
 
 
 def _outcome(n: int) -> Outcome:
@@ -24,5 +24,16 @@ def test_the_firing_log_keeps_the_latest_and_counts_all() -> None:
 
 
 def test_a_live_run_keeps_a_bounded_history() -> None:
-    # A day at 4 firings a second is ~350 000: a live run must stay far below, a demo's runs well within.
-    assert RECENT_FIRES <= 4096 < ALL_FIRES
+    """The engine `flytrack run` builds (the default) bounds every per-firing list at RECENT_FIRES; the
+    demo's scoring engine keeps them all."""
+    box = {"inside": {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}}}
+    rules = parse_rules({"rules": [{"name": "box", "dry_run": True, "when": box}]})
+    live, scored = ActuationEngine(rules, [], 100.0), ActuationEngine(rules, [], 100.0, keep=ALL_FIRES)
+    try:
+        for eng, n in ((live, RECENT_FIRES), (scored, ALL_FIRES)):
+            assert {eng.fires.maxlen, eng.shadow_fires.maxlen, eng.stages.maxlen, eng.sends.maxlen,
+                    eng.firings.rows.maxlen} == {n}
+        assert RECENT_FIRES <= 4096  # a day at 4 firings a second (~350 000) must not live in memory
+    finally:
+        live.close()
+        scored.close()
