@@ -281,7 +281,7 @@ def soak(cfg: SoakConfig, say: Any = print) -> dict[str, Any]:
 def _closed_loop_summary(act: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, d in (act or {}).get("rules", {}).items():
-        out[name] = {k: d.get(k) for k in ("fired", "expected", "missed", "false_fires", "latency_ms_p50",
+        out[name] = {k: d.get(k) for k in ("fired", "expected", "missed", "false_fires", "scored", "latency_ms_p50",
                                            "latency_ms_p99", "frame_error_max")}
     if act:
         out["modbus_coil_writes"] = act.get("modbus_coil_writes")

@@ -449,8 +449,10 @@ def summary_lines(r: dict[str, Any]) -> list[str]:
     cl = r["closed_loop"]
     for name, d in cl.items():
         if isinstance(d, dict):
-            out.append(f"closed loop {name}: fired {d['fired']}/{d['expected']}, missed {d['missed']}, false "
-                       f"{d['false_fires']}, ack P50/P99 {_fmt(d['latency_ms_p50'])}/{_fmt(d['latency_ms_p99'])} ms; "
+            scored = (f"missed {d['missed']}, false {d['false_fires']}" if d.get("missed") is not None
+                      else "not scored (only the latest firings were kept; the recording has them all)")
+            out.append(f"closed loop {name}: fired {d['fired']}/{d['expected']}, {scored}, ack P50/P99 "
+                       f"{_fmt(d['latency_ms_p50'])}/{_fmt(d['latency_ms_p99'])} ms; "
                        f"Modbus writes {cl.get('modbus_coil_writes')}")
     ce = r["clients_end"].get("clients") or {}
     pg = r["clients_end"].get("page") or {}
